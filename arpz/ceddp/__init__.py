@@ -1,0 +1,1 @@
+"""The CEDDP server: Zenoh router, cache control, planner, optimisers, Rerun dashboard."""

@@ -1,0 +1,106 @@
+"""Zenoh key expressions of an arpz fleet, in one place.
+
+Every key lives under ``arpz/{fleet}/`` so that several fleets can share a router and so that
+access control can grant a robot exactly ``arpz/{fleet}/robot/{robot}/**`` (less its ``cmd``
+subtree). docs/protocol.md is the user-facing description; keep the two in step.
+
+Robot and topic names are single key chunks: lowercase letters, digits, ``_`` and ``-``.
+"""
+
+from __future__ import annotations
+
+import re
+
+ROOT = "arpz"
+_CHUNK = re.compile(r"^[a-z0-9][a-z0-9_\-]*$")
+
+
+class KeyError_(ValueError):
+    """A name that cannot be used as a single Zenoh key chunk."""
+
+
+def check_chunk(name: str, *, what: str) -> str:
+    """Return ``name`` if it is a valid single chunk, else raise with a message saying how to fix it."""
+    if not _CHUNK.match(name):
+        raise KeyError_(
+            f"{what} {name!r} is not a valid key chunk: use lowercase letters, digits, '_' or '-', "
+            "starting with a letter or digit (no '/', '*', '$', '?', '#' or spaces)"
+        )
+    return name
+
+
+def fleet_prefix(fleet: str) -> str:
+    return f"{ROOT}/{check_chunk(fleet, what='fleet')}"
+
+
+def robot_prefix(fleet: str, robot: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/{check_chunk(robot, what='robot id')}"
+
+
+def sensor_key(fleet: str, robot: str, topic: str) -> str:
+    """Sensor readings of one topic of one robot (robot -> CEDDP)."""
+    return f"{robot_prefix(fleet, robot)}/sensor/{check_chunk(topic, what='topic')}"
+
+
+def command_key(fleet: str, robot: str, name: str) -> str:
+    """Commands for one robot's actuation (CEDDP -> robot)."""
+    return f"{robot_prefix(fleet, robot)}/cmd/{check_chunk(name, what='command')}"
+
+
+def presence_key(fleet: str, robot: str) -> str:
+    """Liveliness token of a running robot agent."""
+    return f"{robot_prefix(fleet, robot)}/presence"
+
+
+def stats_key(fleet: str, robot: str) -> str:
+    """Periodic counters reported by a robot (produced, sent, held back, Hello round trips)."""
+    return f"{robot_prefix(fleet, robot)}/stats"
+
+
+def announce_key(fleet: str, robot: str) -> str:
+    """What a robot publishes and subscribes to (its topics), re-sent periodically."""
+    return f"{robot_prefix(fleet, robot)}/announce"
+
+
+def ceddp_presence_key(fleet: str) -> str:
+    """Liveliness token of the CEDDP server."""
+    return f"{fleet_prefix(fleet)}/ceddp/presence"
+
+
+def ceddp_qos_key(fleet: str) -> str:
+    """QoS assignment published by the CEDDP's balancing optimiser."""
+    return f"{fleet_prefix(fleet)}/ceddp/qos"
+
+
+# Wildcards used by the CEDDP to see the whole fleet.
+def all_sensors(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/sensor/*"
+
+
+def all_presence(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/presence"
+
+
+def all_stats(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/stats"
+
+
+def all_announce(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/announce"
+
+
+def parse_robot_key(key: str) -> tuple[str, str, str] | None:
+    """Split ``arpz/{fleet}/robot/{robot}/{kind}[/{name}]`` into (robot, kind, name).
+
+    Returns None for any key outside that shape, so a caller can count it as unknown instead of
+    crashing on it. ``name`` is "" for keys without one (presence, stats, announce).
+    """
+    parts = key.split("/")
+    if len(parts) < 5 or parts[0] != ROOT or parts[2] != "robot":
+        return None
+    robot, kind = parts[3], parts[4]
+    if len(parts) == 5:
+        return robot, kind, ""
+    if len(parts) == 6:
+        return robot, kind, parts[5]
+    return None

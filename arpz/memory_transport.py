@@ -1,0 +1,139 @@
+"""An in-process ``Transport`` for unit tests: same contract as Zenoh, no sockets, synchronous.
+
+Several ``MemoryTransport`` objects attached to one ``MemoryBus`` see each other's puts and
+liveliness tokens, as clients of one router would. Delivery is synchronous (the callback runs
+inside ``put``), which makes unit tests deterministic; the real router is covered by the
+integration tests.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+
+from arpz.transport import DataCallback, Handle, LivelinessCallback, Publisher
+
+
+def key_matches(key_expr: str, key: str) -> bool:
+    """Zenoh key-expression matching for ``*`` (one chunk) and ``**`` (zero or more chunks)."""
+    pattern, chunks = key_expr.split("/"), key.split("/")
+
+    def match(i: int, j: int) -> bool:
+        if i == len(pattern):
+            return j == len(chunks)
+        if pattern[i] == "**":
+            return any(match(i + 1, k) for k in range(j, len(chunks) + 1))
+        if j == len(chunks):
+            return False
+        return (pattern[i] == "*" or pattern[i] == chunks[j]) and match(i + 1, j + 1)
+
+    return match(0, 0)
+
+
+class MemoryBus:
+    def __init__(self) -> None:
+        self.lock = threading.RLock()
+        self.subscribers: list[tuple[str, DataCallback]] = []
+        self.watchers: list[tuple[str, LivelinessCallback]] = []
+        self.tokens: dict[int, str] = {}
+        self._next_id = 0
+
+    def new_id(self) -> int:
+        with self.lock:
+            self._next_id += 1
+            return self._next_id
+
+
+class _Handle:
+    def __init__(self, on_undeclare: Callable[[], None]) -> None:
+        self._on_undeclare: Callable[[], None] | None = on_undeclare
+
+    def undeclare(self) -> None:
+        if self._on_undeclare is not None:
+            callback, self._on_undeclare = self._on_undeclare, None
+            callback()
+
+
+class _Publisher:
+    def __init__(self, transport: MemoryTransport, key: str) -> None:
+        self._transport, self._key = transport, key
+
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
+        self._transport.put(self._key, payload, attachment=attachment)
+
+    def undeclare(self) -> None:
+        pass
+
+
+class MemoryTransport:
+    def __init__(self, bus: MemoryBus) -> None:
+        self.bus = bus
+        self._handles: list[_Handle] = []
+        self.closed = False
+
+    def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
+        return _Publisher(self, key)
+
+    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+        if self.closed:
+            raise RuntimeError("put on a closed MemoryTransport")
+        with self.bus.lock:
+            targets = [cb for expr, cb in self.bus.subscribers if key_matches(expr, key)]
+        for callback in targets:
+            callback(key, payload, attachment)
+
+    def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
+        entry = (key_expr, callback)
+        with self.bus.lock:
+            self.bus.subscribers.append(entry)
+
+        def remove() -> None:
+            with self.bus.lock:
+                if entry in self.bus.subscribers:
+                    self.bus.subscribers.remove(entry)
+
+        return self._track(_Handle(remove))
+
+    def declare_token(self, key: str) -> Handle:
+        token_id = self.bus.new_id()
+        with self.bus.lock:
+            self.bus.tokens[token_id] = key
+            watchers = [cb for expr, cb in self.bus.watchers if key_matches(expr, key)]
+        for callback in watchers:
+            callback(key, True)
+
+        def remove() -> None:
+            with self.bus.lock:
+                self.bus.tokens.pop(token_id, None)
+                gone = [cb for expr, cb in self.bus.watchers if key_matches(expr, key)]
+            for callback in gone:
+                callback(key, False)
+
+        return self._track(_Handle(remove))
+
+    def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Handle:
+        entry = (key_expr, callback)
+        with self.bus.lock:
+            self.bus.watchers.append(entry)
+            present = [k for k in self.bus.tokens.values() if key_matches(key_expr, k)]
+        for key in present:
+            callback(key, True)
+
+        def remove() -> None:
+            with self.bus.lock:
+                if entry in self.bus.watchers:
+                    self.bus.watchers.remove(entry)
+
+        return self._track(_Handle(remove))
+
+    def _track(self, handle: _Handle) -> _Handle:
+        self._handles.append(handle)
+        return handle
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        for handle in reversed(self._handles):
+            handle.undeclare()
+        self._handles.clear()
+        self.closed = True

@@ -1,0 +1,133 @@
+"""Wire types of arpz: every payload on every arpz key, as msgspec Structs encoded with msgpack.
+
+Data-carrying messages (``Sample``, ``Hello``, ``Command``) are ``array_like`` so that they are
+small on a WiFi link and so that a client that imports nothing from arpz can decode them as a
+plain msgpack array whose first three elements are always ``[writer, seq, stamp_ns]``.
+Control messages (``RobotStats``, ``Announce``) are msgpack maps, so fields can be added later
+without breaking old decoders. The layouts are documented field by field in docs/protocol.md.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Final
+
+import msgspec
+
+#: The typed value of one sensor reading (seed 001, Table 1): floats for LIDAR, DHT11, IMU and
+#: Ultrasonic; bool for Flame; the strings "detect"/"not detect" (PIR) and "light"/"dark" (Light).
+SensorValue = float | bool | str
+
+#: A command's value: a scalar, a string or a vector (for example a velocity ``[v, omega]``).
+CommandValue = float | bool | str | list[float]
+
+
+class Sample(msgspec.Struct, array_like=True, frozen=True):
+    """One sensor reading, as published on ``.../sensor/{topic}``.
+
+    ``seq`` counts the samples this writer SENT on this topic (1, 2, 3, ...): readings held back
+    by the local cache take no number, so a gap in ``seq`` at the receiver is a real loss.
+    """
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    value: SensorValue
+
+
+class Hello(msgspec.Struct, array_like=True, frozen=True):
+    """The round-trip probe of seed 001 Figure 9, one hop of it.
+
+    ``stage``: 0 origin -> CEDDP, 1 CEDDP -> relay, 2 relay -> CEDDP, 3 CEDDP -> origin.
+    ``origin_seq`` and ``t0_ns`` are set once by the origin and never changed, so the origin can
+    measure the whole round trip on its own clock.
+    """
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    origin: str
+    origin_seq: int
+    t0_ns: int
+    stage: int
+
+
+class Command(msgspec.Struct, array_like=True, frozen=True):
+    """A command for a robot's actuation, as published on ``.../cmd/{name}``."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    value: CommandValue
+
+
+class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
+    """Per-topic counters kept by a robot's local cache: produced == sent + held_back."""
+
+    produced: int = 0
+    sent: int = 0
+    held_back: int = 0
+    last_seq: int = 0
+
+
+class HelloStats(msgspec.Struct, frozen=True):
+    """Hello round trips as measured by the origin robot's actuation."""
+
+    sent: int = 0
+    received: int = 0
+    lost: int = 0
+    outstanding: int = 0
+    relayed: int = 0
+    rtt_ms_p50: float | None = None
+    rtt_ms_p99: float | None = None
+    rtt_ms_max: float | None = None
+
+
+class RobotStats(msgspec.Struct, frozen=True):
+    """Counters a robot reports on ``.../stats`` periodically and once more, with final=True, at exit."""
+
+    robot: str
+    incarnation: str
+    stamp_ns: int
+    final: bool
+    topics: dict[str, TopicCounters]
+    commands_received: int = 0
+    command_decode_errors: int = 0
+    hello: HelloStats | None = None
+
+
+class TopicInfo(msgspec.Struct, frozen=True):
+    topic: str
+    kind: str
+    rate_hz: float
+    value_type: str
+
+
+class Announce(msgspec.Struct, frozen=True):
+    """What a robot publishes and listens to; the CEDDP counts topics per robot from this."""
+
+    robot: str
+    incarnation: str
+    sensors: list[TopicInfo]
+    commands: list[str]
+
+
+SAMPLE_ENCODER: Final = msgspec.msgpack.Encoder()
+SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(Sample)
+HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
+COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
+STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
+ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
+
+
+def encode(message: msgspec.Struct) -> bytes:
+    return SAMPLE_ENCODER.encode(message)
+
+
+def new_incarnation() -> str:
+    """A random id for one run of a process: a restarted writer is a new writer."""
+    return os.urandom(6).hex()
+
+
+def writer_id(robot: str, incarnation: str) -> str:
+    return f"{robot}:{incarnation}"

@@ -1,0 +1,1 @@
+"""The robot side of arpz: sensing through a local cache, actuation, presence."""

@@ -1,0 +1,26 @@
+from arpz.memory_transport import MemoryBus, MemoryTransport, key_matches
+
+
+def test_key_matching_follows_zenoh_wildcards() -> None:
+    assert key_matches("arpz/f/robot/*/sensor/*", "arpz/f/robot/r1/sensor/pir")
+    assert not key_matches("arpz/f/robot/*/sensor/*", "arpz/f/robot/r1/stats")
+    assert key_matches("arpz/**", "arpz/f/robot/r1/stats")
+    assert key_matches("arpz/f/**", "arpz/f")
+    assert not key_matches("arpz/f/*", "arpz/f/a/b")
+
+
+def test_put_reaches_matching_subscribers_and_liveliness_is_reported() -> None:
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    got: list[tuple[str, bytes, bytes | None]] = []
+    alive: list[tuple[str, bool]] = []
+    b.subscribe("x/*", lambda k, p, att: got.append((k, p, att)))
+    token = a.declare_token("p/a")
+    b.watch_liveliness("p/*", lambda k, up: alive.append((k, up)))
+    a.put("x/1", b"one", attachment=b"h")
+    a.put("y/1", b"two")
+    token.undeclare()
+    assert got == [("x/1", b"one", b"h")]
+    assert alive == [("p/a", True), ("p/a", False)]
+    a.close()
+    b.close()
