@@ -67,6 +67,11 @@ def ceddp_presence_key(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/ceddp/presence"
 
 
+def ceddp_stats_key(fleet: str) -> str:
+    """Periodic CPU and per-topic arrival rates of the CEDDP process."""
+    return f"{fleet_prefix(fleet)}/ceddp/stats"
+
+
 def ceddp_qos_key(fleet: str) -> str:
     """QoS assignment published by the CEDDP's balancing optimiser."""
     return f"{fleet_prefix(fleet)}/ceddp/qos"

@@ -68,6 +68,8 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     sent: int = 0
     held_back: int = 0
     last_seq: int = 0
+    bytes_sent: int = 0
+    rate_hz: float = 0.0
 
 
 class HelloStats(msgspec.Struct, frozen=True):
@@ -94,6 +96,25 @@ class RobotStats(msgspec.Struct, frozen=True):
     commands_received: int = 0
     command_decode_errors: int = 0
     hello: HelloStats | None = None
+    #: CPU used by the robot agent process since the last report, in % of one core
+    cpu_percent: float = 0.0
+
+
+class TopicRate(msgspec.Struct, frozen=True):
+    """What the CEDDP measured arriving on one robot topic over the last reporting interval."""
+
+    robot: str
+    topic: str
+    rate_hz: float
+    bytes_per_s: float
+
+
+class CeddpStats(msgspec.Struct, frozen=True):
+    """Periodic report of the CEDDP process on ``arpz/{fleet}/ceddp/stats``."""
+
+    stamp_ns: int
+    cpu_percent: float
+    topics: list[TopicRate]
 
 
 class TopicInfo(msgspec.Struct, frozen=True):
@@ -118,6 +139,7 @@ HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
 COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
 ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
+CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
 
 
 def encode(message: msgspec.Struct) -> bytes:
