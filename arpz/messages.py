@@ -80,6 +80,8 @@ class HelloStats(msgspec.Struct, frozen=True):
     lost: int = 0
     outstanding: int = 0
     relayed: int = 0
+    #: came back after being declared lost, or twice
+    late: int = 0
     rtt_ms_p50: float | None = None
     rtt_ms_p99: float | None = None
     rtt_ms_max: float | None = None
@@ -140,6 +142,16 @@ COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
 ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
+
+
+def same_value(a: SensorValue, b: SensorValue, tolerance: float = 0.0) -> bool:
+    """Equal in type and value (floats within ``tolerance``): True and 1.0 are NOT the same
+    reading, nor are "1" and 1.0. Used by the robot's local cache and the CEDDP's cache control."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, float) and isinstance(b, float):
+        return a == b or abs(a - b) <= tolerance
+    return a == b
 
 
 def encode(message: msgspec.Struct) -> bytes:

@@ -1,0 +1,104 @@
+"""``python -m arpz.ceddp --config ceddp.toml``: run the CEDDP server (the fleet's Zenoh router).
+
+``python -m arpz.ceddp optimise ...``: the QoS balancing optimiser of seed 001 (see
+docs/qos-optimiser.md). Exit codes: 0 clean stop, 1 runtime failure, 2 bad configuration.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from arpz.config import CeddpConfig, ConfigError, from_dict, load_toml
+from arpz.transport import SessionSettings, TransportError, ZenohTransport
+
+log = logging.getLogger("arpz.ceddp")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m arpz.ceddp", description=__doc__)
+    parser.add_argument("--config", type=Path, help="CEDDP TOML file")
+    parser.add_argument("--fleet", help="overrides fleet")
+    parser.add_argument("--listen", help="overrides listen (comma-separated endpoints)")
+    parser.add_argument("--rrd", help="overrides rrd (the Rerun recording to write)")
+    parser.add_argument("--grpc-port", type=int, help="serve a live Rerun gRPC sink on this port")
+    parser.add_argument("--summary-json", help="write a JSON summary here at shutdown")
+    parser.add_argument("--duration", type=float, dest="duration_s", help="seconds, 0 = forever")
+    parser.add_argument("--no-cache-control", action="store_true")
+    parser.add_argument("--log-level", default="INFO")
+    return parser.parse_args(argv)
+
+
+def load(args: argparse.Namespace) -> CeddpConfig:
+    overrides: dict[str, Any] = {
+        "fleet": args.fleet, "rrd": args.rrd, "grpc_port": args.grpc_port,
+        "summary_json": args.summary_json, "duration_s": args.duration_s,
+        "listen": args.listen.split(",") if args.listen else None,
+        "cache_control": False if args.no_cache_control else None,
+    }
+    if args.config is not None:
+        return load_toml(args.config, CeddpConfig, overrides)
+    return from_dict({}, CeddpConfig, overrides, source="command line")
+
+
+def serve(argv: list[str] | None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        config = load(args)
+    except ConfigError as exc:
+        print(f"arpz.ceddp: bad configuration: {exc}", file=sys.stderr)
+        return 2
+    try:
+        from arpz.ceddp.dashboard import Dashboard
+    except ImportError as exc:
+        print(f"arpz.ceddp: the server needs its extra dependencies ({exc.name} is missing): "
+              "pip install 'arpz[server]'", file=sys.stderr)
+        return 1
+    from arpz.ceddp.server import CeddpServer
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        transport = ZenohTransport.open(
+            SessionSettings(mode="router", listen=config.listen, config_file=config.zenoh_config))
+    except TransportError as exc:
+        print(f"arpz.ceddp: {exc}", file=sys.stderr)
+        return 1
+    dashboard = None
+    try:
+        dashboard = Dashboard(config.rrd, grpc_port=config.grpc_port)
+        server = CeddpServer(config, transport, dashboard=dashboard)
+        server.start()
+        print(f"arpz.ceddp: ready on {','.join(config.listen)} (rrd {config.rrd})", flush=True)
+        server.run(stop)
+        server.shutdown()
+    finally:
+        transport.close()
+        if dashboard is not None:
+            dashboard.close()
+    log.info("CEDDP stopped")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] in ("optimise", "optimize"):
+        try:
+            from arpz.ceddp.optimise_cli import main as optimise_main
+        except ImportError as exc:
+            print(f"arpz.ceddp optimise is unavailable: {exc}", file=sys.stderr)
+            return 1
+        return optimise_main(argv[1:])
+    return serve(argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

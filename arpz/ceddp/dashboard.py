@@ -1,0 +1,138 @@
+"""The CEDDP's Rerun dashboard: the only module of arpz that imports rerun.
+
+The server hands frames and events to ``Dashboard.submit``, which never blocks: a bounded queue
+feeds one logging thread, and a frame that finds the queue full is dropped and counted (Rerun
+logging costs about 50 us a call, and must never slow down a Zenoh callback or the ingest).
+Entity paths put the metric first (``/metrics/{metric}/{robot}/{topic}``) so that the one
+time-series view per metric in the blueprint picks up new robots and topics by itself.
+
+Sinks: always a FileSink (the ``.rrd``), optionally a GrpcServerSink with a memory limit that a
+viewer can connect to; never a client-side gRPC sink, which blocks forever when no viewer runs.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import rerun as rr
+import rerun.blueprint as rrb
+
+log = logging.getLogger(__name__)
+
+#: metric name -> (view title, unit) for every per-topic series
+TOPIC_METRICS: dict[str, str] = {
+    "rate_hz": "arrival rate (Hz)",
+    "bytes_per_s": "bytes/s",
+    "latency_ms_p50": "latency p50 (ms)",
+    "latency_ms_p99": "latency p99 (ms)",
+    "lost": "lost (cumulative)",
+    "held_back": "held back by local cache (cumulative)",
+    "cc_discarded": "discarded by cache control (cumulative)",
+    "decode_errors": "decode errors (cumulative)",
+}
+#: metric name -> view title for every per-robot series
+ROBOT_METRICS: dict[str, str] = {
+    "hello_rtt_ms_p50": "Hello round trip p50 (ms)",
+    "cpu_percent": "CPU (% of one core)",
+}
+TIMELINE = "time"
+
+
+@dataclass(frozen=True)
+class MetricsFrame:
+    """One reporting interval: ``topics[(robot, topic)][metric]`` and ``robots[robot][metric]``."""
+
+    stamp_ns: int
+    topics: dict[tuple[str, str], dict[str, float]] = field(default_factory=dict)
+    robots: dict[str, dict[str, float]] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Event:
+    stamp_ns: int
+    text: str
+    level: str = "INFO"
+
+
+def blueprint() -> rrb.Blueprint:
+    views: list[rrb.View] = [
+        rrb.TimeSeriesView(origin=f"/metrics/{name}", name=title)
+        for name, title in {**TOPIC_METRICS, **ROBOT_METRICS}.items()
+    ]
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Grid(*views),
+            rrb.TextLogView(origin="/events", name="fleet events"),
+            row_shares=[4, 1],
+        ),
+        collapse_panels=True,
+    )
+
+
+class Dashboard:
+    def __init__(self, rrd_path: str | Path, *, grpc_port: int = 0, recording_id: str | None = None,
+                 queue_limit: int = 10_000) -> None:
+        self.rrd_path = Path(rrd_path)
+        self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
+        self.dropped = 0
+        self.logged_rows = 0
+        self._queue: queue.Queue[MetricsFrame | Event | None] = queue.Queue(maxsize=queue_limit)
+        self._rec = rr.RecordingStream("arpz-ceddp", recording_id=recording_id)
+        sinks: list[rr.FileSink | rr.GrpcServerSink] = [rr.FileSink(str(self.rrd_path))]
+        if grpc_port:
+            sinks.append(rr.GrpcServerSink(bind_ip="0.0.0.0", port=grpc_port,
+                                           server_memory_limit="256MB"))
+        self._rec.set_sinks(*sinks, default_blueprint=blueprint())
+        self._thread = threading.Thread(target=self._run, name="arpz-dashboard", daemon=True)
+        self._thread.start()
+        self._closed = False
+
+    def submit(self, item: MetricsFrame | Event) -> bool:
+        """Queue an item for logging; False (and counted) if the queue is full."""
+        try:
+            self._queue.put_nowait(item)
+            return True
+        except queue.Full:
+            self.dropped += 1
+            return False
+
+    def _run(self) -> None:
+        rec = self._rec
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            try:
+                rec.set_time(TIMELINE, timestamp=item.stamp_ns / 1e9)
+                if isinstance(item, Event):
+                    rec.log("/events", rr.TextLog(item.text, level=item.level))
+                    continue
+                for (robot, topic), metrics in item.topics.items():
+                    for name, value in metrics.items():
+                        rec.log(f"/metrics/{name}/{_part(robot)}/{_part(topic)}",
+                                rr.Scalars(value))
+                        self.logged_rows += 1
+                for robot, metrics in item.robots.items():
+                    for name, value in metrics.items():
+                        rec.log(f"/metrics/{name}/{_part(robot)}", rr.Scalars(value))
+                        self.logged_rows += 1
+            except Exception:  # a Rerun failure must not kill the server's reporting
+                log.exception("Rerun logging failed")
+
+    def close(self) -> None:
+        """Log what is queued, then flush and close the file so it is valid."""
+        if self._closed:
+            return
+        self._closed = True
+        self._queue.put(None)
+        self._thread.join(timeout=30)
+        self._rec.flush()
+        self._rec.disconnect()
+
+
+def _part(name: str) -> str:
+    return str(rr.escape_entity_path_part(name))

@@ -1,0 +1,144 @@
+"""The CEDDP's ingest pipeline: decode, check sequence numbers, measure, cache control, plan.
+
+Pure logic driven by ``handle_sensor(key, payload, arrival_ns)``: the server feeds it from its
+worker thread, the benchmark and unit tests call it directly. Every sample ends in exactly one
+counter: decode error, cache-control discard, or passed to planning; sequence gaps are counted as
+loss per writer, so ``received + lost == sent`` can be checked against the robots' own counters.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from dataclasses import dataclass, field
+
+import msgspec
+
+from arpz import keys
+from arpz.ceddp.cache_control import CacheControl, CacheControlCounters
+from arpz.ceddp.planner import Planner, Reading
+from arpz.messages import HELLO_DECODER, SAMPLE_DECODER
+from arpz.percentiles import Distribution
+
+log = logging.getLogger(__name__)
+
+HELLO_TOPIC = "hello"
+
+
+@dataclass
+class TopicMetrics:
+    """Everything the CEDDP knows about one robot topic."""
+
+    robot: str
+    topic: str
+    received: int = 0
+    bytes: int = 0
+    decode_errors: int = 0
+    #: samples missing from the sequence (gaps) of the current writer
+    lost: int = 0
+    #: samples that arrived with a sequence number already passed (duplicate or reordered)
+    out_of_order: int = 0
+    #: samples a writer had sent before this CEDDP first heard it (not a loss: we were not there)
+    before_join: int = 0
+    #: a new writer incarnation took over the topic (robot restarted)
+    writer_changes: int = 0
+    writer: str = ""
+    next_seq: int = 0
+    highest_seq: int = 0
+    latency_ms: Distribution = field(default_factory=Distribution)
+
+
+@dataclass
+class IngestCounters:
+    unknown_keys: int = 0
+    hello_decode_errors: int = 0
+
+
+class Ingest:
+    def __init__(self, fleet: str, planner: Planner, cache_control: CacheControl) -> None:
+        self.fleet = fleet
+        self.planner = planner
+        self.cache_control = cache_control
+        self.topics: dict[tuple[str, str], TopicMetrics] = {}
+        self.counters = IngestCounters()
+        #: held by the worker while it processes a batch, and by readers of the metrics
+        self.lock = threading.Lock()
+        self._by_key: dict[str, TopicMetrics | None] = {}
+        self._prefix = keys.fleet_prefix(fleet) + "/robot/"
+
+    def metrics_for(self, key: str) -> TopicMetrics | None:
+        metrics = self._by_key.get(key)
+        if metrics is None and key not in self._by_key:
+            parsed = keys.parse_robot_key(key) if key.startswith(self._prefix) else None
+            if parsed is None or parsed[1] != "sensor" or not parsed[2]:
+                self._by_key[key] = None
+                return None
+            robot, _, topic = parsed
+            metrics = self.topics.setdefault((robot, topic), TopicMetrics(robot, topic))
+            self._by_key[key] = metrics
+        return metrics
+
+    def handle_sensor(self, key: str, payload: bytes, arrival_ns: int) -> None:
+        metrics = self.metrics_for(key)
+        if metrics is None:
+            self.counters.unknown_keys += 1
+            if self.counters.unknown_keys in (1, 10, 100) or self.counters.unknown_keys % 10000 == 0:
+                log.warning("ignoring sample on unknown key %s (%d so far)", key,
+                            self.counters.unknown_keys)
+            return
+        if metrics.topic == HELLO_TOPIC:
+            self._handle_hello(metrics, payload, arrival_ns)
+            return
+        try:
+            sample = SAMPLE_DECODER.decode(payload)
+        except msgspec.DecodeError as exc:
+            self._decode_error(metrics, key, payload, exc)
+            return
+        self._account(metrics, sample.writer, sample.seq, sample.stamp_ns, arrival_ns,
+                      len(payload))
+        if self.cache_control.admit(metrics.robot, metrics.topic, sample.value):
+            self.planner.on_reading(Reading(metrics.robot, metrics.topic, sample.value,
+                                            sample.stamp_ns, arrival_ns, sample.seq))
+
+    def _handle_hello(self, metrics: TopicMetrics, payload: bytes, arrival_ns: int) -> None:
+        try:
+            hello = HELLO_DECODER.decode(payload)
+        except msgspec.DecodeError as exc:
+            self.counters.hello_decode_errors += 1
+            self._decode_error(metrics, metrics.topic, payload, exc)
+            return
+        self._account(metrics, hello.writer, hello.seq, hello.stamp_ns, arrival_ns, len(payload))
+        self.planner.on_hello(metrics.robot, hello)
+
+    def _decode_error(self, metrics: TopicMetrics, key: str, payload: bytes,
+                      exc: Exception) -> None:
+        metrics.decode_errors += 1
+        if metrics.decode_errors in (1, 10, 100) or metrics.decode_errors % 10000 == 0:
+            log.warning("decode error #%d on %s (%d bytes): %s", metrics.decode_errors, key,
+                        len(payload), exc)
+
+    @staticmethod
+    def _account(metrics: TopicMetrics, writer: str, seq: int, stamp_ns: int, arrival_ns: int,
+                 size: int) -> None:
+        metrics.received += 1
+        metrics.bytes += size
+        metrics.latency_ms.add((arrival_ns - stamp_ns) / 1e6)
+        if writer != metrics.writer:
+            if metrics.writer:
+                metrics.writer_changes += 1
+            metrics.writer = writer
+            metrics.before_join += max(seq - 1, 0)
+            metrics.next_seq = seq + 1
+            metrics.highest_seq = seq
+            return
+        if seq == metrics.next_seq:
+            metrics.next_seq += 1
+        elif seq > metrics.next_seq:
+            metrics.lost += seq - metrics.next_seq
+            metrics.next_seq = seq + 1
+        else:
+            metrics.out_of_order += 1
+        metrics.highest_seq = max(metrics.highest_seq, seq)
+
+    def cache_counters(self, robot: str, topic: str) -> CacheControlCounters:
+        return self.cache_control.counters.get((robot, topic), CacheControlCounters())

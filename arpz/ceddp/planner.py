@@ -1,0 +1,105 @@
+"""The planner interface of the CEDDP, and the Hello relay of seed 001 Fig. 9.
+
+A planner sees only what cache control let through (``on_reading``), Hello probes
+(``on_hello``) and fleet changes (``on_robot``); it acts by sending commands through a
+``CommandSink``. It runs on the CEDDP's ingest worker thread, never on a Zenoh callback, so it
+may take its time, but a slow planner delays ingest (which is measured and reported).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+import msgspec
+
+from arpz.messages import Hello, SensorValue
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class Reading:
+    robot: str
+    topic: str
+    value: SensorValue
+    stamp_ns: int
+    arrival_ns: int
+    seq: int
+
+
+class CommandSink(Protocol):
+    def send(self, robot: str, name: str, payload: bytes) -> None:
+        """Publish ``payload`` on the robot's ``cmd/{name}`` key."""
+
+
+class Planner:
+    """Base planner: ignores everything. Subclass and override what you need."""
+
+    def on_reading(self, reading: Reading) -> None:
+        """A de-duplicated sensor reading."""
+
+    def on_hello(self, robot: str, hello: Hello) -> None:
+        """A Hello probe published by ``robot``."""
+
+    def on_robot(self, robot: str, alive: bool) -> None:
+        """A robot joined (alive) or left."""
+
+    def tick(self, now_s: float) -> None:
+        """Called periodically by the server (metrics period)."""
+
+
+@dataclass
+class HelloRelayCounters:
+    forwarded_to_relay: int = 0
+    returned_to_origin: int = 0
+    #: Hellos that could not be forwarded because no relay robot is present
+    no_relay: int = 0
+    bad_stage: int = 0
+
+
+class HelloRelay(Planner):
+    """Origin -> CEDDP -> relay -> CEDDP -> origin, each hop a real publish through the router.
+
+    The relay is the configured robot, or if none is configured, the origin itself (a one-robot
+    fleet still measures a full four-hop round trip).
+    """
+
+    def __init__(self, sink: CommandSink, writer: str, relay: str | None = None) -> None:
+        self.sink = sink
+        self.writer = writer
+        self.relay = relay
+        self.counters = HelloRelayCounters()
+        self._present: set[str] = set()
+        self._seq = 0
+        self._lock = threading.Lock()
+
+    def on_robot(self, robot: str, alive: bool) -> None:
+        with self._lock:
+            (self._present.add if alive else self._present.discard)(robot)
+
+    def on_hello(self, robot: str, hello: Hello) -> None:
+        if hello.stage == 0:
+            relay = self.relay or hello.origin
+            with self._lock:
+                known = relay in self._present or not self._present
+            if not known:
+                self.counters.no_relay += 1
+                return
+            self._forward(relay, hello, stage=1)
+            self.counters.forwarded_to_relay += 1
+        elif hello.stage == 2:
+            self._forward(hello.origin, hello, stage=3)
+            self.counters.returned_to_origin += 1
+        else:
+            self.counters.bad_stage += 1
+            log.warning("Hello with stage %d published by %s ignored", hello.stage, robot)
+
+    def _forward(self, robot: str, hello: Hello, *, stage: int) -> None:
+        self._seq += 1
+        hop = msgspec.structs.replace(hello, writer=self.writer, seq=self._seq,
+                                      stamp_ns=time.time_ns(), stage=stage)
+        self.sink.send(robot, "hello", msgspec.msgpack.encode(hop))

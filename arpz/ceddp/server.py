@@ -1,0 +1,384 @@
+"""The CEDDP server: the fleet's Zenoh router, with ingest, planning, metrics and dashboard.
+
+Threads: Zenoh callbacks only stamp the arrival time and put the sample on one queue (bounded by
+``ingest_queue_limit``; an overflow is counted, never silent). One worker drains the queue in
+batches through ``Ingest`` (decode, sequence check, cache control, planner). One ticker turns the
+counters into a ``MetricsFrame`` every ``metrics_period_s`` for the dashboard and publishes
+``CeddpStats``. The dashboard logs to Rerun on its own thread.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import msgspec
+
+from arpz import keys
+from arpz.ceddp.cache_control import CacheControl
+from arpz.ceddp.ingest import Ingest, TopicMetrics
+from arpz.ceddp.planner import HelloRelay, Planner
+from arpz.config import CeddpConfig
+from arpz.messages import (
+    ANNOUNCE_DECODER,
+    STATS_DECODER,
+    Announce,
+    CeddpStats,
+    RobotStats,
+    TopicRate,
+    encode,
+    new_incarnation,
+    writer_id,
+)
+from arpz.percentiles import Distribution, percentile
+from arpz.transport import Transport
+
+log = logging.getLogger(__name__)
+
+_SENSOR, _CONTROL, _PRESENCE = 0, 1, 2
+
+
+class DashboardLike(Protocol):
+    dropped: int
+
+    def submit(self, item: Any) -> bool: ...
+    def close(self) -> None: ...
+
+
+@dataclass
+class RobotRecord:
+    """What the CEDDP knows of one robot beyond its topics."""
+
+    alive: bool = False
+    joins: int = 0
+    leaves: int = 0
+    stats: RobotStats | None = None
+    announce: Announce | None = None
+    #: a report that could not be decoded
+    control_decode_errors: int = 0
+
+
+@dataclass
+class ServerCounters:
+    ingest_overflow: int = 0
+    unknown_control_keys: int = 0
+    events: list[str] = field(default_factory=list)
+
+
+class _TransportSink:
+    def __init__(self, transport: Transport, fleet: str) -> None:
+        self._transport = transport
+        self._fleet = fleet
+
+    def send(self, robot: str, name: str, payload: bytes) -> None:
+        self._transport.put(keys.command_key(self._fleet, robot, name), payload)
+
+
+class CeddpServer:
+    def __init__(self, config: CeddpConfig, transport: Transport, *,
+                 dashboard: DashboardLike | None = None, planner: Planner | None = None) -> None:
+        self.config = config
+        self.transport = transport
+        self.dashboard = dashboard
+        self.incarnation = new_incarnation()
+        self.sink = _TransportSink(transport, config.fleet)
+        self.hello_relay = HelloRelay(self.sink, writer_id("ceddp", self.incarnation),
+                                      relay=config.hello.relay)
+        self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
+        self.ingest = Ingest(config.fleet, _Fanout(self.planners),
+                             CacheControl(enabled=config.cache_control))
+        self.robots: dict[str, RobotRecord] = {}
+        self.counters = ServerCounters()
+        self._queue: queue.SimpleQueue[tuple[int, str, bytes, int] | None] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._started_ns = time.time_ns()
+        self._last_tick: tuple[float, float, dict[tuple[str, str], tuple[int, int]]] = (
+            time.monotonic(), time.process_time(), {})
+        self.processed = 0
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        fleet = self.config.fleet
+        limit = self.config.ingest_queue_limit
+        q = self._queue
+        counters = self.counters
+
+        def on_sensor(key: str, payload: bytes, _att: bytes | None) -> None:
+            if q.qsize() >= limit:
+                counters.ingest_overflow += 1
+                return
+            q.put((_SENSOR, key, payload, time.time_ns()))
+
+        def on_control(key: str, payload: bytes, _att: bytes | None) -> None:
+            q.put((_CONTROL, key, payload, time.time_ns()))
+
+        def on_presence(key: str, alive: bool) -> None:
+            q.put((_PRESENCE, key, b"\x01" if alive else b"", time.time_ns()))
+
+        self.transport.subscribe(keys.all_sensors(fleet), on_sensor)
+        self.transport.subscribe(f"{keys.fleet_prefix(fleet)}/robot/*/*", on_control)
+        self.transport.watch_liveliness(keys.all_presence(fleet), on_presence)
+        self.transport.declare_token(keys.ceddp_presence_key(fleet))
+        for target, name in ((self._work, "arpz-ingest"), (self._tick_loop, "arpz-metrics")):
+            thread = threading.Thread(target=target, name=name, daemon=True)
+            thread.start()
+            self._threads.append(thread)
+        self._event(f"CEDDP {self.incarnation} serving fleet '{fleet}' on "
+                    f"{', '.join(self.config.listen)}")
+
+    def run(self, stop: threading.Event) -> None:
+        end = time.monotonic() + (self.config.duration_s or float("inf"))
+        while not stop.is_set() and time.monotonic() < end:
+            stop.wait(min(0.2, max(end - time.monotonic(), 0.0)))
+
+    def shutdown(self) -> dict[str, Any]:
+        """Process what is queued, log a last frame, close the dashboard, write the summary."""
+        self._queue.put(None)
+        self._stop.set()
+        for thread in self._threads:
+            thread.join(timeout=10)
+        self._tick()
+        self._event("CEDDP stopping")
+        summary = self.summary()
+        if self.dashboard is not None:
+            self.dashboard.close()
+            summary["dashboard"]["dropped"] = self.dashboard.dropped
+        if self.config.summary_json:
+            path = Path(self.config.summary_json)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            path.write_text(json.dumps(summary, indent=2), encoding="utf-8")
+        return summary
+
+    # -- ingest worker ------------------------------------------------------------------------
+
+    def _work(self) -> None:
+        q = self._queue
+        ingest = self.ingest
+        while True:
+            item = q.get()
+            batch = [item]
+            while item is not None and len(batch) < 2000:
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    break
+                batch.append(item)
+            with ingest.lock:
+                for entry in batch:
+                    if entry is None:
+                        return
+                    kind, key, payload, arrival_ns = entry
+                    try:
+                        if kind == _SENSOR:
+                            ingest.handle_sensor(key, payload, arrival_ns)
+                            self.processed += 1
+                        elif kind == _CONTROL:
+                            self._handle_control(key, payload)
+                        else:
+                            self._handle_presence(key, bool(payload))
+                    except Exception:  # one bad sample or planner bug must not stop the CEDDP
+                        log.exception("ingest failed on %s", key)
+
+    def _handle_control(self, key: str, payload: bytes) -> None:
+        parsed = keys.parse_robot_key(key)
+        if parsed is None or parsed[1] not in ("stats", "announce") or parsed[2]:
+            self.counters.unknown_control_keys += 1
+            return
+        robot, kind, _ = parsed
+        record = self.robots.setdefault(robot, RobotRecord())
+        try:
+            if kind == "stats":
+                stats = STATS_DECODER.decode(payload)
+                if record.stats is None or not record.stats.final or stats.final:
+                    record.stats = stats
+            else:
+                record.announce = ANNOUNCE_DECODER.decode(payload)
+        except msgspec.DecodeError as exc:
+            record.control_decode_errors += 1
+            log.warning("undecodable %s report from %s: %s", kind, robot, exc)
+
+    def _handle_presence(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_robot_key(key)
+        if parsed is None:
+            return
+        robot = parsed[0]
+        record = self.robots.setdefault(robot, RobotRecord())
+        if record.alive == alive:
+            return
+        record.alive = alive
+        if alive:
+            record.joins += 1
+        else:
+            record.leaves += 1
+        self._event(f"robot {robot} {'joined' if alive else 'left'}",
+                    level="INFO" if alive else "WARN")
+        if not alive:
+            self.ingest.cache_control.forget(robot)
+        for planner in self.planners:
+            planner.on_robot(robot, alive)
+
+    # -- metrics ------------------------------------------------------------------------------
+
+    def _tick_loop(self) -> None:
+        while not self._stop.wait(self.config.metrics_period_s):
+            try:
+                self._tick()
+            except Exception:
+                log.exception("metrics tick failed")
+
+    def _tick(self) -> None:
+        now, cpu = time.monotonic(), time.process_time()
+        last_now, last_cpu, last_counts = self._last_tick
+        interval_s = max(now - last_now, 1e-6)
+        frame_topics: dict[tuple[str, str], dict[str, float]] = {}
+        rates: list[TopicRate] = []
+        counts: dict[tuple[str, str], tuple[int, int]] = {}
+        with self.ingest.lock:
+            for slot, m in self.ingest.topics.items():
+                received0, bytes0 = last_counts.get(slot, (0, 0))
+                counts[slot] = (m.received, m.bytes)
+                window = m.latency_ms.take_window()
+                row = {
+                    "rate_hz": (m.received - received0) / interval_s,
+                    "bytes_per_s": (m.bytes - bytes0) / interval_s,
+                    "lost": float(m.lost),
+                    "cc_discarded": float(self.ingest.cache_counters(*slot).hits),
+                    "decode_errors": float(m.decode_errors),
+                }
+                if window:
+                    row["latency_ms_p50"] = percentile(window, 50) or 0.0
+                    row["latency_ms_p99"] = percentile(window, 99) or 0.0
+                stats = self.robots.get(slot[0], RobotRecord()).stats
+                if stats is not None and slot[1] in stats.topics:
+                    row["held_back"] = float(stats.topics[slot[1]].held_back)
+                frame_topics[slot] = row
+                rates.append(TopicRate(robot=slot[0], topic=slot[1], rate_hz=row["rate_hz"],
+                                       bytes_per_s=row["bytes_per_s"]))
+            robots: dict[str, dict[str, float]] = {}
+            for robot, record in self.robots.items():
+                if record.stats is None:
+                    continue
+                row = {"cpu_percent": record.stats.cpu_percent}
+                hello = record.stats.hello
+                if hello is not None and hello.rtt_ms_p50 is not None:
+                    row["hello_rtt_ms_p50"] = hello.rtt_ms_p50
+                robots[robot] = row
+        self._last_tick = (now, cpu, counts)
+        cpu_percent = 100.0 * (cpu - last_cpu) / interval_s
+        if self.dashboard is not None:
+            from arpz.ceddp.dashboard import MetricsFrame
+
+            robots.setdefault("ceddp", {})["cpu_percent"] = cpu_percent
+            self.dashboard.submit(MetricsFrame(time.time_ns(), frame_topics, robots))
+        try:
+            self.transport.put(keys.ceddp_stats_key(self.config.fleet), encode(
+                CeddpStats(stamp_ns=time.time_ns(), cpu_percent=round(cpu_percent, 2),
+                           topics=rates)))
+        except Exception as exc:  # the session may be closing
+            log.debug("could not publish CEDDP stats: %s", exc)
+        for planner in self.planners:
+            planner.tick(now)
+
+    def _event(self, text: str, level: str = "INFO") -> None:
+        log.log(logging.WARNING if level == "WARN" else logging.INFO, text)
+        stamp = time.time_ns()
+        self.counters.events.append(f"{stamp}: {text}")
+        if self.dashboard is not None:
+            from arpz.ceddp.dashboard import Event
+
+            self.dashboard.submit(Event(stamp, text, level))
+
+    # -- summary ------------------------------------------------------------------------------
+
+    def summary(self) -> dict[str, Any]:
+        """Per robot and topic: what the robot says it did and what arrived here, reconciled."""
+        robots: dict[str, dict[str, Any]] = {}
+        with self.ingest.lock:
+            names = sorted({r for r, _ in self.ingest.topics} | set(self.robots))
+            for robot in names:
+                record = self.robots.get(robot, RobotRecord())
+                stats = record.stats
+                topics: dict[str, dict[str, Any]] = {}
+                for (r, topic), m in sorted(self.ingest.topics.items()):
+                    if r == robot:
+                        topics[topic] = self._topic_summary(m, stats)
+                sensor_rows = [t for name, t in topics.items() if name != "hello"]
+                latencies = [m.latency_ms for (r, t), m in self.ingest.topics.items()
+                             if r == robot and t != "hello"]
+                robots[robot] = {
+                    "alive": record.alive, "joins": record.joins, "leaves": record.leaves,
+                    "final_stats": bool(stats and stats.final),
+                    **{k: sum(t[k] for t in sensor_rows) for k in
+                       ("produced", "sent", "held_back", "received", "cc_discarded",
+                        "cc_passed", "lost", "decode_errors")},
+                    "latency_ms_p50": _merged_quantile(latencies, 50),
+                    "latency_ms_p99": _merged_quantile(latencies, 99),
+                    "cpu_percent": stats.cpu_percent if stats else None,
+                    "hello": msgspec.to_builtins(stats.hello) if stats and stats.hello else None,
+                    "topics": topics,
+                }
+        return {
+            "fleet": self.config.fleet,
+            "duration_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
+            "robots": robots,
+            "hello_relay": asdict(self.hello_relay.counters),
+            "ingest": {"processed": self.processed,
+                       "overflow": self.counters.ingest_overflow,
+                       "unknown_keys": self.ingest.counters.unknown_keys,
+                       "unknown_control_keys": self.counters.unknown_control_keys},
+            "dashboard": {"rrd": self.config.rrd, "dropped": 0},
+            "events": self.counters.events,
+        }
+
+    def _topic_summary(self, m: TopicMetrics, stats: RobotStats | None) -> dict[str, Any]:
+        cc = self.ingest.cache_counters(m.robot, m.topic)
+        counters = stats.topics.get(m.topic) if stats else None
+        tail_lost = 0
+        if stats is not None and stats.final and counters is not None and m.writer.endswith(
+                stats.incarnation):
+            # samples sent after the last one that arrived: invisible as a gap, but lost
+            tail_lost = max(counters.last_seq - m.highest_seq, 0)
+        return {
+            "produced": counters.produced if counters else 0,
+            "sent": counters.sent if counters else 0,
+            "held_back": counters.held_back if counters else 0,
+            "received": m.received,
+            "cc_discarded": cc.hits,
+            "cc_passed": cc.misses,
+            "lost": m.lost + tail_lost,
+            "out_of_order": m.out_of_order,
+            "before_join": m.before_join,
+            "decode_errors": m.decode_errors,
+            "latency_ms_p50": m.latency_ms.quantile(50),
+            "latency_ms_p99": m.latency_ms.quantile(99),
+        }
+
+
+def _merged_quantile(distributions: list[Distribution], q: float) -> float | None:
+    values: list[float] = []
+    for dist in distributions:
+        values.extend(dist.sample())
+    return percentile(values, q)
+
+
+class _Fanout(Planner):
+    """Hands every planner callback to each planner in turn."""
+
+    def __init__(self, planners: list[Planner]) -> None:
+        self.planners = planners
+
+    def on_reading(self, reading: Any) -> None:
+        for planner in self.planners:
+            planner.on_reading(reading)
+
+    def on_hello(self, robot: str, hello: Any) -> None:
+        for planner in self.planners:
+            planner.on_hello(robot, hello)

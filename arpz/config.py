@@ -1,0 +1,207 @@
+"""Configuration of robots and of the CEDDP: msgspec Structs loaded from TOML.
+
+Unknown fields are errors (a typo in a TOML file must not be silently ignored), and every error
+names the file, the field and what is wrong, so ``python -m arpz.robot`` can exit with code 2 and
+a message the user can act on.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+from typing import Any, Literal, TypeVar
+
+import msgspec
+
+from arpz import keys
+
+SensorKind = Literal["lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light"]
+SENSOR_KINDS: tuple[str, ...] = ("lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light")
+
+
+class ConfigError(ValueError):
+    """A configuration that cannot be used; ``str()`` names the file, the field and the problem."""
+
+
+class _Base(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    pass
+
+
+class SensorConfig(_Base):
+    """One sensor of a robot, published on ``arpz/{fleet}/robot/{robot}/sensor/{name}``."""
+
+    name: str
+    kind: SensorKind
+    rate_hz: float = 10.0
+    #: "sim" (seeded simulated driver), "replay" (plays ``trace``), or "module.path:ClassName"
+    driver: str = "sim"
+    trace: str | None = None
+    #: floats closer than this to the last sent value count as unchanged (local cache)
+    tolerance: float = 0.0
+    #: overrides the robot's local_cache.max_silence_s for this sensor
+    max_silence_s: float | None = None
+    seed: int | None = None
+    #: free-form options handed to the driver (e.g. a GPIO pin for a hardware driver)
+    options: dict[str, Any] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        keys.check_chunk(self.name, what="sensor name")
+        if self.name == "hello":
+            raise ValueError("'hello' is reserved for the Hello round-trip probe")
+        if not self.rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
+        if self.tolerance < 0:
+            raise ValueError(f"tolerance must be >= 0, got {self.tolerance}")
+        if self.max_silence_s is not None and self.max_silence_s <= 0:
+            raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
+        if self.driver == "replay" and not self.trace:
+            raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
+
+
+class LocalCacheConfig(_Base):
+    enabled: bool = True
+    #: the longest a topic may stay silent: after this an unchanged value is sent anyway, so the
+    #: CEDDP can tell "unchanged" from "dead"
+    max_silence_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.max_silence_s <= 0:
+            raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
+
+
+class HelloConfig(_Base):
+    """The Hello round-trip probe of seed 001 Fig. 9; only the origin robot enables it."""
+
+    enabled: bool = False
+    rate_hz: float = 10.0
+    #: a Hello not back after this long is counted as lost
+    timeout_s: float = 2.0
+
+    def __post_init__(self) -> None:
+        if not self.rate_hz > 0:
+            raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
+        if not self.timeout_s > 0:
+            raise ValueError(f"timeout_s must be > 0, got {self.timeout_s}")
+
+
+class RobotConfig(_Base):
+    robot_id: str
+    fleet: str = "default"
+    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    #: a Zenoh JSON5 config file (TLS, access control...) applied before the fields above
+    zenoh_config: str | None = None
+    #: "machine1", "machine2", "machine3" (seed 001's sensor sets) or None
+    preset: str | None = None
+    #: publish rate of the preset's sensors
+    preset_rate_hz: float = 10.0
+    sensors: list[SensorConfig] = msgspec.field(default_factory=list)
+    local_cache: LocalCacheConfig = msgspec.field(default_factory=LocalCacheConfig)
+    hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
+    seed: int = 0
+    stats_period_s: float = 0.5
+    announce_period_s: float = 2.0
+    #: how long to keep trying to reach the server at start-up
+    connect_timeout_s: float = 30.0
+    #: 0 = run until SIGINT/SIGTERM
+    duration_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        keys.check_chunk(self.robot_id, what="robot_id")
+        keys.check_chunk(self.fleet, what="fleet")
+        if not self.connect:
+            raise ValueError("connect must list at least one endpoint, e.g. 'tcp/192.168.1.10:7447'")
+        if self.preset is not None and self.preset not in ("machine1", "machine2", "machine3"):
+            raise ValueError(f"preset must be machine1, machine2 or machine3, got {self.preset!r}")
+        if not self.preset_rate_hz > 0:
+            raise ValueError(f"preset_rate_hz must be > 0, got {self.preset_rate_hz}")
+        names = [s.name for s in self.sensors]
+        dupes = sorted({n for n in names if names.count(n) > 1})
+        if dupes:
+            raise ValueError(f"sensor names must be unique, repeated: {', '.join(dupes)}")
+        if self.stats_period_s <= 0 or self.announce_period_s <= 0:
+            raise ValueError("stats_period_s and announce_period_s must be > 0")
+        if self.duration_s < 0:
+            raise ValueError("duration_s must be >= 0 (0 = run until stopped)")
+
+
+class CeddpHelloConfig(_Base):
+    """Where the CEDDP sends a Hello from the origin (seed 001 Fig. 9: robot 1 via robot 3)."""
+
+    relay: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.relay is not None:
+            keys.check_chunk(self.relay, what="hello.relay")
+
+
+class CeddpConfig(_Base):
+    fleet: str = "default"
+    listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    zenoh_config: str | None = None
+    #: the Rerun recording written always; the parent folder is created
+    rrd: str = "ceddp.rrd"
+    #: serve a live gRPC sink for a Rerun viewer on this port (0 = off)
+    grpc_port: int = 0
+    #: a JSON summary written at shutdown (None = not written)
+    summary_json: str | None = None
+    cache_control: bool = True
+    metrics_period_s: float = 0.5
+    #: samples waiting for the ingest worker beyond this are dropped and counted
+    ingest_queue_limit: int = 200_000
+    hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
+    #: 0 = run until SIGINT/SIGTERM
+    duration_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        keys.check_chunk(self.fleet, what="fleet")
+        if not self.listen:
+            raise ValueError("listen must list at least one endpoint, e.g. 'tcp/0.0.0.0:7447'")
+        if not 0 <= self.grpc_port <= 65535:
+            raise ValueError(f"grpc_port must be 0..65535, got {self.grpc_port}")
+        if self.metrics_period_s <= 0:
+            raise ValueError("metrics_period_s must be > 0")
+        if self.ingest_queue_limit < 1:
+            raise ValueError("ingest_queue_limit must be >= 1")
+
+
+T = TypeVar("T", bound=msgspec.Struct)
+
+
+def load_toml(path: str | Path, kind: type[T], overrides: dict[str, Any] | None = None) -> T:
+    """Read ``path`` as TOML into ``kind``; ``overrides`` (from command-line flags) win.
+
+    Raises ConfigError with the file name, the field path and the reason.
+    """
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise ConfigError(f"{path}: cannot read: {exc.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+    return from_dict(raw, kind, overrides, source=str(path))
+
+
+def from_dict(
+    raw: dict[str, Any], kind: type[T], overrides: dict[str, Any] | None = None, *, source: str
+) -> T:
+    data = dict(raw)
+    for key, value in (overrides or {}).items():
+        if value is not None:
+            data[key] = value
+    try:
+        return msgspec.convert(data, kind)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"{source}: {_explain(exc)}") from None
+
+
+def _explain(exc: msgspec.ValidationError) -> str:
+    """Turn msgspec's '... - at `$.sensors[0].rate_hz`' into 'field sensors[0].rate_hz: ...'."""
+    text = str(exc)
+    if " - at `$" in text:
+        message, _, where = text.rpartition(" - at `$")
+        field = where.rstrip("`").lstrip(".")
+        return f"field '{field}': {message}"
+    return text

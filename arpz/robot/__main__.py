@@ -1,0 +1,109 @@
+"""``python -m arpz.robot --config robot.toml [flags]``: run one robot agent.
+
+Exit codes: 0 clean stop, 1 runtime failure (e.g. the server cannot be reached), 2 bad
+configuration (the message names the file, the field and the problem).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
+from arpz.robot.agent import RobotAgent
+from arpz.robot.sensors.factory import DriverError
+from arpz.robot.sensors.replay import TraceError
+from arpz.transport import SessionSettings, TransportError, ZenohTransport
+
+log = logging.getLogger("arpz.robot")
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="python -m arpz.robot", description=__doc__)
+    parser.add_argument("--config", type=Path, help="robot TOML file")
+    parser.add_argument("--robot-id", help="overrides robot_id")
+    parser.add_argument("--fleet", help="overrides fleet")
+    parser.add_argument("--connect", help="overrides connect (comma-separated endpoints)")
+    parser.add_argument("--preset", choices=["machine1", "machine2", "machine3"])
+    parser.add_argument("--rate", type=float, dest="preset_rate_hz", help="preset sensor rate (Hz)")
+    parser.add_argument("--duration", type=float, dest="duration_s", help="seconds, 0 = forever")
+    parser.add_argument("--seed", type=int)
+    parser.add_argument("--hello", action="store_true", help="be the Hello origin")
+    parser.add_argument("--no-local-cache", action="store_true", help="send every reading")
+    parser.add_argument("--log-level", default="INFO")
+    return parser.parse_args(argv)
+
+
+def load(args: argparse.Namespace) -> RobotConfig:
+    overrides: dict[str, Any] = {
+        "robot_id": args.robot_id, "fleet": args.fleet, "preset": args.preset,
+        "preset_rate_hz": args.preset_rate_hz, "duration_s": args.duration_s, "seed": args.seed,
+        "connect": args.connect.split(",") if args.connect else None,
+    }
+    if args.config is not None:
+        config = load_toml(args.config, RobotConfig, overrides)
+        source = str(args.config)
+    else:
+        if not args.robot_id:
+            raise ConfigError("command line: give --config FILE or at least --robot-id")
+        config = from_dict({}, RobotConfig, overrides, source="command line")
+        source = "command line"
+    extra: dict[str, Any] = {}
+    if args.hello:
+        extra["hello"] = {"enabled": True}
+    if args.no_local_cache:
+        extra["local_cache"] = {"enabled": False}
+    if extra:
+        import msgspec
+
+        merged = msgspec.to_builtins(config)
+        for key, value in extra.items():
+            merged[key] = {**merged.get(key, {}), **value}
+        config = from_dict(merged, RobotConfig, source=source)
+    return config
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    logging.basicConfig(level=args.log_level.upper(),
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        config = load(args)
+    except ConfigError as exc:
+        print(f"arpz.robot: bad configuration: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    try:
+        transport = ZenohTransport.open(
+            SessionSettings(mode="client", connect=config.connect, config_file=config.zenoh_config),
+            timeout_s=config.connect_timeout_s)
+    except TransportError as exc:
+        print(f"arpz.robot: {exc}", file=sys.stderr)
+        return 1
+    try:
+        base_dir = args.config.parent if args.config is not None else Path.cwd()
+        try:
+            agent = RobotAgent(config, transport, base_dir=base_dir)
+        except (DriverError, TraceError, ValueError) as exc:
+            print(f"arpz.robot: bad configuration: {args.config or 'command line'}: {exc}",
+                  file=sys.stderr)
+            return 2
+        agent.start()
+        print(f"arpz.robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True)
+        agent.run(stop)
+        agent.shutdown()
+    finally:
+        transport.close()
+    log.info("robot %s stopped", config.robot_id)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,308 @@
+"""The robot agent: sensing through the local cache, actuation, presence and self-reporting.
+
+Threads: one scheduler thread runs every periodic job (each sensor at its rate, the Hello probe,
+stats and announcements) from a heap of due times, so a robot with many sensors does not need a
+thread per sensor; one command worker decodes commands handed over by the Zenoh callback through
+a queue, so the callback never blocks.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+
+from arpz import keys
+from arpz.config import RobotConfig, SensorConfig
+from arpz.messages import (
+    COMMAND_DECODER,
+    HELLO_DECODER,
+    Announce,
+    Hello,
+    RobotStats,
+    Sample,
+    TopicCounters,
+    TopicInfo,
+    encode,
+    new_incarnation,
+    writer_id,
+)
+from arpz.robot.actuation import Actuator, RecordingActuator
+from arpz.robot.hello import HelloTracker
+from arpz.robot.local_cache import LocalCache
+from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors, value_type_of
+from arpz.robot.sensors.base import check_value
+from arpz.transport import Publisher, Transport
+
+log = logging.getLogger(__name__)
+
+#: the command topics every agent listens on, beyond what its actuator declares
+HELLO_TOPIC = "hello"
+
+
+def effective_sensors(config: RobotConfig) -> list[SensorConfig]:
+    """The preset's sensors, then the explicit ones (an explicit sensor replaces a preset one
+    of the same name)."""
+    explicit = {s.name: s for s in config.sensors}
+    base = preset_sensors(config.preset, config.preset_rate_hz) if config.preset else []
+    merged = [explicit.pop(s.name, s) for s in base]
+    return merged + [s for s in config.sensors if s.name in explicit]
+
+
+@dataclass
+class _SensorChannel:
+    config: SensorConfig
+    driver: SensorDriver
+    cache: LocalCache
+    publisher: Publisher
+    seq: int = 0
+    bytes_sent: int = 0
+    driver_errors: int = 0
+    late_ticks: int = 0
+    sent_at_last_report: int = 0
+
+
+@dataclass(order=True)
+class _Job:
+    due_s: float
+    order: int
+    period_s: float = field(compare=False)
+    run: Callable[[float], None] = field(compare=False)
+    name: str = field(compare=False)
+
+
+class RobotAgent:
+    def __init__(self, config: RobotConfig, transport: Transport, *,
+                 actuator: Actuator | None = None, base_dir: Path | None = None) -> None:
+        self.config = config
+        self.transport = transport
+        self.actuator = actuator or RecordingActuator()
+        self.incarnation = new_incarnation()
+        self.writer = writer_id(config.robot_id, self.incarnation)
+        self.hello = HelloTracker(config.hello.timeout_s)
+        self.commands_received = 0
+        self.command_decode_errors = 0
+        self._counter_lock = threading.Lock()
+        self._commands: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
+        self._hello_seq = 0
+        self._hello_writer_seq = 0
+        self._hello_lock = threading.Lock()
+        self._hello_pub = transport.publisher(
+            keys.sensor_key(config.fleet, config.robot_id, HELLO_TOPIC), express=True)
+        self._start_s = time.monotonic()
+        self._last_cpu = (time.monotonic(), time.process_time())
+        base_dir = base_dir or Path.cwd()
+        self.sensors: list[_SensorChannel] = []
+        for sensor in effective_sensors(config):
+            silence = sensor.max_silence_s or config.local_cache.max_silence_s
+            self.sensors.append(_SensorChannel(
+                config=sensor,
+                driver=make_driver(sensor, robot_id=config.robot_id, robot_seed=config.seed,
+                                   base_dir=base_dir),
+                cache=LocalCache(enabled=config.local_cache.enabled, tolerance=sensor.tolerance,
+                                 max_silence_s=silence),
+                publisher=transport.publisher(
+                    keys.sensor_key(config.fleet, config.robot_id, sensor.name)),
+            ))
+        self._worker = threading.Thread(target=self._command_loop, name="arpz-commands",
+                                        daemon=True)
+        self._started = False
+
+    # -- life cycle ---------------------------------------------------------------------------
+
+    def start(self) -> None:
+        """Subscribe to commands, announce presence; sensing starts in ``run``."""
+        cfg = self.config
+        self._worker.start()
+        self.transport.subscribe(
+            f"{keys.robot_prefix(cfg.fleet, cfg.robot_id)}/cmd/*",
+            lambda key, payload, _att: self._commands.put((key, payload)),
+        )
+        self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
+        self._publish_announce(0.0)
+        self._started = True
+        log.info("robot %s (%s) started with %d sensors", cfg.robot_id, self.incarnation,
+                 len(self.sensors))
+
+    def run(self, stop: threading.Event) -> None:
+        """Run the periodic jobs until ``stop`` is set or the configured duration has passed."""
+        if not self._started:
+            self.start()
+        jobs = self._jobs()
+        heapq.heapify(jobs)
+        end_s = self.config.duration_s or float("inf")
+        while not stop.is_set():
+            now_s = time.monotonic() - self._start_s
+            if now_s >= end_s:
+                break
+            job = jobs[0]
+            if job.due_s > now_s:
+                stop.wait(min(job.due_s - now_s, 0.05))
+                continue
+            job.run(now_s)
+            job.due_s += job.period_s
+            if job.due_s < now_s - job.period_s:
+                # fell more than a period behind (a slow driver or an overloaded CPU): count it
+                # and re-align instead of bursting to catch up
+                self._count_late(job.name, int((now_s - job.due_s) / job.period_s))
+                job.due_s = now_s + job.period_s
+            heapq.heapreplace(jobs, job)
+
+    def shutdown(self) -> None:
+        """Wait (bounded) for Hellos in flight, report final stats, stop the actuator."""
+        if self.config.hello.enabled:
+            deadline = time.monotonic() + self.config.hello.timeout_s
+            while self.hello.outstanding and time.monotonic() < deadline:
+                time.sleep(0.01)
+            self.hello.expire(time.time_ns(), all_outstanding=True)
+        self._commands.put(None)
+        self._worker.join(timeout=2.0)
+        self._publish_stats(final=True)
+        self.actuator.stop()
+        for sensor in self.sensors:
+            sensor.driver.close()
+
+    # -- jobs -----------------------------------------------------------------------------------
+
+    def _jobs(self) -> list[_Job]:
+        cfg = self.config
+        jobs: list[_Job] = []
+        for index, sensor in enumerate(self.sensors):
+            jobs.append(_Job(0.0, len(jobs), 1.0 / sensor.config.rate_hz,
+                             lambda now, s=sensor: self._sense(s, now), sensor.config.name))
+            del index
+        if cfg.hello.enabled:
+            jobs.append(_Job(0.0, len(jobs), 1.0 / cfg.hello.rate_hz, self._send_hello, "hello"))
+        jobs.append(_Job(cfg.stats_period_s, len(jobs), cfg.stats_period_s,
+                         lambda now: self._publish_stats(final=False), "stats"))
+        jobs.append(_Job(cfg.announce_period_s, len(jobs), cfg.announce_period_s,
+                         self._publish_announce, "announce"))
+        return jobs
+
+    def _sense(self, sensor: _SensorChannel, now_s: float) -> None:
+        try:
+            value = check_value(sensor.config.kind, sensor.driver.read(now_s))
+        except Exception as exc:  # a driver bug or a device error must not stop the robot
+            sensor.driver_errors += 1
+            if sensor.driver_errors in (1, 10, 100) or sensor.driver_errors % 1000 == 0:
+                log.error("sensor %s: driver error #%d: %s", sensor.config.name,
+                          sensor.driver_errors, exc)
+            return
+        if not sensor.cache.offer(value, now_s):
+            return
+        sensor.seq += 1
+        payload = encode(Sample(self.writer, sensor.seq, time.time_ns(), value))
+        sensor.bytes_sent += len(payload)
+        sensor.publisher.put(payload)
+
+    def _send_hello(self, now_s: float) -> None:
+        with self._hello_lock:
+            self._hello_seq += 1
+            origin_seq = self._hello_seq
+        t0_ns = time.time_ns()
+        self.hello.on_sent(origin_seq, t0_ns)
+        self._put_hello(Hello(self.writer, 0, 0, self.config.robot_id, origin_seq, t0_ns, 0))
+        self.hello.expire(time.time_ns())
+
+    def _put_hello(self, hello: Hello) -> None:
+        with self._hello_lock:
+            self._hello_writer_seq += 1
+            seq = self._hello_writer_seq
+        stamped = msgspec.structs.replace(hello, writer=self.writer, seq=seq,
+                                          stamp_ns=time.time_ns())
+        self._hello_pub.put(encode(stamped))
+
+    def _count_late(self, job_name: str, ticks: int) -> None:
+        for sensor in self.sensors:
+            if sensor.config.name == job_name:
+                sensor.late_ticks += ticks
+        log.debug("job %s fell %d periods behind", job_name, ticks)
+
+    # -- commands -------------------------------------------------------------------------------
+
+    def _command_loop(self) -> None:
+        while True:
+            item = self._commands.get()
+            if item is None:
+                return
+            key, payload = item
+            name = key.rsplit("/", 1)[-1]
+            with self._counter_lock:
+                self.commands_received += 1
+            try:
+                if name == HELLO_TOPIC:
+                    self._on_hello(HELLO_DECODER.decode(payload))
+                else:
+                    self.actuator.apply(name, COMMAND_DECODER.decode(payload))
+            except msgspec.DecodeError as exc:
+                with self._counter_lock:
+                    self.command_decode_errors += 1
+                log.warning("undecodable command on %s (%d bytes): %s", key, len(payload), exc)
+            except Exception:
+                log.exception("actuator failed on a command on %s", key)
+
+    def _on_hello(self, hello: Hello) -> None:
+        if hello.stage == 1:
+            self.hello.on_relayed()
+            self._put_hello(msgspec.structs.replace(hello, stage=2))
+        elif hello.stage == 3 and hello.origin == self.config.robot_id:
+            self.hello.on_returned(hello.origin_seq, time.time_ns())
+        else:
+            with self._counter_lock:
+                self.command_decode_errors += 1
+            log.warning("unexpected Hello stage %d from %s", hello.stage, hello.writer)
+
+    # -- reporting ------------------------------------------------------------------------------
+
+    def counters(self) -> dict[str, TopicCounters]:
+        out: dict[str, TopicCounters] = {}
+        for sensor in self.sensors:
+            c = sensor.cache.counters
+            out[sensor.config.name] = TopicCounters(
+                produced=c.produced, sent=c.sent, held_back=c.held_back, last_seq=sensor.seq,
+                bytes_sent=sensor.bytes_sent)
+        return out
+
+    def stats(self, *, final: bool) -> RobotStats:
+        now, cpu = time.monotonic(), time.process_time()
+        last_now, last_cpu = self._last_cpu
+        self._last_cpu = (now, cpu)
+        cpu_percent = 100.0 * (cpu - last_cpu) / (now - last_now) if now > last_now else 0.0
+        counters = self.counters()
+        rated: dict[str, TopicCounters] = {}
+        interval_s = max(now - last_now, 1e-9)
+        for sensor in self.sensors:
+            c = counters[sensor.config.name]
+            rate = (c.sent - sensor.sent_at_last_report) / interval_s
+            sensor.sent_at_last_report = c.sent
+            rated[sensor.config.name] = msgspec.structs.replace(c, rate_hz=round(rate, 3))
+        with self._counter_lock:
+            received, errors = self.commands_received, self.command_decode_errors
+        hello = self.hello.stats()
+        return RobotStats(
+            robot=self.config.robot_id, incarnation=self.incarnation, stamp_ns=time.time_ns(),
+            final=final, topics=rated, commands_received=received, command_decode_errors=errors,
+            hello=hello if (self.config.hello.enabled or hello.relayed) else None,
+            cpu_percent=round(cpu_percent, 2),
+        )
+
+    def _publish_stats(self, *, final: bool) -> None:
+        stats = self.stats(final=final)
+        self.transport.put(keys.stats_key(self.config.fleet, self.config.robot_id), encode(stats))
+
+    def _publish_announce(self, now_s: float) -> None:
+        cfg = self.config
+        announce = Announce(
+            robot=cfg.robot_id, incarnation=self.incarnation,
+            sensors=[TopicInfo(topic=s.config.name, kind=s.config.kind, rate_hz=s.config.rate_hz,
+                               value_type=value_type_of(s.config.kind)) for s in self.sensors],
+            commands=[HELLO_TOPIC, *getattr(self.actuator, "commands", [])],
+        )
+        self.transport.put(keys.announce_key(cfg.fleet, cfg.robot_id), encode(announce))

@@ -1,0 +1,54 @@
+"""The robot-side local cache of seed 001 section 2.2 (Fig. 3).
+
+A reading equal to the last one SENT on the topic is held back; floats may be compared with a
+tolerance. So that a silent topic can be told apart from a dead one, an unchanged value is sent
+anyway once ``max_silence_s`` has passed since the last send (a "refresh"). Pure logic: the
+caller passes the time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from arpz.messages import SensorValue, same_value
+
+
+@dataclass
+class LocalCacheCounters:
+    produced: int = 0
+    sent: int = 0
+    held_back: int = 0
+    #: sends of an unchanged value because max_silence_s had passed (included in ``sent``)
+    refreshes: int = 0
+
+
+class LocalCache:
+    def __init__(self, *, enabled: bool = True, tolerance: float = 0.0,
+                 max_silence_s: float = 1.0) -> None:
+        if tolerance < 0 or max_silence_s <= 0:
+            raise ValueError("tolerance must be >= 0 and max_silence_s > 0")
+        self.enabled = enabled
+        self.tolerance = tolerance
+        self.max_silence_s = max_silence_s
+        self.counters = LocalCacheCounters()
+        self._last_value: SensorValue | None = None
+        self._last_sent_s = 0.0
+        self._has_last = False
+
+    def offer(self, value: SensorValue, now_s: float) -> bool:
+        """Count one produced reading; return True if it must be sent, False if held back."""
+        counters = self.counters
+        counters.produced += 1
+        if self.enabled and self._has_last and same_value(value, self._last_value, self.tolerance):  # type: ignore[arg-type]
+            if now_s - self._last_sent_s < self.max_silence_s:
+                counters.held_back += 1
+                return False
+            counters.refreshes += 1
+        else:
+            # a changed value (or the first one) is cached as it was sent, so a slow drift
+            # within the tolerance cannot creep away from what the receiver holds
+            self._last_value = value
+            self._has_last = True
+        self._last_sent_s = now_s
+        counters.sent += 1
+        return True

@@ -1,0 +1,80 @@
+"""The driver interface: one small class per sensor.
+
+A driver is asked for a reading at the sensor's configured rate; it returns the typed value of
+seed 001 Table 1. The agent owns timing, the local cache and publishing, so a hardware driver
+only has to read its device. Example (a GPIO PIR sensor)::
+
+    class GpioPir(SensorDriver):
+        kind = "pir"
+
+        def __init__(self, options: dict[str, object], seed: int) -> None:
+            self._pin = open_gpio(int(options["pin"]))
+
+        def read(self, now_s: float) -> str:
+            return "detect" if self._pin.value else "not detect"
+
+and in robot.toml: ``driver = "mypackage.sensors:GpioPir"`` with ``options = { pin = 17 }``.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from arpz.messages import SensorValue
+
+#: the Python type of each kind's value, as Table 1 of seed 001 gives it
+VALUE_TYPES: dict[str, type] = {
+    "lidar": float,
+    "dht11": float,
+    "imu": float,
+    "ultrasonic": float,
+    "flame": bool,
+    "pir": str,
+    "light": str,
+}
+
+STRING_VALUES: dict[str, tuple[str, str]] = {
+    "pir": ("detect", "not detect"),
+    "light": ("light", "dark"),
+}
+
+
+def value_type_of(kind: str) -> str:
+    return VALUE_TYPES[kind].__name__
+
+
+class SensorDriver:
+    """Base class of every driver. Subclasses set ``kind`` and implement ``read``."""
+
+    kind: ClassVar[str] = ""
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        self.options = options
+        self.seed = seed
+
+    def read(self, now_s: float) -> SensorValue:
+        """The reading at ``now_s`` seconds since the agent started."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the device; called once when the agent stops."""
+
+
+class DriverValueError(TypeError):
+    """A driver returned a value of the wrong type for its kind."""
+
+
+def check_value(kind: str, value: object) -> SensorValue:
+    """Make sure a driver's value has the Table 1 type; ints are accepted for float kinds."""
+    expected = VALUE_TYPES[kind]
+    if expected is float and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if type(value) is not expected:
+        raise DriverValueError(
+            f"a {kind} driver must return {expected.__name__}, got {type(value).__name__}: {value!r}"
+        )
+    if kind in STRING_VALUES and value not in STRING_VALUES[kind]:
+        allowed = " or ".join(repr(v) for v in STRING_VALUES[kind])
+        raise DriverValueError(f"a {kind} driver must return {allowed}, got {value!r}")
+    assert isinstance(value, float | bool | str)
+    return value

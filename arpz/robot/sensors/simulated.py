@@ -1,0 +1,172 @@
+"""Seeded simulated drivers for the seven sensor kinds of seed 001 Table 1.
+
+The point of the local cache is that real sensors repeat themselves, so these drivers model the
+physics that makes them do so instead of emitting white noise: a reading is quantised to the
+device's resolution, the scene is mostly static, and things happen in episodes (a person walks
+past the LIDAR, the PIR latches high for a few seconds, a DHT11 refreshes once a second). Every
+process is driven by the time passed in, so the same seed and the same read times give the same
+values, at any sampling rate.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from arpz.robot.sensors.base import SensorDriver
+
+
+class Episodes:
+    """A two-state continuous-time Markov process: idle for Exp(idle_mean_s), active for
+    Exp(active_mean_s), alternating. ``active(now_s)`` only ever moves forward in time."""
+
+    def __init__(self, rng: np.random.Generator, idle_mean_s: float, active_mean_s: float) -> None:
+        self._rng = rng
+        self._idle_mean_s = idle_mean_s
+        self._active_mean_s = active_mean_s
+        self._active = False
+        self._next_switch_s = float(rng.exponential(idle_mean_s))
+        self.started_s = 0.0
+
+    def active(self, now_s: float) -> bool:
+        while now_s >= self._next_switch_s:
+            self._active = not self._active
+            self.started_s = self._next_switch_s
+            mean = self._active_mean_s if self._active else self._idle_mean_s
+            self._next_switch_s += float(self._rng.exponential(mean))
+        return self._active
+
+
+def _quantise(value: float, step: float) -> float:
+    return round(round(value / step) * step, 6)
+
+
+class _Simulated(SensorDriver):
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.rng = np.random.default_rng(seed)
+
+
+class SimLidar(_Simulated):
+    """One LIDAR beam (m, 1 cm steps) towards a wall; people walk through it now and then."""
+
+    kind = "lidar"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.wall_m = float(options.get("wall_m", 2.0 + 4.0 * self.rng.random()))
+        self.passers = Episodes(self.rng, float(options.get("idle_mean_s", 8.0)), 2.5)
+        self.flicker = float(options.get("flicker", 0.05))
+
+    def read(self, now_s: float) -> float:
+        distance = self.wall_m
+        if self.passers.active(now_s):
+            # a person crossing the beam at walking speed: nearest in the middle of the episode
+            phase = now_s - self.passers.started_s
+            distance = min(distance, 0.8 + 0.6 * abs(math.sin(phase * 1.3)))
+        if self.rng.random() < self.flicker:
+            distance += 0.01 * (1 if self.rng.random() < 0.5 else -1)
+        return _quantise(distance, 0.01)
+
+
+class SimDht11(_Simulated):
+    """DHT11 temperature (degC, 1 degree resolution, refreshed at most once a second)."""
+
+    kind = "dht11"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.base_c = float(options.get("base_c", 22.0 + 4.0 * self.rng.random()))
+        self.phase = float(self.rng.random() * 2 * math.pi)
+        self._last_refresh_s = -math.inf
+        self._value = self.base_c
+
+    def read(self, now_s: float) -> float:
+        if now_s - self._last_refresh_s >= 1.0:
+            self._last_refresh_s = now_s
+            true_c = self.base_c + 1.5 * math.sin(2 * math.pi * now_s / 600 + self.phase)
+            self._value = float(round(true_c + self.rng.normal(0.0, 0.3)))
+        return self._value
+
+
+class SimImu(_Simulated):
+    """MPU-6050 acceleration magnitude (m/s^2, 16-bit steps at +-2 g): still most of the time."""
+
+    kind = "imu"
+    LSB = 9.80665 / 16384
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.moving = Episodes(self.rng, float(options.get("idle_mean_s", 10.0)), 3.0)
+
+    def read(self, now_s: float) -> float:
+        if self.moving.active(now_s):
+            value = 9.80665 + self.rng.normal(0.0, 0.8)
+        else:
+            value = 9.80665 + self.rng.normal(0.0, 0.8 * self.LSB)
+        return _quantise(value, self.LSB)
+
+
+class SimUltrasonic(_Simulated):
+    """HC-SR04 distance (cm, 0.3 cm steps) to a static object; something approaches now and then."""
+
+    kind = "ultrasonic"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.object_cm = float(options.get("object_cm", 60.0 + 100.0 * self.rng.random()))
+        self.approach = Episodes(self.rng, float(options.get("idle_mean_s", 12.0)), 3.0)
+
+    def read(self, now_s: float) -> float:
+        distance = self.object_cm
+        if self.approach.active(now_s):
+            distance = max(5.0, distance - 20.0 * (now_s - self.approach.started_s))
+        distance += self.rng.normal(0.0, 0.1)
+        return _quantise(distance, 0.3)
+
+
+class SimFlame(_Simulated):
+    """IR flame sensor: False nearly always, a flame for a few seconds on rare occasions."""
+
+    kind = "flame"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.flames = Episodes(self.rng, float(options.get("idle_mean_s", 120.0)), 5.0)
+
+    def read(self, now_s: float) -> bool:
+        return self.flames.active(now_s)
+
+
+class SimPir(_Simulated):
+    """HC-SR501 PIR: latches "detect" for a few seconds after motion."""
+
+    kind = "pir"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.motion = Episodes(self.rng, float(options.get("idle_mean_s", 15.0)), 2.5)
+
+    def read(self, now_s: float) -> str:
+        return "detect" if self.motion.active(now_s) else "not detect"
+
+
+class SimLight(_Simulated):
+    """Photosensitive module: "light" or "dark" (lights switched off now and then)."""
+
+    kind = "light"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.darkness = Episodes(self.rng, float(options.get("idle_mean_s", 60.0)), 10.0)
+
+    def read(self, now_s: float) -> str:
+        return "dark" if self.darkness.active(now_s) else "light"
+
+
+SIMULATED: dict[str, type[SensorDriver]] = {
+    cls.kind: cls
+    for cls in (SimLidar, SimDht11, SimImu, SimUltrasonic, SimFlame, SimPir, SimLight)
+}
