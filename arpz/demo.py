@@ -43,18 +43,21 @@ class Proc:
     log_path: Path
     lines: list[str] = field(default_factory=list)
     _log: TextIO | None = None
+    _reader: threading.Thread | None = None
 
     def start_reader(self) -> None:
         self._log = self.log_path.open("w", encoding="utf-8")
 
         def pump() -> None:
             assert self.popen.stdout is not None and self._log is not None
-            for line in self.popen.stdout:
-                self.lines.append(line)
-                self._log.write(line)
-                self._log.flush()
+            with self.popen.stdout, self._log:
+                for line in self.popen.stdout:
+                    self.lines.append(line)
+                    self._log.write(line)
+                    self._log.flush()
 
-        threading.Thread(target=pump, name=f"log-{self.name}", daemon=True).start()
+        self._reader = threading.Thread(target=pump, name=f"log-{self.name}", daemon=True)
+        self._reader.start()
 
     def wait_line(self, needle: str, timeout_s: float) -> None:
         deadline = time.monotonic() + timeout_s
@@ -82,6 +85,8 @@ class Proc:
         if self.popen.poll() is None:
             self.popen.kill()
             self.popen.wait()
+        if self._reader is not None:
+            self._reader.join(timeout=10)
 
     def tail(self, n: int = 15) -> str:
         return "".join(self.lines[-n:])

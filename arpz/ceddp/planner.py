@@ -85,8 +85,8 @@ class HelloRelay(Planner):
         if hello.stage == 0:
             relay = self.relay or hello.origin
             with self._lock:
-                known = relay in self._present or not self._present
-            if not known:
+                known = relay in self._present
+            if not known:  # forwarding to an absent robot would lose it silently in Zenoh
                 self.counters.no_relay += 1
                 return
             self._forward(relay, hello, stage=1)

@@ -1,0 +1,90 @@
+from arpz.ceddp.cache_control import CacheControl
+from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.planner import HelloRelay, Planner, Reading
+from arpz.messages import HELLO_DECODER, Hello, Sample, encode
+
+KEY = "arpz/f/robot/r1/sensor/pir"
+
+
+class Collect(Planner):
+    def __init__(self) -> None:
+        self.readings: list[Reading] = []
+        self.hellos: list[tuple[str, Hello]] = []
+
+    def on_reading(self, reading: Reading) -> None:
+        self.readings.append(reading)
+
+    def on_hello(self, robot: str, hello: Hello) -> None:
+        self.hellos.append((robot, hello))
+
+
+def feed(
+    ingest: Ingest, key: str, seqs: list[int], value: object = "detect", writer: str = "r1:a"
+) -> None:
+    for seq in seqs:
+        ingest.handle_sensor(key, encode(Sample(writer, seq, 1000, value)), 2_001_000)  # type: ignore[arg-type]
+
+
+def test_gaps_are_loss_and_late_ones_are_out_of_order() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=False))
+    feed(ingest, KEY, [1, 2, 5, 4, 6])
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.lost, m.out_of_order, m.next_seq) == (5, 2, 1, 7)
+    assert m.latency_ms.quantile(50) == 2.0
+
+
+def test_a_new_writer_is_a_new_stream_and_a_late_join_is_not_loss() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=False))
+    feed(ingest, KEY, [10, 11])
+    feed(ingest, KEY, [1, 2, 3], writer="r1:b")
+    m = ingest.topics[("r1", "pir")]
+    assert (m.lost, m.before_join, m.writer_changes, m.received) == (0, 9, 1, 5)
+
+
+def test_cache_control_sits_between_ingest_and_planner() -> None:
+    planner = Collect()
+    ingest = Ingest("f", planner, CacheControl())
+    feed(ingest, KEY, [1, 2, 3], value="detect")
+    feed(ingest, KEY, [4], value="not detect")
+    assert [r.seq for r in planner.readings] == [1, 4]
+    assert ingest.cache_counters("r1", "pir").hits == 2
+
+
+def test_bad_payloads_and_unknown_keys_are_counted_not_raised() -> None:
+    planner = Collect()
+    ingest = Ingest("f", planner, CacheControl())
+    ingest.handle_sensor(KEY, b"\xff\x00garbage", 0)
+    ingest.handle_sensor(KEY, encode(Sample("w", 1, 0, "x")) + b"trailing", 0)
+    ingest.handle_sensor("arpz/f/robot/r1/sensor/pir/extra", b"", 0)
+    ingest.handle_sensor("arpz/other/robot/r1/sensor/pir", b"", 0)
+    ingest.handle_sensor("arpz/f/robot/r1/sensor/hello", b"\x01", 0)
+    assert ingest.topics[("r1", "pir")].decode_errors == 2
+    assert ingest.topics[("r1", "hello")].decode_errors == 1
+    assert ingest.counters.unknown_keys == 2
+    assert planner.readings == []
+
+
+class Sink:
+    def __init__(self) -> None:
+        self.sent: list[tuple[str, str, Hello]] = []
+
+    def send(self, robot: str, name: str, payload: bytes) -> None:
+        self.sent.append((robot, name, HELLO_DECODER.decode(payload)))
+
+
+def test_hello_relay_routes_origin_to_relay_and_back() -> None:
+    sink = Sink()
+    relay = HelloRelay(sink, "ceddp:x", relay="r3")
+    relay.on_hello("r1", Hello("r1:a", 1, 5, "r1", 1, 5, 0))  # r3 not seen yet: counted
+    relay.on_robot("r3", True)
+    relay.on_hello("r1", Hello("r1:a", 1, 5, "r1", 1, 5, 0))
+    relay.on_hello("r3", Hello("r3:a", 1, 6, "r1", 1, 5, 2))
+    relay.on_hello("r3", Hello("r3:a", 2, 7, "r1", 1, 5, 9))
+    assert [(r, h.stage, h.origin_seq, h.t0_ns, h.writer) for r, _, h in sink.sent] == [
+        ("r3", 1, 1, 5, "ceddp:x"),
+        ("r1", 3, 1, 5, "ceddp:x"),
+    ]
+    relay.on_robot("r3", False)
+    relay.on_robot("r1", True)
+    relay.on_hello("r1", Hello("r1:a", 2, 8, "r1", 2, 8, 0))
+    assert relay.counters.no_relay == 2 and relay.counters.bad_stage == 1

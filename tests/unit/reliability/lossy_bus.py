@@ -1,0 +1,137 @@
+"""An in-memory bus that drops, duplicates, delays and reorders, driving the pure machines.
+
+Liveliness tokens travel reliably (as Zenoh's do) but with a delay, so data, tokens and SYNC race
+as they do through a router. Time is a ``FakeClock`` advanced in small steps; every machine is
+ticked at each step, as the real driver does.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import random
+from dataclasses import dataclass, field
+from typing import Any
+
+from arpz.memory_transport import key_matches
+from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.events import DataInfo
+from arpz.reliability.reader_machine import ReaderMachine
+from arpz.reliability.timers import FakeClock
+from arpz.reliability.writer_machine import WriterMachine
+
+Machine = WriterMachine | ReaderMachine
+
+
+@dataclass
+class Link:
+    loss: float = 0.0
+    duplicate: float = 0.0
+    #: base one-way delay and uniform extra delay (the extra makes reordering)
+    delay_s: float = 0.001
+    jitter_s: float = 0.0
+
+
+@dataclass
+class Node:
+    machine: Machine
+    delivered: list[tuple[bytes, DataInfo]] = field(default_factory=list)
+    events: list[tuple[str, object]] = field(default_factory=list)
+
+
+class LossyBus:
+    def __init__(self, rng: random.Random, link: Link, clock: FakeClock) -> None:
+        self.rng, self.link, self.clock = rng, link, clock
+        self.nodes: list[Node] = []
+        self.tokens: dict[str, int] = {}
+        self._queue: list[tuple[float, int, Any]] = []
+        self._order = itertools.count()
+        self.dropped = 0
+
+    def add(self, machine: Machine) -> Node:
+        node = Node(machine)
+        self.nodes.append(node)
+        if isinstance(machine, WriterMachine):
+            self._token(machine.token_key, True)
+        # The watcher sees tokens already present (Zenoh's history=True).
+        for key in list(self.tokens):
+            if key_matches(machine.watch_expr(), key):
+                self._later(0.001, ("token", node, key, True))
+        return node
+
+    def remove(self, node: Node) -> None:
+        """The process dies: its tokens vanish (the router notices)."""
+        self.nodes.remove(node)
+        m = node.machine
+        mine = [k for k in self.tokens if m.hex in k.split("/")]
+        for key in mine:
+            self._token(key, False)
+
+    def _later(self, delay_s: float, item: Any) -> None:
+        heapq.heappush(self._queue, (self.clock.now_s + delay_s, next(self._order), item))
+
+    def _token(self, key: str, declare: bool) -> None:
+        if declare:
+            self.tokens[key] = 1
+        else:
+            self.tokens.pop(key, None)
+        for node in self.nodes:
+            if key_matches(node.machine.watch_expr(), key):
+                self._later(0.002, ("token", node, key, declare))
+
+    def run(self, node: Node, actions: list[Action]) -> None:
+        for action in actions:
+            if isinstance(action, Send):
+                self.send(action)
+            elif isinstance(action, Deliver):
+                node.delivered.append((action.payload, action.info))
+            elif isinstance(action, Notify):
+                node.events.append((action.event, action.status))
+            elif isinstance(action, TokenChange):
+                self._token(action.key, action.declare)
+
+    def send(self, msg: Send) -> None:
+        for node in self.nodes:
+            for expr, handler in node.machine.subscriptions():
+                if not key_matches(expr, msg.key):
+                    continue
+                copies = 1 + (self.rng.random() < self.link.duplicate)
+                for _ in range(copies):
+                    if self.rng.random() < self.link.loss:
+                        self.dropped += 1
+                        continue
+                    delay = self.link.delay_s + self.rng.random() * self.link.jitter_s
+                    self._later(delay, ("msg", node, handler, msg))
+
+    def step(self, dt_s: float = 0.001) -> None:
+        self.clock.advance(dt_s)
+        while self._queue and self._queue[0][0] <= self.clock.now_s:
+            _, _, item = heapq.heappop(self._queue)
+            node = item[1]
+            if node not in self.nodes:
+                continue
+            if item[0] == "token":
+                handler = (
+                    node.machine.on_reader_token
+                    if isinstance(node.machine, WriterMachine)
+                    else node.machine.on_writer_token
+                )
+                self.run(node, handler(item[2], item[3]))
+            else:
+                msg: Send = item[3]
+                fn = getattr(node.machine, item[2])
+                self.run(node, fn(msg.key, msg.payload, msg.attachment))
+        for node in list(self.nodes):
+            self.run(node, node.machine.tick())
+
+    def run_for(self, duration_s: float, dt_s: float = 0.001) -> None:
+        for _ in range(round(duration_s / dt_s)):
+            self.step(dt_s)
+
+    def write(self, node: Node, payload: bytes) -> int:
+        w = node.machine
+        assert isinstance(w, WriterMachine)
+        seq, attachment, actions = w.write(payload)
+        self.run(node, actions)
+        self.send(Send(w.topic, payload, attachment))
+        return seq

@@ -1,0 +1,251 @@
+"""Properties of the writer and reader state machines over a lossy, duplicating, reordering bus."""
+
+from __future__ import annotations
+
+import random
+
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from arpz.reliability._common import new_guid
+from arpz.reliability.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
+from arpz.reliability.reader_machine import ReaderMachine
+from arpz.reliability.timers import FakeClock
+from arpz.reliability.writer_machine import WriterMachine
+from tests.unit.reliability.lossy_bus import Link, LossyBus, Node
+
+FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+
+links = st.builds(
+    Link,
+    loss=st.sampled_from([0.0, 0.1, 0.3, 0.5]),
+    duplicate=st.sampled_from([0.0, 0.1]),
+    delay_s=st.sampled_from([0.0005, 0.002]),
+    jitter_s=st.sampled_from([0.0, 0.004]),
+)
+
+
+def world(seed: int, link: Link) -> tuple[LossyBus, FakeClock]:
+    clock = FakeClock()
+    return LossyBus(random.Random(seed), link, clock), clock
+
+
+def publish(bus: LossyBus, writer: Node, n: int, period_s: float) -> None:
+    """Write n samples, waiting (as the blocking write does) while KEEP_ALL has no room."""
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    for i in range(n):
+        waited = 0
+        while not w.has_room():
+            bus.step()
+            waited += 1
+            assert waited < 100_000, "KEEP_ALL writer never got room"
+        bus.write(writer, b"%d" % i)
+        bus.run_for(period_s)
+
+
+def check_invariant(reader: Node, writer: Node) -> list[int]:
+    r, w = reader.machine, writer.machine
+    assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
+    seqs = [info.seq for _, info in reader.delivered if info.writer == w.hex]
+    assert seqs == sorted(set(seqs)), "delivered out of order or twice"
+    start = r.match_start(w.hex)
+    assert start is not None, "never synced"
+    proxy = r.writers[w.guid]
+    assert proxy.delivered + proxy.lost == w.last_seq - start + 1
+    assert all(s >= start for s in seqs)
+    for payload, info in reader.delivered:
+        if info.writer == w.hex:
+            assert payload == b"%d" % (info.seq - 1)
+    return seqs
+
+
+qos_choices = st.sampled_from(
+    [
+        QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=40),
+        QosProfile(depth=1),
+        QosProfile(depth=5, reorder_timeout_s=0.05),
+        QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5),
+        QosProfile(durability=DurabilityPolicy.TRANSIENT_LOCAL, depth=20),
+    ]
+)
+
+
+@FAST
+@given(seed=st.integers(0, 2**32), link=links, qos=qos_choices, n=st.integers(1, 150),
+       period_s=st.sampled_from([0.0, 0.001, 0.004]))
+def test_delivered_plus_lost_equals_sent_without_duplicates(
+    seed: int, link: Link, qos: QosProfile, n: int, period_s: float
+) -> None:
+    bus, _ = world(seed, link)
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/*", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    publish(bus, writer, n, period_s)
+    bus.run_for(2.0)
+    check_invariant(reader, writer)
+    r = reader.machine
+    assert isinstance(r, ReaderMachine)
+    lost_events = sum(s.total_count_change for e, s in reader.events if e == "message_lost")  # type: ignore[attr-defined]
+    assert lost_events == r.lost
+
+
+@FAST
+@given(seed=st.integers(0, 2**32), link=links, n=st.integers(1, 200))
+def test_keep_all_delivers_everything_in_order(seed: int, link: Link, n: int) -> None:
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=30, reorder_timeout_s=60.0)
+    bus, _ = world(seed, link)
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    publish(bus, writer, n, 0.0)
+    bus.run_for(3.0)
+    seqs = check_invariant(reader, writer)
+    assert seqs == list(range(1, n + 1))
+    assert reader.machine.lost == 0
+
+
+@FAST
+@given(seed=st.integers(0, 2**32), link=links, n_writers=st.integers(2, 4), n=st.integers(1, 60))
+def test_many_writers_to_one_wildcard_reader(seed: int, link: Link, n_writers: int, n: int) -> None:
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=30, reorder_timeout_s=60.0)
+    bus, _ = world(seed, link)
+    writers = [
+        bus.add(WriterMachine(f"f/robot/r{i}/sensor/s", qos, new_guid(), bus.clock))
+        for i in range(n_writers)
+    ]
+    reader = bus.add(ReaderMachine("f/robot/*/sensor/*", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    for i in range(n):
+        for w in writers:
+            while not w.machine.has_room():  # type: ignore[union-attr]
+                bus.step()
+            bus.write(w, b"%d" % i)
+        bus.step()
+    bus.run_for(3.0)
+    for w in writers:
+        assert check_invariant(reader, w) == list(range(1, n + 1))
+    keys = {info.key for _, info in reader.delivered}
+    assert keys == {f"f/robot/r{i}/sensor/s" for i in range(n_writers)}
+
+
+@FAST
+@given(seed=st.integers(0, 2**32), link=links, n_readers=st.integers(2, 3), n=st.integers(1, 80))
+def test_one_writer_to_many_readers(seed: int, link: Link, n_readers: int, n: int) -> None:
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=25, reorder_timeout_s=60.0)
+    bus, _ = world(seed, link)
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    readers = [bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock)) for _ in range(n_readers)]
+    bus.run_for(0.3)
+    publish(bus, writer, n, 0.001)
+    bus.run_for(3.0)
+    for reader in readers:
+        assert check_invariant(reader, writer) == list(range(1, n + 1))
+
+
+def test_keep_last_depth_1_at_high_rate_loses_and_reports_every_loss() -> None:
+    qos = QosProfile(depth=1)
+    bus, _ = world(7, Link(loss=0.2, delay_s=0.003))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    for i in range(2000):
+        bus.write(writer, b"%d" % i)
+        if i % 4 == 0:
+            bus.step(0.0005)
+    bus.run_for(2.0)
+    check_invariant(reader, writer)
+    r, w = reader.machine, writer.machine
+    assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
+    assert r.lost > 100
+    assert w.lost >= r.lost - bus.dropped  # overwritten before acknowledged, seen by the writer
+
+
+def test_transient_local_late_joiner_gets_the_history() -> None:
+    qos = QosProfile(depth=5, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    bus, _ = world(3, Link(loss=0.2))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    publish(bus, writer, 12, 0.001)
+    late = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    volatile = bus.add(ReaderMachine("t/a", QosProfile(depth=5), new_guid(), bus.clock))
+    bus.run_for(1.0)
+    assert [i.seq for _, i in late.delivered] == [8, 9, 10, 11, 12]
+    assert volatile.delivered == []
+    publish(bus, writer, 3, 0.001)
+    bus.run_for(1.0)
+    assert [i.seq for _, i in late.delivered][-3:] == [13, 14, 15]
+    assert [i.seq for _, i in volatile.delivered] == [13, 14, 15]
+
+
+def test_incompatible_qos_does_not_match_and_both_sides_are_told() -> None:
+    bus, _ = world(1, Link())
+    writer = bus.add(
+        WriterMachine("t/a", QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT), new_guid(), bus.clock)
+    )
+    reader = bus.add(ReaderMachine("t/a", QosProfile(), new_guid(), bus.clock))
+    bus.run_for(0.2)
+    publish(bus, writer, 5, 0.001)
+    bus.run_for(0.2)
+    assert reader.delivered == []
+    w_events = [s for e, s in writer.events if e == "incompatible_qos"]
+    r_events = [s for e, s in reader.events if e == "incompatible_qos"]
+    assert len(w_events) == len(r_events) == 1
+    assert w_events[0].last_policy_kind.value == "reliability"  # type: ignore[attr-defined]
+    assert not [e for e, _ in writer.events + reader.events if e == "matched"]
+    assert reader.machine.stats().bad_input == 0
+
+
+def test_deadline_misses_are_counted_per_period_and_unchanged_keeps_the_topic_alive() -> None:
+    qos = QosProfile(deadline_s=0.1)
+    bus, _ = world(1, Link())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.05)
+    publish(bus, writer, 20, 0.02)  # 0.4 s at 50 Hz: no miss
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    for _ in range(50):  # 1 s of held-back readings
+        bus.run(writer, w.assert_unchanged())
+        bus.run_for(0.02)
+    assert [e for e, _ in reader.events + writer.events if e == "deadline"] == []
+    bus.run_for(0.55)  # pause: 5 missed periods
+    missed_r = sum(s.total_count_change for e, s in reader.events if e == "deadline")  # type: ignore[attr-defined]
+    missed_w = sum(s.total_count_change for e, s in writer.events if e == "deadline")  # type: ignore[attr-defined]
+    assert missed_r == 5 and missed_w == 5
+    assert reader.machine.stats().unchanged >= 8
+
+
+def test_liveliness_changes_when_the_writer_dies_and_when_a_manual_lease_expires() -> None:
+    qos = QosProfile(liveliness=__import__("arpz.reliability.qos").reliability.qos.LivelinessPolicy.MANUAL_BY_TOPIC,
+                     lease_duration_s=0.2)
+    bus, _ = world(1, Link())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.05)
+    publish(bus, writer, 5, 0.01)
+    bus.run_for(0.5)  # no assertion for longer than the lease
+    changes = [s for e, s in reader.events if e == "liveliness"]
+    assert changes[-1].alive_count == 0 and changes[-1].not_alive_count == 1  # type: ignore[attr-defined]
+    assert [e for e, _ in writer.events].count("liveliness") == 1
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    bus.run(writer, w.assert_liveliness())
+    bus.run_for(0.05)
+    assert [s for e, s in reader.events if e == "liveliness"][-1].alive_count == 1  # type: ignore[attr-defined]
+    bus.remove(writer)
+    bus.run_for(0.05)
+    last = [s for e, s in reader.events if e == "liveliness"][-1]
+    assert last.alive_count == 0 and last.alive_count_change == -1  # type: ignore[attr-defined]
+    assert [s for e, s in reader.events if e == "matched"][-1].current_count == 0  # type: ignore[attr-defined]
+
+
+def test_lifespan_expired_samples_are_dropped_and_counted() -> None:
+    qos = QosProfile(lifespan_s=0.01)
+    bus, _ = world(1, Link(delay_s=0.02))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.2)
+    publish(bus, writer, 10, 0.001)
+    bus.run_for(0.5)
+    stats = reader.machine.stats()
+    assert stats.delivered == 0 and stats.lifespan_expired == 10

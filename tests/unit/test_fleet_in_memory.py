@@ -1,0 +1,54 @@
+"""Robot agents and the CEDDP over the in-memory transport: fast checks of the wiring.
+
+The same flows go through a real router and real processes in tests/integration/test_fleet.py.
+"""
+
+import threading
+import time
+
+from arpz.ceddp.server import CeddpServer
+from arpz.config import CeddpConfig, HelloConfig, RobotConfig
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.robot.agent import RobotAgent
+from tests.support import wait_until
+
+
+def test_counts_reconcile_and_hello_round_trips() -> None:
+    bus = MemoryBus()
+    server = CeddpServer(CeddpConfig(fleet="f", rrd="unused.rrd", metrics_period_s=0.05),
+                         MemoryTransport(bus))
+    server.start()
+    agents = [
+        RobotAgent(RobotConfig(robot_id="r1", fleet="f", preset="machine1", preset_rate_hz=200,
+                               hello=HelloConfig(enabled=True, rate_hz=50), stats_period_s=0.1),
+                   MemoryTransport(bus)),
+        RobotAgent(RobotConfig(robot_id="r2", fleet="f", preset="machine2", preset_rate_hz=200),
+                   MemoryTransport(bus)),
+    ]
+    stop = threading.Event()
+    threads = [threading.Thread(target=a.run, args=(stop,)) for a in agents]
+    for agent in agents:
+        agent.start()
+    for t in threads:
+        t.start()
+    wait_until(lambda: agents[0].hello.received >= 10, what="10 Hello round trips")
+    time.sleep(0.3)
+    stop.set()
+    for t in threads:
+        t.join(5)
+    for agent in agents:
+        agent.shutdown()
+    summary = server.shutdown()
+    for agent in agents:
+        row = summary["robots"][agent.config.robot_id]
+        counters = agent.counters()
+        assert row["final_stats"]
+        assert row["produced"] == sum(c.produced for c in counters.values()) > 0
+        assert row["produced"] == row["sent"] + row["held_back"]
+        assert row["received"] == row["sent"] and row["lost"] == 0
+        assert row["held_back"] > 0
+        for topic, t in row["topics"].items():
+            if topic != "hello":
+                assert t["cc_discarded"] + t["cc_passed"] == t["received"]
+    hello = summary["robots"]["r1"]["hello"]
+    assert hello["sent"] == hello["received"] + hello["lost"] and hello["lost"] == 0
