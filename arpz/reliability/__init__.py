@@ -1,1 +1,76 @@
-"""An end-to-end reliable channel with ROS 2 QoS semantics over Zenoh (filled by issue 3)."""
+"""An end-to-end reliable channel with ROS 2 QoS semantics over Zenoh (docs/reliability.md).
+
+Zenoh's RELIABLE retransmits nothing end to end; this package adds what RTPS adds under DDS:
+per-writer sequence numbers, heartbeats, ACKNACK/GAP, KEEP_LAST/KEEP_ALL histories, durability,
+deadline, lifespan and liveliness, matching with incompatible-QoS events, and the invariant that
+for every reader delivered + reported lost == sent during the match.
+"""
+
+from arpz.reliability.events import (
+    DataInfo,
+    DeadlineMissedStatus,
+    IncompatibleQosStatus,
+    LivelinessChangedStatus,
+    LivelinessLostStatus,
+    MatchedStatus,
+    MessageLostStatus,
+    ReaderEventCallbacks,
+    WriterEventCallbacks,
+)
+from arpz.reliability.qos import (
+    QOS_DEFAULT,
+    QOS_LATCHED,
+    QOS_PARAMETERS,
+    QOS_RELIABLE_ALL,
+    QOS_SENSOR_DATA,
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QosPolicyKind,
+    QosProfile,
+    ReliabilityPolicy,
+    incompatible_policy,
+    load_qos,
+    qos_from_toml,
+)
+from arpz.reliability.reader import Reader
+from arpz.reliability.reader_machine import ReaderMachine, ReaderStats
+from arpz.reliability.timers import Clock, FakeClock, SystemClock
+from arpz.reliability.writer import Writer
+from arpz.reliability.writer_machine import HistoryFullError, WriterMachine, WriterStats
+
+__all__ = [
+    "QOS_DEFAULT",
+    "QOS_LATCHED",
+    "QOS_PARAMETERS",
+    "QOS_RELIABLE_ALL",
+    "QOS_SENSOR_DATA",
+    "Clock",
+    "DataInfo",
+    "DeadlineMissedStatus",
+    "DurabilityPolicy",
+    "FakeClock",
+    "HistoryFullError",
+    "HistoryPolicy",
+    "IncompatibleQosStatus",
+    "LivelinessChangedStatus",
+    "LivelinessLostStatus",
+    "LivelinessPolicy",
+    "MatchedStatus",
+    "MessageLostStatus",
+    "QosPolicyKind",
+    "QosProfile",
+    "Reader",
+    "ReaderEventCallbacks",
+    "ReaderMachine",
+    "ReaderStats",
+    "ReliabilityPolicy",
+    "SystemClock",
+    "Writer",
+    "WriterEventCallbacks",
+    "WriterMachine",
+    "WriterStats",
+    "incompatible_policy",
+    "load_qos",
+    "qos_from_toml",
+]

@@ -72,8 +72,13 @@ qos_choices = st.sampled_from(
 
 
 @FAST
-@given(seed=st.integers(0, 2**32), link=links, qos=qos_choices, n=st.integers(1, 150),
-       period_s=st.sampled_from([0.0, 0.001, 0.004]))
+@given(
+    seed=st.integers(0, 2**32),
+    link=links,
+    qos=qos_choices,
+    n=st.integers(1, 150),
+    period_s=st.sampled_from([0.0, 0.001, 0.004]),
+)
 def test_delivered_plus_lost_equals_sent_without_duplicates(
     seed: int, link: Link, qos: QosProfile, n: int, period_s: float
 ) -> None:
@@ -180,7 +185,9 @@ def test_transient_local_late_joiner_gets_the_history() -> None:
 def test_incompatible_qos_does_not_match_and_both_sides_are_told() -> None:
     bus, _ = world(1, Link())
     writer = bus.add(
-        WriterMachine("t/a", QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT), new_guid(), bus.clock)
+        WriterMachine(
+            "t/a", QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT), new_guid(), bus.clock
+        )
     )
     reader = bus.add(ReaderMachine("t/a", QosProfile(), new_guid(), bus.clock))
     bus.run_for(0.2)
@@ -216,8 +223,12 @@ def test_deadline_misses_are_counted_per_period_and_unchanged_keeps_the_topic_al
 
 
 def test_liveliness_changes_when_the_writer_dies_and_when_a_manual_lease_expires() -> None:
-    qos = QosProfile(liveliness=__import__("arpz.reliability.qos").reliability.qos.LivelinessPolicy.MANUAL_BY_TOPIC,
-                     lease_duration_s=0.2)
+    qos = QosProfile(
+        liveliness=__import__(
+            "arpz.reliability.qos"
+        ).reliability.qos.LivelinessPolicy.MANUAL_BY_TOPIC,
+        lease_duration_s=0.2,
+    )
     bus, _ = world(1, Link())
     writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
     reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))

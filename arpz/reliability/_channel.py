@@ -1,0 +1,238 @@
+"""Runs one pure machine over a ``Transport``: subscriptions, tokens, a worker thread, timers.
+
+Zenoh callbacks only enqueue (zenoh-python's advice: never block or call Zenoh from its threads);
+the worker thread runs the machine, publishes what it asks, and calls the user's ``on_data`` and
+event callbacks. The queue is bounded and every item it refuses is counted: a reliable reader
+gets a refused sample again by NACK, a best-effort one reports it lost through the seq gap.
+"""
+
+from __future__ import annotations
+
+import logging
+import queue
+import threading
+import time
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any, Self, TypeVar
+
+import msgspec
+
+from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.events import DataInfo
+from arpz.reliability.reader_machine import ReaderMachine
+from arpz.reliability.writer_machine import WriterMachine
+from arpz.transport import Handle, Transport
+
+log = logging.getLogger("arpz.reliability")
+
+#: items waiting for the worker; beyond this the transport thread drops and counts
+MAX_QUEUE = 200_000
+_BATCH = 512
+_STOP = object()
+_TOKEN = object()
+_POST = object()
+
+
+def tick_interval_s(machine: WriterMachine | ReaderMachine) -> float:
+    qos = machine.qos
+    periods = [qos.heartbeat_period_s, qos.nack_period_s, qos.reorder_timeout_s / 4]
+    if qos.nack_delay_s > 0:
+        periods.append(qos.nack_delay_s)
+    for value in (qos.deadline_s, qos.lease_duration_s):
+        if value > 0:
+            periods.append(value / 10)
+    return min(0.05, max(0.001, min(periods)))
+
+
+class Channel:
+    def __init__(
+        self,
+        transport: Transport,
+        machine: WriterMachine | ReaderMachine,
+        events: object,
+        on_data: Callable[[bytes, DataInfo], None] | None,
+        name: str,
+    ) -> None:
+        self.transport = transport
+        self.machine = machine
+        self.events = events
+        self.on_data = on_data
+        self.lock = threading.Condition(threading.Lock())
+        self.queue_dropped = 0
+        self.callback_errors = 0
+        self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._handles: list[Handle] = []
+        self._tokens: dict[str, Handle] = {}
+        self._tick_s = tick_interval_s(machine)
+        self._closed = False
+        self._worker = threading.Thread(target=self._run, name=name, daemon=True)
+
+    def start(self) -> None:
+        try:
+            for expr, handler_name in self.machine.subscriptions():
+                handler = getattr(self.machine, handler_name)
+                self._handles.append(self.transport.subscribe(expr, self._enqueuer(handler)))
+            self._handles.append(
+                self.transport.watch_liveliness(self.machine.watch_expr(), self._on_token)
+            )
+        except Exception:
+            self._undeclare()
+            raise
+        self._worker.start()
+
+    def _enqueuer(
+        self, handler: Callable[[str, bytes, bytes | None], list[Action]]
+    ) -> Callable[[str, bytes, bytes | None], None]:
+        q = self._queue
+
+        def enqueue(key: str, payload: bytes, attachment: bytes | None) -> None:
+            if q.qsize() >= MAX_QUEUE:
+                self.queue_dropped += 1
+                return
+            q.put((handler, key, payload, attachment))
+
+        return enqueue
+
+    def _on_token(self, key: str, alive: bool) -> None:
+        self._queue.put((_TOKEN, key, alive, None))
+
+    def post(self, actions: list[Action]) -> None:
+        """Run actions on the worker thread (event callbacks never run on the caller's thread)."""
+        if actions:
+            self._queue.put((_POST, actions, None, None))
+
+    def _run(self) -> None:
+        q = self._queue
+        next_tick = 0.0
+        while True:
+            try:
+                item = q.get(timeout=self._tick_s)
+            except queue.Empty:
+                item = None
+            n = 0
+            while item is not None:
+                if item is _STOP:
+                    return
+                self._handle(item)
+                n += 1
+                if n >= _BATCH:
+                    break
+                try:
+                    item = q.get_nowait()
+                except queue.Empty:
+                    item = None
+            now = time.monotonic()
+            if now >= next_tick:
+                next_tick = now + self._tick_s
+                with self.lock:
+                    actions = self.machine.tick()
+                self.perform(actions)
+
+    def _handle(self, item: tuple[Any, Any, Any, Any]) -> None:
+        head, a, b, c = item
+        try:
+            if head is _POST:
+                self.perform(a)
+                return
+            with self.lock:
+                if head is _TOKEN:
+                    if isinstance(self.machine, WriterMachine):
+                        actions = self.machine.on_reader_token(a, b)
+                    else:
+                        actions = self.machine.on_writer_token(a, b)
+                else:
+                    actions = head(a, b, c)
+                self.lock.notify_all()
+            self.perform(actions)
+        except Exception:  # a bug must not kill the worker and silently stop the channel
+            self.callback_errors += 1
+            log.exception("reliable channel worker: unexpected error")
+
+    def perform(self, actions: list[Action]) -> None:
+        for action in actions:
+            if type(action) is Deliver:
+                self._call(self.on_data, action.payload, action.info)
+            elif type(action) is Send:
+                try:
+                    self.transport.put(action.key, action.payload, attachment=action.attachment)
+                except Exception as exc:  # a closed session during shutdown
+                    log.debug("put on %s failed: %s", action.key, exc)
+            elif type(action) is Notify:
+                self._call(getattr(self.events, action.event, None), action.status)
+            elif type(action) is TokenChange:
+                self._token(action)
+
+    def _call(self, callback: Callable[..., None] | None, *args: object) -> None:
+        if callback is None:
+            return
+        try:
+            callback(*args)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("user callback raised; the channel goes on")
+
+    def _token(self, change: TokenChange) -> None:
+        if change.declare and change.key not in self._tokens and not self._closed:
+            self._tokens[change.key] = self.transport.declare_token(change.key)
+        elif not change.declare and change.key in self._tokens:
+            self._tokens.pop(change.key).undeclare()
+
+    def declare_token(self, key: str) -> None:
+        self._tokens[key] = self.transport.declare_token(key)
+
+    def _undeclare(self) -> None:
+        handles, self._handles = self._handles, []
+        for handle in reversed(handles):
+            handle.undeclare()
+
+    def close(self) -> None:
+        """Undeclare subscriptions first (no new callbacks), then stop the worker, then tokens."""
+        if self._closed:
+            return
+        self._undeclare()
+        self._queue.put(_STOP)
+        if self._worker.is_alive() and threading.current_thread() is not self._worker:
+            self._worker.join(timeout=5.0)
+        self._closed = True
+        tokens, self._tokens = self._tokens, {}
+        for handle in tokens.values():
+            handle.undeclare()
+
+
+S = TypeVar("S", bound=msgspec.Struct)
+
+
+class Endpoint:
+    """What Writer and Reader share: a channel, counted stats, idempotent close, ``with``."""
+
+    _channel: Channel
+    _closed: bool = False
+
+    def _with_counters(self, stats: S) -> S:
+        return msgspec.structs.replace(
+            stats,
+            queue_dropped=self._channel.queue_dropped,
+            callback_errors=self._channel.callback_errors,
+        )
+
+    def _on_close(self) -> None:
+        """Undeclare what the subclass declared beside the channel."""
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        self._channel.close()
+        self._on_close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

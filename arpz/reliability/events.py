@@ -1,0 +1,94 @@
+"""Event payloads (mirroring the ROS 2 status fields) and the callback containers.
+
+Callbacks run on the channel's worker thread, never on a Zenoh thread, so they may block briefly
+or call back into the channel; a slow callback delays the channel, it never loses a sample
+(reliable readers recover what their queue dropped).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import msgspec
+
+from arpz.reliability.qos import QosPolicyKind
+
+
+class DataInfo(msgspec.Struct, frozen=True, gc=False):
+    """Where a delivered payload came from: ``key`` is the concrete topic key (useful with a
+    wildcard reader), ``writer`` the writer's guid in hex (a new one per writer incarnation)."""
+
+    key: str
+    writer: str
+    seq: int
+    stamp_ns: int
+    retransmitted: bool = False
+
+
+class DeadlineMissedStatus(msgspec.Struct, frozen=True):
+    """Offered (writer) or requested (reader) deadline missed; one count per missed period."""
+
+    total_count: int
+    total_count_change: int
+    #: the writer concerned, on the reader side ("" on the writer side)
+    writer: str = ""
+
+
+class LivelinessLostStatus(msgspec.Struct, frozen=True):
+    """A MANUAL_BY_TOPIC writer did not assert its liveliness within its lease."""
+
+    total_count: int
+    total_count_change: int
+
+
+class LivelinessChangedStatus(msgspec.Struct, frozen=True):
+    alive_count: int
+    not_alive_count: int
+    alive_count_change: int
+    not_alive_count_change: int
+    writer: str = ""
+
+
+class MessageLostStatus(msgspec.Struct, frozen=True):
+    """Samples irrecoverably lost: overwritten in a KEEP_LAST history before being acknowledged,
+    declared lost by a GAP or after the reorder timeout, or gaps seen by a BEST_EFFORT reader."""
+
+    total_count: int
+    total_count_change: int
+    writer: str = ""
+
+
+class IncompatibleQosStatus(msgspec.Struct, frozen=True):
+    total_count: int
+    total_count_change: int
+    last_policy_kind: QosPolicyKind
+    #: guid of the peer that could not be matched
+    peer: str = ""
+
+
+class MatchedStatus(msgspec.Struct, frozen=True):
+    total_count: int
+    total_count_change: int
+    current_count: int
+    current_count_change: int
+    peer: str = ""
+
+
+@dataclass(frozen=True, kw_only=True)
+class WriterEventCallbacks:
+    deadline: Callable[[DeadlineMissedStatus], None] | None = None
+    liveliness: Callable[[LivelinessLostStatus], None] | None = None
+    incompatible_qos: Callable[[IncompatibleQosStatus], None] | None = None
+    matched: Callable[[MatchedStatus], None] | None = None
+    #: KEEP_LAST overwrote samples some matched reader had not acknowledged
+    message_lost: Callable[[MessageLostStatus], None] | None = None
+
+
+@dataclass(frozen=True, kw_only=True)
+class ReaderEventCallbacks:
+    deadline: Callable[[DeadlineMissedStatus], None] | None = None
+    liveliness: Callable[[LivelinessChangedStatus], None] | None = None
+    message_lost: Callable[[MessageLostStatus], None] | None = None
+    incompatible_qos: Callable[[IncompatibleQosStatus], None] | None = None
+    matched: Callable[[MatchedStatus], None] | None = None

@@ -1,0 +1,52 @@
+"""``Reader``: the subscribing end of a reliable channel over any ``Transport``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from arpz.reliability._channel import Channel, Endpoint
+from arpz.reliability._common import new_guid
+from arpz.reliability.events import DataInfo, ReaderEventCallbacks
+from arpz.reliability.qos import QosProfile
+from arpz.reliability.reader_machine import ReaderMachine, ReaderStats
+from arpz.reliability.timers import Clock, SystemClock
+from arpz.transport import Transport
+
+
+class Reader(Endpoint):
+    """Receives from every writer whose key matches ``key_expr`` (wildcards allowed: one reader
+    on ``arpz/f/robot/*/sensor/*`` serves a whole fleet). ``on_data(payload, info)`` runs on the
+    reader's worker thread, in seq order per writer, never twice for one sample."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        key_expr: str,
+        qos: QosProfile,
+        on_data: Callable[[bytes, DataInfo], None],
+        *,
+        events: ReaderEventCallbacks | None = None,
+        clock: Clock | None = None,
+    ) -> None:
+        self.key_expr = key_expr
+        self.qos = qos
+        self._machine = ReaderMachine(key_expr, qos, new_guid(), clock or SystemClock())
+        self.guid = self._machine.hex
+        self._channel = Channel(
+            transport,
+            self._machine,
+            events or ReaderEventCallbacks(),
+            on_data,
+            f"arpz-reader-{key_expr}",
+        )
+        self._channel.start()
+
+    @property
+    def matched_count(self) -> int:
+        with self._channel.lock:
+            return len(self._machine.writers)
+
+    def stats(self) -> ReaderStats:
+        with self._channel.lock:
+            stats = self._machine.stats()
+        return self._with_counters(stats)

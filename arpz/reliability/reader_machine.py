@@ -1,0 +1,549 @@
+"""The reader side of the reliable protocol as a pure state machine: values in, actions out.
+
+One ``ReaderMachine`` serves a key expression that may contain wildcards, so it keeps one
+``_WriterProxy`` per matched writer (per writer incarnation). For each it delivers in seq order,
+NACKs gaps, and declares a missing sample lost when the writer says so (GAP, or a heartbeat whose
+first held seq is past it) or when it has held later samples back for ``reorder_timeout_s``.
+Every seq of the match therefore ends up exactly once in ``delivered``, ``lost`` or
+``lifespan_expired``.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+
+import msgspec
+
+from arpz.reliability import wire
+from arpz.reliability._common import BadInput, parse_token
+from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.events import (
+    DataInfo,
+    DeadlineMissedStatus,
+    IncompatibleQosStatus,
+    LivelinessChangedStatus,
+    MatchedStatus,
+    MessageLostStatus,
+)
+from arpz.reliability.qos import QosProfile, encode_match_qos, incompatible_policy, rounded
+from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
+
+#: a data seq this far beyond what is expected is taken as forged, not as a loss
+MAX_JUMP = 1 << 40
+
+
+class ReaderStats(msgspec.Struct, frozen=True):
+    delivered: int
+    lost: int
+    lifespan_expired: int
+    duplicates: int
+    #: BEST_EFFORT: arrived after a later sample had been delivered (already counted lost)
+    late: int
+    #: delivered samples that arrived by retransmission
+    retransmitted: int
+    #: ACKNACKs that asked for at least one sample
+    nacks: int
+    acks: int
+    gaps: int
+    unchanged: int
+    deadline_missed: int
+    matched: int
+    incompatible: int
+    #: samples from before the match (a TRANSIENT_LOCAL history window or a race with SYNC)
+    before_match: int
+    bad_input: int
+    #: refused by the full worker queue (reliable readers get them again by NACK)
+    queue_dropped: int = 0
+    #: exceptions raised by user callbacks (logged, the channel goes on)
+    callback_errors: int = 0
+
+
+class _WriterProxy:
+    """The reader's view of one matched writer."""
+
+    __slots__ = (
+        "an_count",
+        "an_due_s",
+        "an_key",
+        "buffer",
+        "deadline",
+        "delivered",
+        "detect",
+        "expected",
+        "gaps",
+        "guid",
+        "hex",
+        "highest",
+        "lease",
+        "lost",
+        "manual",
+        "start",
+        "synced",
+        "topic",
+    )
+
+    def __init__(
+        self,
+        guid: bytes,
+        hex_: str,
+        topic: str,
+        an_key: str,
+        manual: bool,
+        deadline_s: float,
+        lease_s: float,
+        now: float,
+    ) -> None:
+        self.guid, self.hex, self.topic, self.an_key, self.manual = (
+            guid,
+            hex_,
+            topic,
+            an_key,
+            manual,
+        )
+        self.synced = False
+        #: first seq of the match (known once synced)
+        self.start = 0
+        #: next seq to deliver; all below are delivered or declared lost
+        self.expected = 1
+        #: highest seq known to exist (from data or heartbeats)
+        self.highest = 0
+        #: out-of-order samples: seq -> (payload, stamp_ns, flags)
+        self.buffer: dict[int, tuple[bytes, int, int]] = {}
+        #: GAP ranges not yet reached, sorted
+        self.gaps: list[tuple[int, int]] = []
+        #: (last seq of a missing run, time it was first seen missing), increasing in both
+        self.detect: list[tuple[int, float]] = []
+        self.an_due_s = math.inf
+        self.an_count = 0
+        self.delivered = 0
+        self.lost = 0
+        self.deadline = DeadlineTimer(deadline_s, now)
+        self.lease = LeaseTimer(lease_s, now)
+
+
+class ReaderMachine:
+    def __init__(self, key_expr: str, qos: QosProfile, guid: bytes, clock: Clock) -> None:
+        self.key_expr = wire.check_key_expr(key_expr)
+        self.qos = qos
+        self.guid = guid
+        self.hex = guid.hex()
+        self.clock = clock
+        self.bad = BadInput(f"reader {key_expr} {self.hex}")
+        self._requested = rounded(qos)
+        self._qos_chunk = encode_match_qos(qos)
+        self._reliable = qos.reliable
+        self._cap = qos.capacity
+        self._deep = "**" in key_expr
+        self._lifespan_ns = int(qos.lifespan_s * 1e9)
+        self.writers: dict[bytes, _WriterProxy] = {}
+        #: every writer token seen (compatible or not) -> its topic, for our per-topic tokens
+        self._writer_topics: dict[bytes, str] = {}
+        self._topic_writers: dict[str, int] = {}
+        self._incompatible: set[bytes] = set()
+        self.delivered = self.lost = self.lifespan_expired = self.duplicates = self.late = 0
+        self.retransmitted = self.nacks = self.acks = self.gaps = self.unchanged = 0
+        self.deadline_missed = self.incompatible = self.before_match = 0
+        self.matched_total = 0
+        self.alive_count = self.not_alive_count = 0
+
+    # ------------------------------------------------------------------ routing
+    def subscriptions(self) -> list[tuple[str, str]]:
+        e = self.key_expr
+        return [
+            (e, "on_data"),
+            (wire.heartbeat_key(e, "*"), "on_heartbeat"),
+            (wire.directed_key(e, self.hex), "on_directed"),
+        ]
+
+    def watch_expr(self) -> str:
+        return wire.writer_token(self.key_expr, "*", "*")
+
+    # ------------------------------------------------------------------ matching
+    def on_writer_token(self, key: str, alive: bool) -> list[Action]:
+        parsed = parse_token(key, "w", None)
+        if parsed is None:
+            self.bad("malformed writer token", key)
+            return []
+        topic, guid, hex_, mq = parsed
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        if not alive:
+            if self._writer_topics.pop(guid, None) is not None:
+                self._topic_writers[topic] -= 1
+                if self._topic_writers[topic] == 0:
+                    del self._topic_writers[topic]
+                    actions.append(TokenChange(self._token(topic), False))
+            self._incompatible.discard(guid)
+            p = self.writers.pop(guid, None)
+            if p is not None:
+                self._unmatch(p, now, actions)
+            return actions
+        if guid in self._writer_topics:
+            return []
+        self._writer_topics[guid] = topic
+        self._topic_writers[topic] = self._topic_writers.get(topic, 0) + 1
+        if self._topic_writers[topic] == 1:
+            # The writer learns about us (and checks compatibility itself) from this token.
+            actions.append(TokenChange(self._token(topic), True))
+        policy = incompatible_policy(mq.as_profile(), self._requested)
+        if policy is not None:
+            self._incompatible.add(guid)
+            self.incompatible += 1
+            actions.append(
+                Notify(
+                    "incompatible_qos", IncompatibleQosStatus(self.incompatible, 1, policy, hex_)
+                )
+            )
+            return actions
+        p = _WriterProxy(
+            guid,
+            hex_,
+            topic,
+            wire.acknack_key(topic, hex_, self.hex),
+            mq.manual,
+            self.qos.deadline_s,
+            mq.lease_us / 1e6,
+            now,
+        )
+        self.writers[guid] = p
+        self.matched_total += 1
+        self.alive_count += 1
+        actions.append(self._matched(1, hex_))
+        actions.append(self._liveliness(1, 0, hex_))
+        return actions
+
+    def _token(self, topic: str) -> str:
+        return wire.reader_token(topic, self.hex, self._qos_chunk)
+
+    def _unmatch(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        """The writer is gone: what it had sent but we still miss can never come."""
+        if p.synced and (p.buffer or p.highest >= p.expected):
+            self._skip_to(p, p.highest + 1, actions)
+        if p.lease.alive:
+            self.alive_count -= 1
+            actions.append(self._liveliness(-1, 0, p.hex))
+        else:
+            self.not_alive_count -= 1
+            actions.append(self._liveliness(0, -1, p.hex))
+        actions.append(self._matched(-1, p.hex))
+
+    def _matched(self, change: int, peer: str) -> Notify:
+        return Notify(
+            "matched",
+            MatchedStatus(self.matched_total, max(change, 0), len(self.writers), change, peer),
+        )
+
+    def _liveliness(self, alive_change: int, not_alive_change: int, peer: str) -> Notify:
+        return Notify(
+            "liveliness",
+            LivelinessChangedStatus(
+                self.alive_count, self.not_alive_count, alive_change, not_alive_change, peer
+            ),
+        )
+
+    def _alive(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        if p.lease.assert_alive(now):
+            self.alive_count += 1
+            self.not_alive_count -= 1
+            actions.append(self._liveliness(1, -1, p.hex))
+
+    # ------------------------------------------------------------------ data
+    def on_data(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        header = wire.decode_data(attachment)
+        if header is None:
+            self.bad("sample without a DATA header", key)
+            return []
+        if self._deep and f"/{wire.REL}/" in key:
+            return []  # control traffic seen through a ``**`` subscription
+        p = self.writers.get(header.writer)
+        if p is None:
+            if header.writer not in self._incompatible:
+                self.bad("sample from an unmatched writer", header.writer.hex())
+            return []
+        return self._sample(p, header, payload)
+
+    def on_directed(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        if attachment is not None:
+            header = wire.decode_data(attachment)
+            p = self.writers.get(header.writer) if header is not None else None
+            if header is None or p is None:
+                self.bad("malformed or unmatched resend", key)
+                return []
+            return self._sample(p, header, payload)
+        kind = wire.control_kind(payload)
+        if kind == wire.KIND_HEARTBEAT:
+            return self.on_heartbeat(key, payload, None)
+        if kind == wire.KIND_GAP:
+            gap = wire.decode_gap(payload)
+            p = self.writers.get(gap.writer) if gap is not None else None
+            if gap is None or p is None or gap.reader != self.guid:
+                self.bad("malformed or unmatched GAP", key)
+                return []
+            return self._gap(p, gap.lost)
+        self.bad("unknown directed message", key)
+        return []
+
+    def _sample(self, p: _WriterProxy, h: wire.DataHeader, payload: bytes) -> list[Action]:
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        self._alive(p, now, actions)
+        seq = h.seq
+        if not self._reliable:
+            if not p.synced:
+                p.synced = True
+                p.expected = p.start = seq
+            if seq < p.expected:
+                self.late += 1
+                return actions
+            if seq > p.expected:
+                self._add_lost(p, seq - p.expected, actions)
+            p.expected = seq + 1
+            p.highest = max(p.highest, seq)
+            self._deliver(p, seq, payload, h.stamp_ns, h.flags, now, actions)
+            return actions
+        if seq > p.expected + MAX_JUMP:
+            self.bad("sample with an implausible seq", seq)
+            return actions
+        if seq < p.expected or seq in p.buffer:
+            self.duplicates += 1
+            return actions
+        if not p.synced:
+            if len(p.buffer) < self._cap:
+                p.buffer[seq] = (payload, h.stamp_ns, h.flags)
+            if seq > p.highest:
+                p.highest = seq
+            return actions
+        if seq == p.expected:
+            p.expected = seq + 1
+            self._deliver(p, seq, payload, h.stamp_ns, h.flags, now, actions)
+            if p.buffer or p.gaps:
+                self._drain(p, actions)
+        else:
+            p.buffer[seq] = (payload, h.stamp_ns, h.flags)
+            if seq > p.highest + 1:
+                p.detect.append((seq - 1, now))
+                p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
+            if len(p.buffer) > self._cap:
+                self._skip_to(p, min(p.buffer), actions)
+        if seq > p.highest:
+            p.highest = seq
+        if h.flags & wire.F_ACK_REQUEST:
+            actions.append(self._acknack(p, now))
+        return actions
+
+    def _deliver(
+        self,
+        p: _WriterProxy,
+        seq: int,
+        payload: bytes,
+        stamp_ns: int,
+        flags: int,
+        now: float,
+        actions: list[Action],
+    ) -> None:
+        p.deadline.reset(now)
+        if self._lifespan_ns and self.clock.wall_ns() - stamp_ns > self._lifespan_ns:
+            self.lifespan_expired += 1
+            return
+        retransmitted = bool(flags & wire.F_RETRANSMIT)
+        self.retransmitted += retransmitted
+        self.delivered += 1
+        p.delivered += 1
+        actions.append(Deliver(payload, DataInfo(p.topic, p.hex, seq, stamp_ns, retransmitted)))
+
+    def _add_lost(self, p: _WriterProxy, n: int, actions: list[Action]) -> None:
+        if n <= 0:
+            return
+        p.lost += n
+        self.lost += n
+        actions.append(Notify("message_lost", MessageLostStatus(self.lost, n, p.hex)))
+
+    def _drain(self, p: _WriterProxy, actions: list[Action]) -> None:
+        now = self.clock.monotonic_s()
+        while True:
+            item = p.buffer.pop(p.expected, None)
+            if item is not None:
+                p.expected += 1
+                self._deliver(p, p.expected - 1, item[0], item[1], item[2], now, actions)
+                continue
+            if p.gaps and p.gaps[0][0] <= p.expected:
+                _, hi = p.gaps.pop(0)
+                if hi >= p.expected:
+                    self._skip_to(p, hi + 1, actions)
+                continue
+            break
+        while p.detect and p.detect[0][0] < p.expected:
+            p.detect.pop(0)
+
+    def _skip_to(self, p: _WriterProxy, target: int, actions: list[Action]) -> None:
+        """Give up everything below ``target``: deliver what is buffered there, count the rest."""
+        if target <= p.expected:
+            return
+        now = self.clock.monotonic_s()
+        held = sorted(s for s in p.buffer if s < target)
+        for seq in held:
+            data, stamp, flags = p.buffer.pop(seq)
+            self._deliver(p, seq, data, stamp, flags, now, actions)
+        self._add_lost(p, target - p.expected - len(held), actions)
+        p.expected = target
+        if target - 1 > p.highest:
+            p.highest = target - 1
+        self._drain(p, actions)
+
+    # ------------------------------------------------------------------ control
+    def on_heartbeat(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        hb = wire.decode_heartbeat(payload)
+        if hb is None:
+            self.bad("malformed HEARTBEAT", key)
+            return []
+        p = self.writers.get(hb.writer)
+        if p is None:
+            if hb.writer not in self._incompatible:
+                self.bad("HEARTBEAT from an unmatched writer", hb.writer.hex())
+            return []
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        if not p.manual or hb.flags & wire.HB_LIVELINESS:
+            self._alive(p, now, actions)
+        if hb.flags & wire.HB_UNCHANGED:
+            self.unchanged += 1
+            p.deadline.reset(now)
+        sync = bool(hb.flags & wire.HB_SYNC)
+        if not self._reliable:
+            if sync:
+                if not p.synced:
+                    p.synced, p.expected, p.start = True, hb.first, hb.first
+                elif not p.an_count and hb.first < p.start:
+                    # Data overtook the SYNC: what the writer sent since the match start and we
+                    # never saw is lost, not outside the match.
+                    self._add_lost(p, p.start - hb.first, actions)
+                    p.start = hb.first
+                if not p.an_count:  # one ACKNACK so the writer stops repeating SYNC
+                    actions.append(self._acknack(p, now))
+            elif p.synced and hb.last >= p.expected:
+                self._add_lost(p, hb.last - p.expected + 1, actions)
+                p.expected = hb.last + 1
+            return actions
+        if sync:
+            if not p.synced:
+                p.synced = True
+                p.expected = p.start = hb.first
+                p.highest = max(p.highest, hb.first - 1)
+                early = [s for s in p.buffer if s < hb.first]
+                for seq in early:
+                    del p.buffer[seq]
+                self.before_match += len(early)
+                if p.buffer:
+                    p.detect.append((max(p.buffer) - 1, now))
+            p.an_due_s = now
+        elif not p.synced:
+            return actions
+        elif hb.first > p.expected:
+            self._skip_to(p, hb.first, actions)
+        if hb.last > p.highest:
+            p.detect.append((hb.last, now))
+            p.highest = hb.last
+            p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
+        self._drain(p, actions)
+        if not hb.flags & wire.HB_FINAL:
+            p.an_due_s = now
+        if p.an_due_s <= now:
+            actions.append(self._acknack(p, now))
+        return actions
+
+    def _gap(self, p: _WriterProxy, ranges: list[tuple[int, int]]) -> list[Action]:
+        actions: list[Action] = []
+        if not p.synced:
+            return actions
+        for lo, hi in ranges:
+            hi = min(hi, p.highest)
+            self.gaps += max(0, hi - max(lo, p.expected) + 1)
+            if hi < p.expected:
+                continue
+            if lo <= p.expected:
+                self._skip_to(p, hi + 1, actions)
+            elif len(p.gaps) < wire.MAX_RANGES:
+                bisect.insort(p.gaps, (lo, hi))
+        self._drain(p, actions)
+        return actions
+
+    def _missing(self, p: _WriterProxy) -> list[tuple[int, int]]:
+        ranges: list[tuple[int, int]] = []
+        cur = p.expected
+        for seq in [*sorted(p.buffer), p.highest + 1]:
+            if seq > cur:
+                ranges.append((cur, seq - 1))
+                if len(ranges) >= wire.MAX_RANGES:
+                    break
+            cur = seq + 1
+        return ranges
+
+    def _acknack(self, p: _WriterProxy, now: float) -> Send:
+        missing = self._missing(p) if p.highest >= p.expected else []
+        p.an_count += 1
+        if missing:
+            self.nacks += 1
+            p.an_due_s = now + self.qos.nack_period_s
+        else:
+            self.acks += 1
+            p.an_due_s = math.inf
+        payload = wire.encode_acknack(self.guid, p.guid, p.expected, p.an_count, missing)
+        return Send(p.an_key, payload)
+
+    def tick(self) -> list[Action]:
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        for p in self.writers.values():
+            missed = p.deadline.poll(now)
+            if missed:
+                self.deadline_missed += missed
+                actions.append(
+                    Notify("deadline", DeadlineMissedStatus(self.deadline_missed, missed, p.hex))
+                )
+            if p.lease.poll(now):
+                self.alive_count -= 1
+                self.not_alive_count += 1
+                actions.append(self._liveliness(-1, 1, p.hex))
+            if not (self._reliable and p.synced):
+                continue
+            self._give_up(p, now, actions)
+            if p.an_due_s <= now:
+                actions.append(self._acknack(p, now))
+        return actions
+
+    def _give_up(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        """Bound head-of-line blocking: a run missing for reorder_timeout_s is declared lost."""
+        limit = now - self.qos.reorder_timeout_s
+        while p.highest >= p.expected and p.detect and p.detect[0][1] <= limit:
+            run_end = p.detect[0][0]
+            nxt = min(p.buffer) if p.buffer else p.highest + 1
+            self._skip_to(p, min(nxt, run_end + 1), actions)
+            if p.detect and p.detect[0][0] < p.expected:
+                p.detect.pop(0)
+
+    def stats(self) -> ReaderStats:
+        return ReaderStats(
+            delivered=self.delivered,
+            lost=self.lost,
+            lifespan_expired=self.lifespan_expired,
+            duplicates=self.duplicates,
+            late=self.late,
+            retransmitted=self.retransmitted,
+            nacks=self.nacks,
+            acks=self.acks,
+            gaps=self.gaps,
+            unchanged=self.unchanged,
+            deadline_missed=self.deadline_missed,
+            matched=len(self.writers),
+            incompatible=self.incompatible,
+            before_match=self.before_match,
+            bad_input=self.bad.total(),
+        )
+
+    def match_start(self, writer_hex: str) -> int | None:
+        """Where the match with this writer started, for tests of the invariant."""
+        for p in self.writers.values():
+            if p.hex == writer_hex and p.synced:
+                return p.start
+        return None

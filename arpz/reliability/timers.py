@@ -1,0 +1,94 @@
+"""Clocks and the pure timers behind DEADLINE and LIVELINESS.
+
+The state machines read time only through a ``Clock`` so tests can drive them with ``FakeClock``
+and get the same result on every run; the timers take the current time as an argument.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Protocol
+
+
+class Clock(Protocol):
+    def monotonic_s(self) -> float: ...
+    def wall_ns(self) -> int: ...
+
+
+class SystemClock:
+    """Monotonic time for timers; wall time for source stamps (comparable across hosts)."""
+
+    def monotonic_s(self) -> float:
+        return time.monotonic()
+
+    def wall_ns(self) -> int:
+        return time.time_ns()
+
+
+class FakeClock:
+    def __init__(self, start_s: float = 1000.0) -> None:
+        self.now_s = start_s
+
+    def monotonic_s(self) -> float:
+        return self.now_s
+
+    def wall_ns(self) -> int:
+        return int(self.now_s * 1e9)
+
+    def advance(self, dt_s: float) -> None:
+        self.now_s += dt_s
+
+
+class DeadlineTimer:
+    """Counts missed deadline periods: silent for 3.5 periods = 3 misses, reported as they happen.
+
+    A period of 0 disables the timer (no deadline).
+    """
+
+    def __init__(self, period_s: float, now_s: float) -> None:
+        self.period_s = period_s
+        self.last_s = now_s
+        self.reported = 0
+        self.total = 0
+
+    def reset(self, now_s: float) -> None:
+        self.last_s = now_s
+        self.reported = 0
+
+    def poll(self, now_s: float) -> int:
+        """New misses since the last poll."""
+        if self.period_s <= 0:
+            return 0
+        missed = int((now_s - self.last_s) / self.period_s)
+        new = missed - self.reported
+        if new <= 0:
+            return 0
+        self.reported = missed
+        self.total += new
+        return new
+
+
+class LeaseTimer:
+    """Alive while asserted within the lease; a lease of 0 never expires."""
+
+    def __init__(self, lease_s: float, now_s: float) -> None:
+        self.lease_s = lease_s
+        self.last_s = now_s
+        self.alive = True
+
+    def assert_alive(self, now_s: float) -> bool:
+        """Record an assertion; True if this brought a not-alive peer back."""
+        self.last_s = now_s
+        if self.alive:
+            return False
+        self.alive = True
+        return True
+
+    def poll(self, now_s: float) -> bool:
+        """True exactly once when the lease expires."""
+        if self.lease_s <= 0 or not self.alive:
+            return False
+        if now_s - self.last_s > self.lease_s:
+            self.alive = False
+            return True
+        return False

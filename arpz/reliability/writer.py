@@ -1,0 +1,106 @@
+"""``Writer``: the publishing end of a reliable channel over any ``Transport``."""
+
+from __future__ import annotations
+
+import time
+
+from arpz.reliability._channel import Channel, Endpoint
+from arpz.reliability._common import new_guid
+from arpz.reliability.events import WriterEventCallbacks
+from arpz.reliability.qos import QosProfile
+from arpz.reliability.timers import Clock, SystemClock
+from arpz.reliability.writer_machine import HistoryFullError, WriterMachine, WriterStats
+from arpz.transport import Transport
+
+
+class Writer(Endpoint):
+    """Publishes opaque payloads on ``key`` with the QoS of ``qos``.
+
+    The payload goes unchanged on ``key`` and the DATA header in the Zenoh attachment, so a plain
+    Zenoh subscriber still decodes the samples; control traffic stays on keys below ``key``.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        key: str,
+        qos: QosProfile,
+        *,
+        events: WriterEventCallbacks | None = None,
+        express: bool = False,
+        clock: Clock | None = None,
+    ) -> None:
+        self.key = key
+        self.qos = qos
+        self._machine = WriterMachine(key, qos, new_guid(), clock or SystemClock())
+        self.guid = self._machine.hex
+        self._channel = Channel(
+            transport, self._machine, events or WriterEventCallbacks(), None, f"arpz-writer-{key}"
+        )
+        self._publisher = transport.publisher(key, express=express, block=True)
+        self._lock = self._channel.lock
+        self._channel.start()
+        self._channel.declare_token(self._machine.token_key)
+
+    def write(self, payload: bytes, *, stamp_ns: int | None = None) -> int:
+        """Publish one sample and return its seq (1, 2, ...).
+
+        KEEP_ALL: blocks while the history is full of unacknowledged samples, up to
+        ``max_blocking_time_s``, then raises ``HistoryFullError`` (nothing is dropped silently).
+        ``stamp_ns`` is the source time (wall clock, ns): lifespan is measured from it.
+        """
+        if self._closed:
+            raise RuntimeError(f"write on closed writer {self.key}")
+        give_up = 0.0
+        with self._lock:
+            while True:
+                try:
+                    seq, attachment, actions = self._machine.write(payload, stamp_ns)
+                    break
+                except HistoryFullError:
+                    now = time.monotonic()
+                    if not give_up:
+                        give_up = now + self.qos.max_blocking_time_s
+                    if now >= give_up:
+                        raise
+                    self._lock.wait(give_up - now)
+            self._publisher.put(payload, attachment=attachment)
+        self._channel.post(actions)
+        return seq
+
+    def assert_unchanged(self) -> None:
+        """Call when a reading equal to the last one sent is held back (the local cache): the
+        topic is proven alive and current to every reader without resending the value."""
+        with self._lock:
+            actions = self._machine.assert_unchanged()
+        self._channel.post(actions)
+
+    def assert_liveliness(self) -> None:
+        """MANUAL_BY_TOPIC: prove the writer alive without writing."""
+        with self._lock:
+            actions = self._machine.assert_liveliness()
+        self._channel.post(actions)
+
+    def wait_for_acknowledgments(self, timeout_s: float) -> bool:
+        """True once every matched reliable reader acknowledged everything written."""
+        deadline = time.monotonic() + timeout_s
+        with self._lock:
+            while not self._machine.all_acknowledged():
+                remaining = deadline - time.monotonic()
+                if remaining <= 0:
+                    return False
+                self._lock.wait(min(remaining, 0.05))
+        return True
+
+    @property
+    def matched_count(self) -> int:
+        with self._lock:
+            return len(self._machine.proxies)
+
+    def stats(self) -> WriterStats:
+        with self._lock:
+            stats = self._machine.stats()
+        return self._with_counters(stats)
+
+    def _on_close(self) -> None:
+        self._publisher.undeclare()

@@ -1,0 +1,388 @@
+"""The writer side of the reliable protocol as a pure state machine: values in, actions out.
+
+The history is contiguous (``first .. last_seq``) because samples only ever leave from the front
+(acknowledged by every reliable reader, overwritten by KEEP_LAST, or past their lifespan), so a
+resend request is answered by index and everything below ``first`` is answered with one GAP.
+"""
+
+from __future__ import annotations
+
+import math
+
+import msgspec
+
+from arpz.reliability import wire
+from arpz.reliability._common import BadInput, parse_token
+from arpz.reliability.actions import Action, Notify, Send
+from arpz.reliability.events import (
+    DeadlineMissedStatus,
+    IncompatibleQosStatus,
+    LivelinessLostStatus,
+    MatchedStatus,
+    MessageLostStatus,
+)
+from arpz.reliability.qos import (
+    HistoryPolicy,
+    LivelinessPolicy,
+    QosProfile,
+    encode_match_qos,
+    incompatible_policy,
+    rounded,
+)
+from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
+
+#: resends answered per ACKNACK: bounds the work of one (possibly forged) request; the reader
+#: asks again for the rest one NACK period later
+RESEND_BUDGET = 256
+
+
+class HistoryFullError(TimeoutError):
+    """KEEP_ALL history full of samples some reader has not acknowledged."""
+
+
+class WriterStats(msgspec.Struct, frozen=True):
+    sent: int
+    retransmitted: int
+    #: sequence numbers NACKed by readers
+    nacks: int
+    #: sequence numbers answered with GAP (no longer held)
+    gaps: int
+    heartbeats: int
+    #: KEEP_LAST overwrote a sample before every matched reliable reader acknowledged it
+    #: (an upper bound: a reader may have received it without having acknowledged it yet)
+    lost: int
+    lifespan_expired: int
+    unchanged: int
+    deadline_missed: int
+    liveliness_lost: int
+    matched: int
+    incompatible: int
+    history: int
+    bad_input: int
+    #: refused by the full worker queue (reliable readers get them again by NACK)
+    queue_dropped: int = 0
+    #: exceptions raised by user callbacks (logged, the channel goes on)
+    callback_errors: int = 0
+
+
+class _ReaderProxy:
+    """The writer's view of one matched reader."""
+
+    __slots__ = (
+        "acked",
+        "guid",
+        "hex",
+        "last_sync_s",
+        "lost",
+        "reliable",
+        "rx_key",
+        "start",
+        "synced",
+    )
+
+    def __init__(self, guid: bytes, hex_: str, reliable: bool, start: int, rx_key: str) -> None:
+        self.guid, self.hex, self.reliable = guid, hex_, reliable
+        self.start = start
+        #: every seq below this is acknowledged (or outside the match)
+        self.acked = start
+        self.synced = False
+        self.last_sync_s = -math.inf
+        self.lost = 0
+        self.rx_key = rx_key
+
+
+class WriterMachine:
+    def __init__(self, topic: str, qos: QosProfile, guid: bytes, clock: Clock) -> None:
+        self.topic = wire.check_topic_key(topic)
+        self.qos = qos
+        self.guid = guid
+        self.hex = guid.hex()
+        self.clock = clock
+        self.bad = BadInput(f"writer {topic} {self.hex}")
+        self._offered = rounded(qos)
+        self._capacity = qos.capacity
+        self._keep_all = qos.history is HistoryPolicy.KEEP_ALL
+        self._manual = qos.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
+        self._ack_interval = max(1, min(64, self._capacity // (4 if self._keep_all else 2)))
+        now = clock.monotonic_s()
+        #: seq -> (payload, stamp_ns); holds exactly first .. last_seq
+        self.history: dict[int, tuple[bytes, int]] = {}
+        self.first = 1
+        self.last_seq = 0
+        self._last_ack_request = 0
+        self.proxies: dict[bytes, _ReaderProxy] = {}
+        self._incompatible: set[bytes] = set()
+        self._hb_count = 0
+        self._next_hb_s = now
+        self._last_unchanged_hb_s = -math.inf
+        self._last_live_hb_s = -math.inf
+        self._asserted_since_hb = True
+        self._deadline = DeadlineTimer(qos.deadline_s, now)
+        self._lease = LeaseTimer(qos.lease_duration_s if self._manual else 0.0, now)
+        self._hb_key = wire.heartbeat_key(topic, self.hex)
+        self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
+        self.sent = self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
+        self.lost = self.lifespan_expired = self.unchanged = 0
+        self.liveliness_lost = self.incompatible = 0
+        self.matched_total = 0
+
+    # ------------------------------------------------------------------ routing
+    def subscriptions(self) -> list[tuple[str, str]]:
+        """(key expression, handler name) pairs the driver must subscribe."""
+        return [(wire.acknack_key(self.topic, self.hex, "*"), "on_acknack")]
+
+    def watch_expr(self) -> str:
+        return wire.reader_token(self.topic, "*", "*")
+
+    # ------------------------------------------------------------------ writing
+    def _min_acked(self) -> int:
+        acked = self.last_seq + 1
+        for p in self.proxies.values():
+            if p.reliable and p.acked < acked:
+                acked = p.acked
+        return acked
+
+    def _purge(self) -> None:
+        """Drop what no reader can need any more: acknowledged samples of a VOLATILE writer."""
+        if self.qos.transient_local:
+            return
+        limit = self._min_acked()
+        while self.first < limit and self.first <= self.last_seq:
+            del self.history[self.first]
+            self.first += 1
+
+    def all_acknowledged(self) -> bool:
+        return self._min_acked() > self.last_seq and all(p.synced for p in self.proxies.values())
+
+    def has_room(self) -> bool:
+        if len(self.history) < self._capacity or not self._keep_all:
+            return True
+        return self.first < self._min_acked()
+
+    def write(self, payload: bytes, stamp_ns: int | None = None) -> tuple[int, bytes, list[Action]]:
+        """Assign the next seq and return (seq, DATA attachment, actions); the driver publishes
+        the payload with the attachment on the topic key. Raises HistoryFullError if KEEP_ALL has
+        no room (the driver waits for acknowledgements and retries up to max_blocking_time)."""
+        actions: list[Action] = []
+        if len(self.history) >= self._capacity:
+            if self._keep_all:
+                if self.first >= self._min_acked():
+                    raise HistoryFullError(self._full_message())
+                self._drop_front()
+            else:
+                self._overwrite_front(actions)
+        now = self.clock.monotonic_s()
+        if stamp_ns is None:
+            stamp_ns = self.clock.wall_ns()
+        self.last_seq += 1
+        seq = self.last_seq
+        self.history[seq] = (payload, stamp_ns)
+        self.sent += 1
+        flags = 0
+        if seq - self._last_ack_request >= self._ack_interval and self.proxies:
+            flags = wire.F_ACK_REQUEST
+            self._last_ack_request = seq
+        self._deadline.reset(now)
+        self._assert(now)
+        self._purge()
+        return seq, wire.encode_data(flags, self.guid, seq, stamp_ns), actions
+
+    def _full_message(self) -> str:
+        waiting = [p.hex for p in self.proxies.values() if p.reliable and p.acked <= self.first]
+        return (
+            f"KEEP_ALL history of {self.topic} is full ({len(self.history)} samples = max_samples) "
+            f"and reader(s) {', '.join(waiting) or '?'} have not acknowledged seq {self.first} "
+            f"within max_blocking_time_s={self.qos.max_blocking_time_s}: the link is too slow or "
+            "down; raise max_samples/max_blocking_time_s, lower the rate, or use KEEP_LAST"
+        )
+
+    def _drop_front(self) -> None:
+        del self.history[self.first]
+        self.first += 1
+
+    def _overwrite_front(self, actions: list[Action]) -> None:
+        seq = self.first
+        self._drop_front()
+        lost = 0
+        for p in self.proxies.values():
+            if p.reliable and seq >= p.acked:
+                p.lost += 1
+                lost += 1
+                p.acked = seq + 1
+        if lost:
+            self.lost += lost
+            actions.append(Notify("message_lost", MessageLostStatus(self.lost, lost)))
+
+    def _assert(self, now: float) -> None:
+        self._asserted_since_hb = True
+        if self._lease.assert_alive(now):
+            pass  # a writer regaining liveliness has no ROS 2 event of its own
+
+    def assert_unchanged(self) -> list[Action]:
+        """The local cache held back a reading equal to the last one sent: the topic is alive and
+        its value current. Resets the offered deadline here and, through a heartbeat flagged
+        UNCHANGED (at most one per half deadline), the requested deadline at every reader."""
+        now = self.clock.monotonic_s()
+        self.unchanged += 1
+        self._deadline.reset(now)
+        self._assert(now)
+        interval = (
+            self.qos.deadline_s / 2 if self.qos.deadline_s > 0 else self.qos.heartbeat_period_s
+        )
+        if now - self._last_unchanged_hb_s < interval:
+            return []
+        self._last_unchanged_hb_s = now
+        return [self._heartbeat(now, wire.HB_UNCHANGED)]
+
+    def assert_liveliness(self) -> list[Action]:
+        """MANUAL_BY_TOPIC: prove the writer alive without writing."""
+        now = self.clock.monotonic_s()
+        self._assert(now)
+        lease = self.qos.lease_duration_s
+        if lease > 0 and now - self._last_live_hb_s >= lease / 4:
+            return [self._heartbeat(now, 0)]
+        return []
+
+    def _heartbeat(self, now: float, extra: int) -> Send:
+        flags = extra
+        if not self._manual or self._asserted_since_hb:
+            flags |= wire.HB_LIVELINESS
+            self._last_live_hb_s = now
+        self._asserted_since_hb = False
+        if self._min_acked() > self.last_seq:
+            flags |= wire.HB_FINAL
+        self._hb_count += 1
+        self.heartbeats += 1
+        payload = wire.encode_heartbeat(flags, self.guid, self.first, self.last_seq, self._hb_count)
+        return Send(self._hb_key, payload)
+
+    def _sync(self, p: _ReaderProxy, now: float) -> Send:
+        """Tell one reader where its match starts (VOLATILE: the next seq; TRANSIENT_LOCAL: the
+        oldest held), repeated until the reader's first ACKNACK proves it knows."""
+        p.last_sync_s = now
+        payload = wire.encode_heartbeat(
+            wire.HB_SYNC | wire.HB_LIVELINESS, self.guid, p.start, self.last_seq, self._hb_count
+        )
+        return Send(p.rx_key, payload)
+
+    # ------------------------------------------------------------------ matching
+    def on_reader_token(self, key: str, alive: bool) -> list[Action]:
+        parsed = parse_token(key, "r", self.topic)
+        if parsed is None:
+            self.bad("malformed reader token", key)
+            return []
+        _, guid, hex_, mq = parsed
+        if not alive:
+            self._incompatible.discard(guid)
+            p = self.proxies.pop(guid, None)
+            if p is None:
+                return []
+            self._purge()
+            return [self._matched(-1, hex_)]
+        if guid in self.proxies or guid in self._incompatible:
+            return []
+        policy = incompatible_policy(self._offered, mq.as_profile())
+        if policy is not None:
+            self._incompatible.add(guid)
+            self.incompatible += 1
+            return [
+                Notify(
+                    "incompatible_qos", IncompatibleQosStatus(self.incompatible, 1, policy, hex_)
+                )
+            ]
+        start = (
+            self.first if (self.qos.transient_local and mq.transient_local) else self.last_seq + 1
+        )
+        p = _ReaderProxy(guid, hex_, mq.reliable, start, wire.directed_key(self.topic, hex_))
+        self.proxies[guid] = p
+        self.matched_total += 1
+        now = self.clock.monotonic_s()
+        return [self._matched(1, hex_), self._sync(p, now)]
+
+    def _matched(self, change: int, peer: str) -> Notify:
+        return Notify(
+            "matched",
+            MatchedStatus(self.matched_total, max(change, 0), len(self.proxies), change, peer),
+        )
+
+    # ------------------------------------------------------------------ reliability
+    def on_acknack(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        an = wire.decode_acknack(payload)
+        if an is None or an.writer != self.guid:
+            self.bad("malformed ACKNACK", key)
+            return []
+        p = self.proxies.get(an.reader)
+        if p is None:
+            self.bad("ACKNACK from an unmatched reader", an.reader.hex())
+            return []
+        p.synced = True
+        base = min(an.base, self.last_seq + 1)
+        if base > p.acked:
+            p.acked = base
+        actions: list[Action] = []
+        budget = RESEND_BUDGET
+        lost_ranges: list[tuple[int, int]] = []
+        for lo_, hi_ in an.missing:
+            lo, hi = max(lo_, base, p.start), min(hi_, self.last_seq)
+            if lo > hi:
+                continue
+            self.nacks += hi - lo + 1
+            if lo < self.first:
+                lost_ranges.append((lo, min(hi, self.first - 1)))
+                lo = self.first
+            seq = lo
+            while seq <= hi and budget > 0:
+                data, stamp = self.history[seq]
+                att = wire.encode_data(wire.F_RETRANSMIT, self.guid, seq, stamp)
+                actions.append(Send(p.rx_key, data, att))
+                budget -= 1
+                seq += 1
+            self.retransmitted += seq - lo
+        if lost_ranges:
+            self.gaps += sum(hi - lo + 1 for lo, hi in lost_ranges)
+            actions.append(Send(p.rx_key, wire.encode_gap(self.guid, p.guid, lost_ranges)))
+        self._purge()
+        return actions
+
+    def tick(self) -> list[Action]:
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        if self.qos.lifespan_s > 0:
+            self._expire(self.clock.wall_ns())
+        if now >= self._next_hb_s:
+            self._next_hb_s = now + self.qos.heartbeat_period_s
+            actions.append(self._heartbeat(now, 0))
+        for p in self.proxies.values():
+            if not p.synced and now - p.last_sync_s >= self.qos.nack_period_s:
+                actions.append(self._sync(p, now))
+        missed = self._deadline.poll(now)
+        if missed:
+            actions.append(Notify("deadline", DeadlineMissedStatus(self._deadline.total, missed)))
+        if self._lease.poll(now):
+            self.liveliness_lost += 1
+            actions.append(Notify("liveliness", LivelinessLostStatus(self.liveliness_lost, 1)))
+        return actions
+
+    def _expire(self, wall_ns: int) -> None:
+        limit_ns = wall_ns - int(self.qos.lifespan_s * 1e9)
+        while self.first <= self.last_seq and self.history[self.first][1] < limit_ns:
+            self._drop_front()
+            self.lifespan_expired += 1
+
+    def stats(self) -> WriterStats:
+        return WriterStats(
+            sent=self.sent,
+            retransmitted=self.retransmitted,
+            nacks=self.nacks,
+            gaps=self.gaps,
+            heartbeats=self.heartbeats,
+            lost=self.lost,
+            lifespan_expired=self.lifespan_expired,
+            unchanged=self.unchanged,
+            deadline_missed=self._deadline.total,
+            liveliness_lost=self.liveliness_lost,
+            matched=len(self.proxies),
+            incompatible=self.incompatible,
+            history=len(self.history),
+            bad_input=self.bad.total(),
+        )

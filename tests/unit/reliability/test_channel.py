@@ -1,0 +1,105 @@
+"""Writer and Reader over the in-memory transport: threads, blocking write, events, close."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.reliability import (
+    QOS_RELIABLE_ALL,
+    DataInfo,
+    HistoryFullError,
+    HistoryPolicy,
+    QosProfile,
+    Reader,
+    ReaderEventCallbacks,
+    ReliabilityPolicy,
+    Writer,
+    WriterEventCallbacks,
+    wire,
+)
+from tests.support import wait_until
+
+
+def test_samples_flow_in_order_and_callbacks_run_on_the_worker_thread() -> None:
+    bus = MemoryBus()
+    got: list[tuple[bytes, DataInfo]] = []
+    threads: set[str] = set()
+
+    def on_data(payload: bytes, info: DataInfo) -> None:
+        threads.add(threading.current_thread().name)
+        got.append((payload, info))
+
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(b, "f/robot/*/sensor/*", QOS_RELIABLE_ALL, on_data) as reader,
+        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+        seqs = [writer.write(b"%d" % i) for i in range(200)]
+        assert seqs == list(range(1, 201))
+        wait_until(lambda: len(got) == 200, what="all samples")
+        assert [info.seq for _, info in got] == seqs
+        assert got[0][1].key == "f/robot/r1/sensor/lidar" and got[0][1].writer == writer.guid
+        assert threads == {"arpz-reader-f/robot/*/sensor/*"}
+        assert writer.wait_for_acknowledgments(2.0)
+        assert reader.stats().delivered == 200 and writer.stats().sent == 200
+
+
+def test_keep_all_write_blocks_then_raises_a_clear_error_when_no_one_acknowledges() -> None:
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=5, max_blocking_time_s=0.2)
+    # A reader that matched and then went silent (its token is there, no ACKNACK ever comes).
+    b.declare_token(wire.reader_token("t", "ab" * 8, "RVA_0_0"))
+    writer = Writer(a, "t", qos)
+    try:
+        wait_until(lambda: writer.matched_count == 1, what="match")
+        t0 = time.monotonic()
+        with pytest.raises(HistoryFullError, match="abababababababab"):
+            for i in range(10):
+                writer.write(b"%d" % i)
+        assert time.monotonic() - t0 >= 0.2
+        assert writer.stats().sent == 5
+    finally:
+        writer.close()
+        a.close()
+        b.close()
+
+
+def test_incompatible_qos_events_reach_both_sides() -> None:
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    seen: list[str] = []
+    events_w = WriterEventCallbacks(
+        incompatible_qos=lambda s: seen.append("w:" + s.last_policy_kind.value)
+    )
+    events_r = ReaderEventCallbacks(
+        incompatible_qos=lambda s: seen.append("r:" + s.last_policy_kind.value)
+    )
+    be = QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT)
+    with (
+        Writer(a, "t", be, events=events_w),
+        Reader(b, "t", QosProfile(), lambda p, i: None, events=events_r) as reader,
+    ):
+        wait_until(lambda: len(seen) == 2, what="both events")
+        assert sorted(seen) == ["r:reliability", "w:reliability"]
+        assert reader.matched_count == 0
+    a.close()
+    b.close()
+
+
+class _nullctx:
+    def __init__(self, t: MemoryTransport) -> None:
+        self.t = t
+
+    def __enter__(self) -> MemoryTransport:
+        return self.t
+
+    def __exit__(self, *exc: object) -> None:
+        self.t.close()
