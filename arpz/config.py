@@ -23,11 +23,7 @@ class ConfigError(ValueError):
     """A configuration that cannot be used; ``str()`` names the file, the field and the problem."""
 
 
-class _Base(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
-    pass
-
-
-class SensorConfig(_Base):
+class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     """One sensor of a robot, published on ``arpz/{fleet}/robot/{robot}/sensor/{name}``."""
 
     name: str
@@ -58,7 +54,7 @@ class SensorConfig(_Base):
             raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
 
 
-class LocalCacheConfig(_Base):
+class LocalCacheConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     enabled: bool = True
     #: the longest a topic may stay silent: after this an unchanged value is sent anyway, so the
     #: CEDDP can tell "unchanged" from "dead"
@@ -69,7 +65,7 @@ class LocalCacheConfig(_Base):
             raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
 
 
-class HelloConfig(_Base):
+class HelloConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     """The Hello round-trip probe of seed 001 Fig. 9; only the origin robot enables it."""
 
     enabled: bool = False
@@ -84,7 +80,7 @@ class HelloConfig(_Base):
             raise ValueError(f"timeout_s must be > 0, got {self.timeout_s}")
 
 
-class RobotConfig(_Base):
+class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
     connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
@@ -109,7 +105,9 @@ class RobotConfig(_Base):
         keys.check_chunk(self.robot_id, what="robot_id")
         keys.check_chunk(self.fleet, what="fleet")
         if not self.connect:
-            raise ValueError("connect must list at least one endpoint, e.g. 'tcp/192.168.1.10:7447'")
+            raise ValueError(
+                "connect must list at least one endpoint, e.g. 'tcp/192.168.1.10:7447'"
+            )
         if self.preset is not None and self.preset not in ("machine1", "machine2", "machine3"):
             raise ValueError(f"preset must be machine1, machine2 or machine3, got {self.preset!r}")
         if not self.preset_rate_hz > 0:
@@ -124,7 +122,7 @@ class RobotConfig(_Base):
             raise ValueError("duration_s must be >= 0 (0 = run until stopped)")
 
 
-class CeddpHelloConfig(_Base):
+class CeddpHelloConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     """Where the CEDDP sends a Hello from the origin (seed 001 Fig. 9: robot 1 via robot 3)."""
 
     relay: str | None = None
@@ -134,7 +132,7 @@ class CeddpHelloConfig(_Base):
             keys.check_chunk(self.relay, what="hello.relay")
 
 
-class CeddpConfig(_Base):
+class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
     zenoh_config: str | None = None

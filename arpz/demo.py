@@ -67,8 +67,10 @@ class Proc:
             if self.popen.poll() is not None:
                 break
             time.sleep(0.02)
-        raise DemoError(f"{self.name} did not become ready within {timeout_s:.0f} s "
-                        f"(exit code {self.popen.poll()}); see {self.log_path}:\n{self.tail()}")
+        raise DemoError(
+            f"{self.name} did not become ready within {timeout_s:.0f} s "
+            f"(exit code {self.popen.poll()}); see {self.log_path}:\n{self.tail()}"
+        )
 
     def stop(self, timeout_s: float) -> int:
         if self.popen.poll() is None:
@@ -78,8 +80,10 @@ class Proc:
         except subprocess.TimeoutExpired:
             self.popen.kill()
             self.popen.wait()
-            raise DemoError(f"{self.name} did not stop within {timeout_s:.0f} s of SIGINT and "
-                            f"was killed; see {self.log_path}") from None
+            raise DemoError(
+                f"{self.name} did not stop within {timeout_s:.0f} s of SIGINT and "
+                f"was killed; see {self.log_path}"
+            ) from None
 
     def kill(self) -> None:
         if self.popen.poll() is None:
@@ -94,23 +98,40 @@ class Proc:
 
 def _spawn(name: str, args: list[str], workdir: Path) -> Proc:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    popen = subprocess.Popen([sys.executable, *args], stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, cwd=workdir, env=env)
+    popen = subprocess.Popen(
+        [sys.executable, *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        cwd=workdir,
+        env=env,
+    )
     proc = Proc(name, popen, workdir / f"{name}.log")
     proc.start_reader()
     return proc
 
 
-def write_configs(workdir: Path, *, robots: int, port: int, fleet: str, rrd: Path,
-                  rate_hz: float, hello_rate_hz: float, local_cache: bool,
-                  cache_control: bool) -> tuple[Path, list[Path]]:
+def write_configs(
+    workdir: Path,
+    *,
+    robots: int,
+    port: int,
+    fleet: str,
+    rrd: Path,
+    rate_hz: float,
+    hello_rate_hz: float,
+    local_cache: bool,
+    cache_control: bool,
+) -> tuple[Path, list[Path]]:
     endpoint = f"tcp/127.0.0.1:{port}"
     relay = f'relay = "robot{robots}"' if robots > 1 else ""
     ceddp = workdir / "ceddp.toml"
     ceddp.write_text(
         f'fleet = "{fleet}"\nlisten = ["{endpoint}"]\nrrd = "{rrd.as_posix()}"\n'
         f'summary_json = "summary.json"\ncache_control = {str(cache_control).lower()}\n'
-        f"\n[hello]\n{relay}\n", encoding="utf-8")
+        f"\n[hello]\n{relay}\n",
+        encoding="utf-8",
+    )
     robot_files = []
     for index in range(1, robots + 1):
         path = workdir / f"robot{index}.toml"
@@ -119,26 +140,46 @@ def write_configs(workdir: Path, *, robots: int, port: int, fleet: str, rrd: Pat
             f'robot_id = "robot{index}"\nfleet = "{fleet}"\nconnect = ["{endpoint}"]\n'
             f'preset = "{PRESET_CYCLE[(index - 1) % 3]}"\npreset_rate_hz = {rate_hz}\n'
             f"seed = {index}\n\n[local_cache]\nenabled = {str(local_cache).lower()}\n{hello}",
-            encoding="utf-8")
+            encoding="utf-8",
+        )
         robot_files.append(path)
     return ceddp, robot_files
 
 
-def run_demo(*, robots: int, duration_s: float, rrd: Path, rate_hz: float, hello_rate_hz: float,
-             local_cache: bool, cache_control: bool, workdir: Path,
-             progress: TextIO = sys.stderr) -> dict[str, Any]:
+def run_demo(
+    *,
+    robots: int,
+    duration_s: float,
+    rrd: Path,
+    rate_hz: float,
+    hello_rate_hz: float,
+    local_cache: bool,
+    cache_control: bool,
+    workdir: Path,
+    progress: TextIO = sys.stderr,
+) -> dict[str, Any]:
     """Run the fleet and return the CEDDP's summary; raise DemoError when a part failed."""
     fleet = "demo"
     ceddp_toml, robot_tomls = write_configs(
-        workdir, robots=robots, port=free_port(), fleet=fleet, rrd=rrd, rate_hz=rate_hz,
-        hello_rate_hz=hello_rate_hz, local_cache=local_cache, cache_control=cache_control)
+        workdir,
+        robots=robots,
+        port=free_port(),
+        fleet=fleet,
+        rrd=rrd,
+        rate_hz=rate_hz,
+        hello_rate_hz=hello_rate_hz,
+        local_cache=local_cache,
+        cache_control=cache_control,
+    )
     procs: list[Proc] = []
     try:
         ceddp = _spawn("ceddp", ["-m", "arpz.ceddp", "--config", str(ceddp_toml)], workdir)
         procs.append(ceddp)
         ceddp.wait_line("ready on", timeout_s=30)
-        fleet_procs = [_spawn(path.stem, ["-m", "arpz.robot", "--config", str(path)], workdir)
-                       for path in robot_tomls]
+        fleet_procs = [
+            _spawn(path.stem, ["-m", "arpz.robot", "--config", str(path)], workdir)
+            for path in robot_tomls
+        ]
         procs.extend(fleet_procs)
         for proc in fleet_procs:
             proc.wait_line("running", timeout_s=30)
@@ -147,8 +188,10 @@ def run_demo(*, robots: int, duration_s: float, rrd: Path, rate_hz: float, hello
         while (elapsed := time.monotonic() - start) < duration_s:
             for proc in procs:
                 if proc.popen.poll() is not None:
-                    raise DemoError(f"{proc.name} exited early with code {proc.popen.returncode};"
-                                    f" see {proc.log_path}:\n{proc.tail()}")
+                    raise DemoError(
+                        f"{proc.name} exited early with code {proc.popen.returncode};"
+                        f" see {proc.log_path}:\n{proc.tail()}"
+                    )
             print(f"\rdemo: {elapsed:5.1f}/{duration_s:.0f} s", end="", file=progress, flush=True)
             time.sleep(min(0.5, duration_s - elapsed))
         print(f"\rdemo: {duration_s:5.1f}/{duration_s:.0f} s, stopping", file=progress)
@@ -187,11 +230,14 @@ def check_summary(summary: dict[str, Any], robots: int) -> list[str]:
         if not row["final_stats"]:
             problems.append(f"{name}'s final report did not reach the CEDDP")
         if row["produced"] != row["sent"] + row["held_back"]:
-            problems.append(f"{name}: produced {row['produced']} != sent {row['sent']} + held "
-                            f"back {row['held_back']}")
+            problems.append(
+                f"{name}: produced {row['produced']} != sent {row['sent']} + held "
+                f"back {row['held_back']}"
+            )
         if row["sent"] != row["received"] + row["lost"]:
-            problems.append(f"{name}: sent {row['sent']} != received {row['received']} + lost "
-                            f"{row['lost']}")
+            problems.append(
+                f"{name}: sent {row['sent']} != received {row['received']} + lost {row['lost']}"
+            )
     hello = summary["robots"].get("robot1", {}).get("hello") or {}
     if not hello.get("received"):
         problems.append("no Hello came back to robot1")
@@ -207,14 +253,40 @@ def _fmt(value: Any) -> str:
 
 
 def format_summary(summary: dict[str, Any]) -> str:
-    headers = ["robot", "produced", "sent", "held back", "received", "cc discarded", "lost",
-               "lat p50 ms", "lat p99 ms"]
-    rows = [[name, *(_fmt(r[k]) for k in ("produced", "sent", "held_back", "received",
-                                            "cc_discarded", "lost", "latency_ms_p50",
-                                            "latency_ms_p99"))]
-            for name, r in sorted(summary["robots"].items())]
-    widths = [max(len(h), *(len(row[i]) for row in rows)) if rows else len(h)
-              for i, h in enumerate(headers)]
+    headers = [
+        "robot",
+        "produced",
+        "sent",
+        "held back",
+        "received",
+        "cc discarded",
+        "lost",
+        "lat p50 ms",
+        "lat p99 ms",
+    ]
+    rows = [
+        [
+            name,
+            *(
+                _fmt(r[k])
+                for k in (
+                    "produced",
+                    "sent",
+                    "held_back",
+                    "received",
+                    "cc_discarded",
+                    "lost",
+                    "latency_ms_p50",
+                    "latency_ms_p99",
+                )
+            ),
+        ]
+        for name, r in sorted(summary["robots"].items())
+    ]
+    widths = [
+        max(len(h), *(len(row[i]) for row in rows)) if rows else len(h)
+        for i, h in enumerate(headers)
+    ]
     lines = ["  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))]
     lines += ["  ".join(c.rjust(w) for c, w in zip(row, widths, strict=True)) for row in rows]
     for name, r in sorted(summary["robots"].items()):
@@ -223,11 +295,14 @@ def format_summary(summary: dict[str, Any]) -> str:
             lines.append(
                 f"Hello {name} -> CEDDP -> relay -> CEDDP -> {name}: sent {hello['sent']}, "
                 f"back {hello['received']}, lost {hello['lost']}, late {hello['late']}, "
-                f"round trip p50 {_fmt(hello['rtt_ms_p50'])} ms, p99 {_fmt(hello['rtt_ms_p99'])} ms")
+                f"round trip p50 {_fmt(hello['rtt_ms_p50'])} ms, p99 {_fmt(hello['rtt_ms_p99'])} ms"
+            )
     ingest = summary["ingest"]
-    lines.append(f"CEDDP: {ingest['processed']} samples ingested, {ingest['overflow']} dropped "
-                 f"by a full ingest queue, {ingest['unknown_keys']} on unknown keys, "
-                 f"{summary['dashboard']['dropped']} dashboard frames dropped")
+    lines.append(
+        f"CEDDP: {ingest['processed']} samples ingested, {ingest['overflow']} dropped "
+        f"by a full ingest queue, {ingest['unknown_keys']} on unknown keys, "
+        f"{summary['dashboard']['dropped']} dashboard frames dropped"
+    )
     return "\n".join(lines)
 
 
@@ -250,10 +325,16 @@ def main(argv: list[str] | None = None) -> int:
     workdir.mkdir(parents=True, exist_ok=True)
     rrd = args.rrd.resolve()
     try:
-        summary = run_demo(robots=args.robots, duration_s=args.duration, rrd=rrd,
-                           rate_hz=args.rate, hello_rate_hz=args.hello_rate,
-                           local_cache=not args.no_local_cache,
-                           cache_control=not args.no_cache_control, workdir=workdir)
+        summary = run_demo(
+            robots=args.robots,
+            duration_s=args.duration,
+            rrd=rrd,
+            rate_hz=args.rate,
+            hello_rate_hz=args.hello_rate,
+            local_cache=not args.no_local_cache,
+            cache_control=not args.no_cache_control,
+            workdir=workdir,
+        )
     except DemoError as exc:
         print(f"demo FAILED: {exc}", file=sys.stderr)
         return 1

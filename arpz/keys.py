@@ -20,7 +20,7 @@ class KeyError_(ValueError):
 
 
 def check_chunk(name: str, *, what: str) -> str:
-    """Return ``name`` if it is a valid single chunk, else raise with a message saying how to fix it."""
+    """Return ``name`` if it is a valid single chunk, else raise saying how to fix it."""
     if not _CHUNK.match(name):
         raise KeyError_(
             f"{what} {name!r} is not a valid key chunk: use lowercase letters, digits, '_' or '-', "

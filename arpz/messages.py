@@ -88,7 +88,7 @@ class HelloStats(msgspec.Struct, frozen=True):
 
 
 class RobotStats(msgspec.Struct, frozen=True):
-    """Counters a robot reports on ``.../stats`` periodically and once more, with final=True, at exit."""
+    """Counters a robot reports on ``.../stats`` periodically, and with final=True at exit."""
 
     robot: str
     incarnation: str

@@ -1,13 +1,13 @@
 """Latency distributions with bounded memory: an exact window plus a uniform reservoir.
 
-Per-interval figures (what the dashboard plots) come from the window, which is cleared on every
-``take_window``; whole-run figures (the summary's p50/p99) come from a reservoir of at most
-``capacity`` values (Vitter's algorithm R), so a week-long run does not grow without bound.
+``add`` only appends to the current window (it runs once per received sample, so it must be
+cheap). Per-interval figures (what the dashboard plots) come from ``take_window``, which also
+folds the window into a uniform reservoir of at most ``capacity`` values (Vitter's algorithm R,
+vectorised with numpy), so whole-run figures (the summary's p50/p99) stay bounded in memory on
+a week-long run.
 """
 
 from __future__ import annotations
-
-import random
 
 import numpy as np
 
@@ -23,29 +23,51 @@ class Distribution:
         self.capacity = capacity
         self.count = 0
         self.max: float | None = None
-        self._reservoir: list[float] = []
+        self._reservoir = np.empty(0, dtype=float)
         self._window: list[float] = []
-        self._rng = random.Random(seed)
-
-    def add(self, value: float) -> None:
-        self.count += 1
-        if self.max is None or value > self.max:
-            self.max = value
-        self._window.append(value)
-        if len(self._reservoir) < self.capacity:
-            self._reservoir.append(value)
-        else:
-            slot = self._rng.randrange(self.count)
-            if slot < self.capacity:
-                self._reservoir[slot] = value
+        self._rng = np.random.default_rng(seed)
+        self.add = self._window.append  # the hot path: one C call per value
 
     def take_window(self) -> list[float]:
-        window, self._window = self._window, []
+        """The values added since the last call (and fold them into the reservoir)."""
+        window = self._drain()
+        self._fold(window)
         return window
 
+    def _drain(self) -> list[float]:
+        window = self._window
+        self._window = []
+        self.add = self._window.append
+        return window
+
+    def _fold(self, window: list[float]) -> None:
+        if not window:
+            return
+        values = np.asarray(window, dtype=float)
+        top = float(values.max())
+        self.max = top if self.max is None else max(self.max, top)
+        room = self.capacity - len(self._reservoir)
+        if room > 0:
+            self._reservoir = np.concatenate([self._reservoir, values[:room]])
+            self.count += min(room, len(values))
+            values = values[room:]
+        if len(values):
+            # algorithm R: the i-th value overall replaces a random slot with probability cap/i
+            positions = self.count + 1 + np.arange(len(values))
+            slots = (self._rng.random(len(values)) * positions).astype(np.int64)
+            keep = slots < self.capacity
+            self._reservoir[slots[keep]] = values[keep]
+            self.count += len(values)
+
     def sample(self) -> list[float]:
-        """The reservoir: a uniform sample of every value added (all of them while below capacity)."""
-        return list(self._reservoir)
+        """A uniform sample of every value added (all of them while below capacity)."""
+        self._fold(self._drain())
+        return [float(v) for v in self._reservoir]
 
     def quantile(self, q: float) -> float | None:
+        self._fold(self._drain())
         return percentile(self._reservoir, q)
+
+    @property
+    def total(self) -> int:
+        return self.count + len(self._window)

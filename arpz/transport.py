@@ -75,7 +75,9 @@ def build_config(settings: SessionSettings) -> zenoh.Config:
     if settings.mode not in ("client", "peer", "router"):
         raise TransportError(f"mode must be client, peer or router, not {settings.mode!r}")
     try:
-        conf = zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
+        conf = (
+            zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
+        )
         conf.insert_json5("mode", json.dumps(settings.mode))
         conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
         if settings.listen:
@@ -118,7 +120,7 @@ class _ZenohPublisher:
 
     def undeclare(self) -> None:
         try:
-            self._inner.undeclare()
+            self._inner.undeclare()  # type: ignore[no-untyped-call]
         except zenoh.ZError as exc:
             log.debug("undeclare after close: %s", exc)
 
@@ -135,7 +137,7 @@ class ZenohTransport:
 
     @classmethod
     def open(cls, settings: SessionSettings, *, timeout_s: float = 0.0) -> ZenohTransport:
-        """Open a session, retrying for up to ``timeout_s`` (a robot may start before its server)."""
+        """Open a session, retrying for ``timeout_s`` (a robot may start before its server)."""
         conf = build_config(settings)
         deadline = time.monotonic() + timeout_s
         while True:
@@ -209,7 +211,7 @@ class ZenohTransport:
         for item in reversed(declared):
             item.undeclare()
         try:
-            self._session.close()
+            self._session.close()  # type: ignore[no-untyped-call]
         except zenoh.ZError as exc:
             log.debug("session close: %s", exc)
 

@@ -36,13 +36,23 @@ def main() -> int:
     def on_sample(sample: zenoh.Sample) -> None:
         writer, seq, stamp_ns, value = msgspec.msgpack.decode(sample.payload.to_bytes())
         topic = str(sample.key_expr).rsplit("/", 1)[-1]
-        received.append({"topic": topic, "writer": writer, "seq": seq, "stamp_ns": stamp_ns,
-                         "value": value, "type": type(value).__name__})
+        received.append(
+            {
+                "topic": topic,
+                "writer": writer,
+                "seq": seq,
+                "stamp_ns": stamp_ns,
+                "value": value,
+                "type": type(value).__name__,
+            }
+        )
         if len(received) >= args.count:
             done.set()
 
     with zenoh.open(conf) as session:
-        sub = session.declare_subscriber(f"arpz/{args.fleet}/robot/{args.robot}/sensor/*", on_sample)
+        sub = session.declare_subscriber(
+            f"arpz/{args.fleet}/robot/{args.robot}/sensor/*", on_sample
+        )
         done.wait(args.timeout)
         sub.undeclare()
     for row in received[: args.count]:

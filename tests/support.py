@@ -23,9 +23,14 @@ def free_udp_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def wait_until(predicate: Callable[[], bool], *, timeout_s: float = 10.0, what: str = "condition",
-               interval_s: float = 0.02) -> None:
-    """Poll ``predicate`` until it is true; fail with ``what`` in the message after ``timeout_s``."""
+def wait_until(
+    predicate: Callable[[], bool],
+    *,
+    timeout_s: float = 10.0,
+    what: str = "condition",
+    interval_s: float = 0.02,
+) -> None:
+    """Poll ``predicate`` until true; after ``timeout_s`` fail naming ``what``."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if predicate():
@@ -38,7 +43,9 @@ def wait_until(predicate: Callable[[], bool], *, timeout_s: float = 10.0, what: 
 
 @contextmanager
 def router(port: int | None = None) -> Iterator[tuple[ZenohTransport, str]]:
-    """A real Zenoh router (a Python session in router mode) on loopback; yields (transport, endpoint)."""
+    """A real Zenoh router (a Python session in router mode) on loopback.
+
+    Yields (transport, endpoint)."""
     port = port or free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     transport = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))

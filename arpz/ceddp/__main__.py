@@ -36,8 +36,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def load(args: argparse.Namespace) -> CeddpConfig:
     overrides: dict[str, Any] = {
-        "fleet": args.fleet, "rrd": args.rrd, "grpc_port": args.grpc_port,
-        "summary_json": args.summary_json, "duration_s": args.duration_s,
+        "fleet": args.fleet,
+        "rrd": args.rrd,
+        "grpc_port": args.grpc_port,
+        "summary_json": args.summary_json,
+        "duration_s": args.duration_s,
         "listen": args.listen.split(",") if args.listen else None,
         "cache_control": False if args.no_cache_control else None,
     }
@@ -48,8 +51,9 @@ def load(args: argparse.Namespace) -> CeddpConfig:
 
 def serve(argv: list[str] | None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     try:
         config = load(args)
     except ConfigError as exc:
@@ -58,8 +62,11 @@ def serve(argv: list[str] | None) -> int:
     try:
         from arpz.ceddp.dashboard import Dashboard
     except ImportError as exc:
-        print(f"arpz.ceddp: the server needs its extra dependencies ({exc.name} is missing): "
-              "pip install 'arpz[server]'", file=sys.stderr)
+        print(
+            f"arpz.ceddp: the server needs its extra dependencies ({exc.name} is missing): "
+            "pip install 'arpz[server]'",
+            file=sys.stderr,
+        )
         return 1
     from arpz.ceddp.server import CeddpServer
 
@@ -68,7 +75,8 @@ def serve(argv: list[str] | None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     try:
         transport = ZenohTransport.open(
-            SessionSettings(mode="router", listen=config.listen, config_file=config.zenoh_config))
+            SessionSettings(mode="router", listen=config.listen, config_file=config.zenoh_config)
+        )
     except TransportError as exc:
         print(f"arpz.ceddp: {exc}", file=sys.stderr)
         return 1

@@ -21,28 +21,52 @@ class CacheControlCounters:
     """readings passed on to planning (changed, or the first on the topic)"""
 
 
+@dataclass
+class CacheSlot(CacheControlCounters):
+    """The cache of one (robot, topic); the ingest keeps a reference to skip the lookups."""
+
+    enabled: bool = True
+    tolerance: float = 0.0
+    has_value: bool = False
+    value: SensorValue = 0.0
+
+    def admit(self, value: SensorValue) -> bool:
+        if (
+            self.enabled
+            and self.has_value
+            and (
+                (type(value) is type(self.value) and value == self.value)
+                or (self.tolerance and same_value(value, self.value, self.tolerance))
+            )
+        ):
+            self.hits += 1
+            return False
+        self.value = value
+        self.has_value = True
+        self.misses += 1
+        return True
+
+
 class CacheControl:
     def __init__(self, *, enabled: bool = True, tolerance: float = 0.0) -> None:
         self.enabled = enabled
         self.tolerance = tolerance
-        self._cache: dict[tuple[str, str], SensorValue] = {}
-        self.counters: dict[tuple[str, str], CacheControlCounters] = {}
+        self.counters: dict[tuple[str, str], CacheSlot] = {}
+
+    def slot(self, robot: str, topic: str) -> CacheSlot:
+        slot = self.counters.get((robot, topic))
+        if slot is None:
+            slot = self.counters[(robot, topic)] = CacheSlot(
+                enabled=self.enabled, tolerance=self.tolerance
+            )
+        return slot
 
     def admit(self, robot: str, topic: str, value: SensorValue) -> bool:
         """True if the reading must reach planning, False if it is discarded as a duplicate."""
-        slot = (robot, topic)
-        counters = self.counters.get(slot)
-        if counters is None:
-            counters = self.counters[slot] = CacheControlCounters()
-        cached = self._cache.get(slot)
-        if self.enabled and cached is not None and same_value(value, cached, self.tolerance):
-            counters.hits += 1
-            return False
-        self._cache[slot] = value
-        counters.misses += 1
-        return True
+        return self.slot(robot, topic).admit(value)
 
     def forget(self, robot: str) -> None:
         """Drop a robot's cached values (it left; its next incarnation starts afresh)."""
-        for slot in [s for s in self._cache if s[0] == robot]:
-            del self._cache[slot]
+        for (owner, _), slot in self.counters.items():
+            if owner == robot:
+                slot.has_value = False

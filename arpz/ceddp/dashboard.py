@@ -74,8 +74,14 @@ def blueprint() -> rrb.Blueprint:
 
 
 class Dashboard:
-    def __init__(self, rrd_path: str | Path, *, grpc_port: int = 0, recording_id: str | None = None,
-                 queue_limit: int = 10_000) -> None:
+    def __init__(
+        self,
+        rrd_path: str | Path,
+        *,
+        grpc_port: int = 0,
+        recording_id: str | None = None,
+        queue_limit: int = 10_000,
+    ) -> None:
         self.rrd_path = Path(rrd_path)
         self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
         self.dropped = 0
@@ -84,8 +90,9 @@ class Dashboard:
         self._rec = rr.RecordingStream("arpz-ceddp", recording_id=recording_id)
         sinks: list[rr.FileSink | rr.GrpcServerSink] = [rr.FileSink(str(self.rrd_path))]
         if grpc_port:
-            sinks.append(rr.GrpcServerSink(bind_ip="0.0.0.0", port=grpc_port,
-                                           server_memory_limit="256MB"))
+            sinks.append(
+                rr.GrpcServerSink(bind_ip="0.0.0.0", port=grpc_port, server_memory_limit="256MB")
+            )
         self._rec.set_sinks(*sinks, default_blueprint=blueprint())
         self._thread = threading.Thread(target=self._run, name="arpz-dashboard", daemon=True)
         self._thread.start()
@@ -113,8 +120,7 @@ class Dashboard:
                     continue
                 for (robot, topic), metrics in item.topics.items():
                     for name, value in metrics.items():
-                        rec.log(f"/metrics/{name}/{_part(robot)}/{_part(topic)}",
-                                rr.Scalars(value))
+                        rec.log(f"/metrics/{name}/{_part(robot)}/{_part(topic)}", rr.Scalars(value))
                         self.logged_rows += 1
                 for robot, metrics in item.robots.items():
                     for name, value in metrics.items():

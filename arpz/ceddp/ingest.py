@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import msgspec
 
 from arpz import keys
-from arpz.ceddp.cache_control import CacheControl, CacheControlCounters
+from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
 from arpz.messages import HELLO_DECODER, SAMPLE_DECODER
 from arpz.percentiles import Distribution
@@ -46,6 +46,7 @@ class TopicMetrics:
     next_seq: int = 0
     highest_seq: int = 0
     latency_ms: Distribution = field(default_factory=Distribution)
+    cache: CacheSlot = field(default_factory=CacheSlot)
 
 
 @dataclass
@@ -74,7 +75,10 @@ class Ingest:
                 self._by_key[key] = None
                 return None
             robot, _, topic = parsed
-            metrics = self.topics.setdefault((robot, topic), TopicMetrics(robot, topic))
+            metrics = self.topics.get((robot, topic))
+            if metrics is None:
+                metrics = TopicMetrics(robot, topic, cache=self.cache_control.slot(robot, topic))
+                self.topics[(robot, topic)] = metrics
             self._by_key[key] = metrics
         return metrics
 
@@ -82,9 +86,13 @@ class Ingest:
         metrics = self.metrics_for(key)
         if metrics is None:
             self.counters.unknown_keys += 1
-            if self.counters.unknown_keys in (1, 10, 100) or self.counters.unknown_keys % 10000 == 0:
-                log.warning("ignoring sample on unknown key %s (%d so far)", key,
-                            self.counters.unknown_keys)
+            if (
+                self.counters.unknown_keys in (1, 10, 100)
+                or self.counters.unknown_keys % 10000 == 0
+            ):
+                log.warning(
+                    "ignoring sample on unknown key %s (%d so far)", key, self.counters.unknown_keys
+                )
             return
         if metrics.topic == HELLO_TOPIC:
             self._handle_hello(metrics, payload, arrival_ns)
@@ -94,11 +102,30 @@ class Ingest:
         except msgspec.DecodeError as exc:
             self._decode_error(metrics, key, payload, exc)
             return
-        self._account(metrics, sample.writer, sample.seq, sample.stamp_ns, arrival_ns,
-                      len(payload))
-        if self.cache_control.admit(metrics.robot, metrics.topic, sample.value):
-            self.planner.on_reading(Reading(metrics.robot, metrics.topic, sample.value,
-                                            sample.stamp_ns, arrival_ns, sample.seq))
+        # the common case (same writer, next number) inlined: this runs for every sample
+        seq = sample.seq
+        if sample.writer is metrics.writer or sample.writer == metrics.writer:
+            metrics.received += 1
+            metrics.bytes += len(payload)
+            metrics.latency_ms.add((arrival_ns - sample.stamp_ns) / 1e6)
+            if seq == metrics.next_seq:
+                metrics.next_seq = seq + 1
+                metrics.highest_seq = seq
+            else:
+                self._sequence_jump(metrics, seq)
+        else:
+            self._account(metrics, sample.writer, seq, sample.stamp_ns, arrival_ns, len(payload))
+        if metrics.cache.admit(sample.value):
+            self.planner.on_reading(
+                Reading(
+                    metrics.robot,
+                    metrics.topic,
+                    sample.value,
+                    sample.stamp_ns,
+                    arrival_ns,
+                    sample.seq,
+                )
+            )
 
     def _handle_hello(self, metrics: TopicMetrics, payload: bytes, arrival_ns: int) -> None:
         try:
@@ -110,16 +137,23 @@ class Ingest:
         self._account(metrics, hello.writer, hello.seq, hello.stamp_ns, arrival_ns, len(payload))
         self.planner.on_hello(metrics.robot, hello)
 
-    def _decode_error(self, metrics: TopicMetrics, key: str, payload: bytes,
-                      exc: Exception) -> None:
+    def _decode_error(
+        self, metrics: TopicMetrics, key: str, payload: bytes, exc: Exception
+    ) -> None:
         metrics.decode_errors += 1
         if metrics.decode_errors in (1, 10, 100) or metrics.decode_errors % 10000 == 0:
-            log.warning("decode error #%d on %s (%d bytes): %s", metrics.decode_errors, key,
-                        len(payload), exc)
+            log.warning(
+                "decode error #%d on %s (%d bytes): %s",
+                metrics.decode_errors,
+                key,
+                len(payload),
+                exc,
+            )
 
     @staticmethod
-    def _account(metrics: TopicMetrics, writer: str, seq: int, stamp_ns: int, arrival_ns: int,
-                 size: int) -> None:
+    def _account(
+        metrics: TopicMetrics, writer: str, seq: int, stamp_ns: int, arrival_ns: int, size: int
+    ) -> None:
         metrics.received += 1
         metrics.bytes += size
         metrics.latency_ms.add((arrival_ns - stamp_ns) / 1e6)
@@ -133,7 +167,13 @@ class Ingest:
             return
         if seq == metrics.next_seq:
             metrics.next_seq += 1
-        elif seq > metrics.next_seq:
+            metrics.highest_seq = max(metrics.highest_seq, seq)
+        else:
+            Ingest._sequence_jump(metrics, seq)
+
+    @staticmethod
+    def _sequence_jump(metrics: TopicMetrics, seq: int) -> None:
+        if seq > metrics.next_seq:
             metrics.lost += seq - metrics.next_seq
             metrics.next_seq = seq + 1
         else:

@@ -100,6 +100,7 @@ class HelloRelay(Planner):
 
     def _forward(self, robot: str, hello: Hello, *, stage: int) -> None:
         self._seq += 1
-        hop = msgspec.structs.replace(hello, writer=self.writer, seq=self._seq,
-                                      stamp_ns=time.time_ns(), stage=stage)
+        hop = msgspec.structs.replace(
+            hello, writer=self.writer, seq=self._seq, stamp_ns=time.time_ns(), stage=stage
+        )
         self.sink.send(robot, "hello", msgspec.msgpack.encode(hop))

@@ -81,18 +81,26 @@ class _TransportSink:
 
 
 class CeddpServer:
-    def __init__(self, config: CeddpConfig, transport: Transport, *,
-                 dashboard: DashboardLike | None = None, planner: Planner | None = None) -> None:
+    def __init__(
+        self,
+        config: CeddpConfig,
+        transport: Transport,
+        *,
+        dashboard: DashboardLike | None = None,
+        planner: Planner | None = None,
+    ) -> None:
         self.config = config
         self.transport = transport
         self.dashboard = dashboard
         self.incarnation = new_incarnation()
         self.sink = _TransportSink(transport, config.fleet)
-        self.hello_relay = HelloRelay(self.sink, writer_id("ceddp", self.incarnation),
-                                      relay=config.hello.relay)
+        self.hello_relay = HelloRelay(
+            self.sink, writer_id("ceddp", self.incarnation), relay=config.hello.relay
+        )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
-        self.ingest = Ingest(config.fleet, _Fanout(self.planners),
-                             CacheControl(enabled=config.cache_control))
+        self.ingest = Ingest(
+            config.fleet, _Fanout(self.planners), CacheControl(enabled=config.cache_control)
+        )
         self.robots: dict[str, RobotRecord] = {}
         self.counters = ServerCounters()
         self._queue: queue.SimpleQueue[tuple[int, str, bytes, int] | None] = queue.SimpleQueue()
@@ -100,7 +108,10 @@ class CeddpServer:
         self._threads: list[threading.Thread] = []
         self._started_ns = time.time_ns()
         self._last_tick: tuple[float, float, dict[tuple[str, str], tuple[int, int]]] = (
-            time.monotonic(), time.process_time(), {})
+            time.monotonic(),
+            time.process_time(),
+            {},
+        )
         self.processed = 0
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -131,8 +142,9 @@ class CeddpServer:
             thread = threading.Thread(target=target, name=name, daemon=True)
             thread.start()
             self._threads.append(thread)
-        self._event(f"CEDDP {self.incarnation} serving fleet '{fleet}' on "
-                    f"{', '.join(self.config.listen)}")
+        self._event(
+            f"CEDDP {self.incarnation} serving fleet '{fleet}' on {', '.join(self.config.listen)}"
+        )
 
     def run(self, stop: threading.Event) -> None:
         end = time.monotonic() + (self.config.duration_s or float("inf"))
@@ -218,8 +230,9 @@ class CeddpServer:
             record.joins += 1
         else:
             record.leaves += 1
-        self._event(f"robot {robot} {'joined' if alive else 'left'}",
-                    level="INFO" if alive else "WARN")
+        self._event(
+            f"robot {robot} {'joined' if alive else 'left'}", level="INFO" if alive else "WARN"
+        )
         if not alive:
             self.ingest.cache_control.forget(robot)
         for planner in self.planners:
@@ -260,8 +273,14 @@ class CeddpServer:
                 if stats is not None and slot[1] in stats.topics:
                     row["held_back"] = float(stats.topics[slot[1]].held_back)
                 frame_topics[slot] = row
-                rates.append(TopicRate(robot=slot[0], topic=slot[1], rate_hz=row["rate_hz"],
-                                       bytes_per_s=row["bytes_per_s"]))
+                rates.append(
+                    TopicRate(
+                        robot=slot[0],
+                        topic=slot[1],
+                        rate_hz=row["rate_hz"],
+                        bytes_per_s=row["bytes_per_s"],
+                    )
+                )
             robots: dict[str, dict[str, float]] = {}
             for robot, record in self.robots.items():
                 if record.stats is None:
@@ -279,9 +298,14 @@ class CeddpServer:
             robots.setdefault("ceddp", {})["cpu_percent"] = cpu_percent
             self.dashboard.submit(MetricsFrame(time.time_ns(), frame_topics, robots))
         try:
-            self.transport.put(keys.ceddp_stats_key(self.config.fleet), encode(
-                CeddpStats(stamp_ns=time.time_ns(), cpu_percent=round(cpu_percent, 2),
-                           topics=rates)))
+            self.transport.put(
+                keys.ceddp_stats_key(self.config.fleet),
+                encode(
+                    CeddpStats(
+                        stamp_ns=time.time_ns(), cpu_percent=round(cpu_percent, 2), topics=rates
+                    )
+                ),
+            )
         except Exception as exc:  # the session may be closing
             log.debug("could not publish CEDDP stats: %s", exc)
         for planner in self.planners:
@@ -311,14 +335,29 @@ class CeddpServer:
                     if r == robot:
                         topics[topic] = self._topic_summary(m, stats)
                 sensor_rows = [t for name, t in topics.items() if name != "hello"]
-                latencies = [m.latency_ms for (r, t), m in self.ingest.topics.items()
-                             if r == robot and t != "hello"]
+                latencies = [
+                    m.latency_ms
+                    for (r, t), m in self.ingest.topics.items()
+                    if r == robot and t != "hello"
+                ]
                 robots[robot] = {
-                    "alive": record.alive, "joins": record.joins, "leaves": record.leaves,
+                    "alive": record.alive,
+                    "joins": record.joins,
+                    "leaves": record.leaves,
                     "final_stats": bool(stats and stats.final),
-                    **{k: sum(t[k] for t in sensor_rows) for k in
-                       ("produced", "sent", "held_back", "received", "cc_discarded",
-                        "cc_passed", "lost", "decode_errors")},
+                    **{
+                        k: sum(t[k] for t in sensor_rows)
+                        for k in (
+                            "produced",
+                            "sent",
+                            "held_back",
+                            "received",
+                            "cc_discarded",
+                            "cc_passed",
+                            "lost",
+                            "decode_errors",
+                        )
+                    },
                     "latency_ms_p50": _merged_quantile(latencies, 50),
                     "latency_ms_p99": _merged_quantile(latencies, 99),
                     "cpu_percent": stats.cpu_percent if stats else None,
@@ -330,10 +369,12 @@ class CeddpServer:
             "duration_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
             "robots": robots,
             "hello_relay": asdict(self.hello_relay.counters),
-            "ingest": {"processed": self.processed,
-                       "overflow": self.counters.ingest_overflow,
-                       "unknown_keys": self.ingest.counters.unknown_keys,
-                       "unknown_control_keys": self.counters.unknown_control_keys},
+            "ingest": {
+                "processed": self.processed,
+                "overflow": self.counters.ingest_overflow,
+                "unknown_keys": self.ingest.counters.unknown_keys,
+                "unknown_control_keys": self.counters.unknown_control_keys,
+            },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
             "events": self.counters.events,
         }
@@ -342,8 +383,12 @@ class CeddpServer:
         cc = self.ingest.cache_counters(m.robot, m.topic)
         counters = stats.topics.get(m.topic) if stats else None
         tail_lost = 0
-        if stats is not None and stats.final and counters is not None and m.writer.endswith(
-                stats.incarnation):
+        if (
+            stats is not None
+            and stats.final
+            and counters is not None
+            and m.writer.endswith(stats.incarnation)
+        ):
             # samples sent after the last one that arrived: invisible as a gap, but lost
             tail_lost = max(counters.last_seq - m.highest_seq, 0)
         return {

@@ -41,8 +41,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 
 def load(args: argparse.Namespace) -> RobotConfig:
     overrides: dict[str, Any] = {
-        "robot_id": args.robot_id, "fleet": args.fleet, "preset": args.preset,
-        "preset_rate_hz": args.preset_rate_hz, "duration_s": args.duration_s, "seed": args.seed,
+        "robot_id": args.robot_id,
+        "fleet": args.fleet,
+        "preset": args.preset,
+        "preset_rate_hz": args.preset_rate_hz,
+        "duration_s": args.duration_s,
+        "seed": args.seed,
         "connect": args.connect.split(",") if args.connect else None,
     }
     if args.config is not None:
@@ -70,8 +74,9 @@ def load(args: argparse.Namespace) -> RobotConfig:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(),
-                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.basicConfig(
+        level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
     try:
         config = load(args)
     except ConfigError as exc:
@@ -83,7 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         transport = ZenohTransport.open(
             SessionSettings(mode="client", connect=config.connect, config_file=config.zenoh_config),
-            timeout_s=config.connect_timeout_s)
+            timeout_s=config.connect_timeout_s,
+        )
     except TransportError as exc:
         print(f"arpz.robot: {exc}", file=sys.stderr)
         return 1
@@ -92,8 +98,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             agent = RobotAgent(config, transport, base_dir=base_dir)
         except (DriverError, TraceError, ValueError) as exc:
-            print(f"arpz.robot: bad configuration: {args.config or 'command line'}: {exc}",
-                  file=sys.stderr)
+            print(
+                f"arpz.robot: bad configuration: {args.config or 'command line'}: {exc}",
+                file=sys.stderr,
+            )
             return 2
         agent.start()
         print(f"arpz.robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True)

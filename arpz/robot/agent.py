@@ -8,6 +8,7 @@ a queue, so the callback never blocks.
 
 from __future__ import annotations
 
+import functools
 import heapq
 import logging
 import queue
@@ -79,8 +80,14 @@ class _Job:
 
 
 class RobotAgent:
-    def __init__(self, config: RobotConfig, transport: Transport, *,
-                 actuator: Actuator | None = None, base_dir: Path | None = None) -> None:
+    def __init__(
+        self,
+        config: RobotConfig,
+        transport: Transport,
+        *,
+        actuator: Actuator | None = None,
+        base_dir: Path | None = None,
+    ) -> None:
         self.config = config
         self.transport = transport
         self.actuator = actuator or RecordingActuator()
@@ -95,24 +102,33 @@ class RobotAgent:
         self._hello_writer_seq = 0
         self._hello_lock = threading.Lock()
         self._hello_pub = transport.publisher(
-            keys.sensor_key(config.fleet, config.robot_id, HELLO_TOPIC), express=True)
+            keys.sensor_key(config.fleet, config.robot_id, HELLO_TOPIC), express=True
+        )
         self._start_s = time.monotonic()
         self._last_cpu = (time.monotonic(), time.process_time())
         base_dir = base_dir or Path.cwd()
         self.sensors: list[_SensorChannel] = []
         for sensor in effective_sensors(config):
             silence = sensor.max_silence_s or config.local_cache.max_silence_s
-            self.sensors.append(_SensorChannel(
-                config=sensor,
-                driver=make_driver(sensor, robot_id=config.robot_id, robot_seed=config.seed,
-                                   base_dir=base_dir),
-                cache=LocalCache(enabled=config.local_cache.enabled, tolerance=sensor.tolerance,
-                                 max_silence_s=silence),
-                publisher=transport.publisher(
-                    keys.sensor_key(config.fleet, config.robot_id, sensor.name)),
-            ))
-        self._worker = threading.Thread(target=self._command_loop, name="arpz-commands",
-                                        daemon=True)
+            self.sensors.append(
+                _SensorChannel(
+                    config=sensor,
+                    driver=make_driver(
+                        sensor, robot_id=config.robot_id, robot_seed=config.seed, base_dir=base_dir
+                    ),
+                    cache=LocalCache(
+                        enabled=config.local_cache.enabled,
+                        tolerance=sensor.tolerance,
+                        max_silence_s=silence,
+                    ),
+                    publisher=transport.publisher(
+                        keys.sensor_key(config.fleet, config.robot_id, sensor.name)
+                    ),
+                )
+            )
+        self._worker = threading.Thread(
+            target=self._command_loop, name="arpz-commands", daemon=True
+        )
         self._started = False
 
     # -- life cycle ---------------------------------------------------------------------------
@@ -128,8 +144,12 @@ class RobotAgent:
         self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
         self._publish_announce(0.0)
         self._started = True
-        log.info("robot %s (%s) started with %d sensors", cfg.robot_id, self.incarnation,
-                 len(self.sensors))
+        log.info(
+            "robot %s (%s) started with %d sensors",
+            cfg.robot_id,
+            self.incarnation,
+            len(self.sensors),
+        )
 
     def run(self, stop: threading.Event) -> None:
         """Run the periodic jobs until ``stop`` is set or the configured duration has passed."""
@@ -174,16 +194,36 @@ class RobotAgent:
     def _jobs(self) -> list[_Job]:
         cfg = self.config
         jobs: list[_Job] = []
-        for index, sensor in enumerate(self.sensors):
-            jobs.append(_Job(0.0, len(jobs), 1.0 / sensor.config.rate_hz,
-                             lambda now, s=sensor: self._sense(s, now), sensor.config.name))
-            del index
+        for sensor in self.sensors:
+            jobs.append(
+                _Job(
+                    0.0,
+                    len(jobs),
+                    1.0 / sensor.config.rate_hz,
+                    functools.partial(self._sense, sensor),
+                    sensor.config.name,
+                )
+            )
         if cfg.hello.enabled:
             jobs.append(_Job(0.0, len(jobs), 1.0 / cfg.hello.rate_hz, self._send_hello, "hello"))
-        jobs.append(_Job(cfg.stats_period_s, len(jobs), cfg.stats_period_s,
-                         lambda now: self._publish_stats(final=False), "stats"))
-        jobs.append(_Job(cfg.announce_period_s, len(jobs), cfg.announce_period_s,
-                         self._publish_announce, "announce"))
+        jobs.append(
+            _Job(
+                cfg.stats_period_s,
+                len(jobs),
+                cfg.stats_period_s,
+                lambda now: self._publish_stats(final=False),
+                "stats",
+            )
+        )
+        jobs.append(
+            _Job(
+                cfg.announce_period_s,
+                len(jobs),
+                cfg.announce_period_s,
+                self._publish_announce,
+                "announce",
+            )
+        )
         return jobs
 
     def _sense(self, sensor: _SensorChannel, now_s: float) -> None:
@@ -192,8 +232,9 @@ class RobotAgent:
         except Exception as exc:  # a driver bug or a device error must not stop the robot
             sensor.driver_errors += 1
             if sensor.driver_errors in (1, 10, 100) or sensor.driver_errors % 1000 == 0:
-                log.error("sensor %s: driver error #%d: %s", sensor.config.name,
-                          sensor.driver_errors, exc)
+                log.error(
+                    "sensor %s: driver error #%d: %s", sensor.config.name, sensor.driver_errors, exc
+                )
             return
         if not sensor.cache.offer(value, now_s):
             return
@@ -215,8 +256,9 @@ class RobotAgent:
         with self._hello_lock:
             self._hello_writer_seq += 1
             seq = self._hello_writer_seq
-        stamped = msgspec.structs.replace(hello, writer=self.writer, seq=seq,
-                                          stamp_ns=time.time_ns())
+        stamped = msgspec.structs.replace(
+            hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns()
+        )
         self._hello_pub.put(encode(stamped))
 
     def _count_late(self, job_name: str, ticks: int) -> None:
@@ -266,8 +308,12 @@ class RobotAgent:
         for sensor in self.sensors:
             c = sensor.cache.counters
             out[sensor.config.name] = TopicCounters(
-                produced=c.produced, sent=c.sent, held_back=c.held_back, last_seq=sensor.seq,
-                bytes_sent=sensor.bytes_sent)
+                produced=c.produced,
+                sent=c.sent,
+                held_back=c.held_back,
+                last_seq=sensor.seq,
+                bytes_sent=sensor.bytes_sent,
+            )
         return out
 
     def stats(self, *, final: bool) -> RobotStats:
@@ -287,8 +333,13 @@ class RobotAgent:
             received, errors = self.commands_received, self.command_decode_errors
         hello = self.hello.stats()
         return RobotStats(
-            robot=self.config.robot_id, incarnation=self.incarnation, stamp_ns=time.time_ns(),
-            final=final, topics=rated, commands_received=received, command_decode_errors=errors,
+            robot=self.config.robot_id,
+            incarnation=self.incarnation,
+            stamp_ns=time.time_ns(),
+            final=final,
+            topics=rated,
+            commands_received=received,
+            command_decode_errors=errors,
             hello=hello if (self.config.hello.enabled or hello.relayed) else None,
             cpu_percent=round(cpu_percent, 2),
         )
@@ -300,9 +351,17 @@ class RobotAgent:
     def _publish_announce(self, now_s: float) -> None:
         cfg = self.config
         announce = Announce(
-            robot=cfg.robot_id, incarnation=self.incarnation,
-            sensors=[TopicInfo(topic=s.config.name, kind=s.config.kind, rate_hz=s.config.rate_hz,
-                               value_type=value_type_of(s.config.kind)) for s in self.sensors],
+            robot=cfg.robot_id,
+            incarnation=self.incarnation,
+            sensors=[
+                TopicInfo(
+                    topic=s.config.name,
+                    kind=s.config.kind,
+                    rate_hz=s.config.rate_hz,
+                    value_type=value_type_of(s.config.kind),
+                )
+                for s in self.sensors
+            ],
             commands=[HELLO_TOPIC, *getattr(self.actuator, "commands", [])],
         )
         self.transport.put(keys.announce_key(cfg.fleet, cfg.robot_id), encode(announce))

@@ -49,8 +49,11 @@ class HelloTracker:
     def expire(self, now_ns: int, *, all_outstanding: bool = False) -> int:
         """Declare lost every Hello older than the timeout (or every one, at shutdown)."""
         with self._lock:
-            gone = [seq for seq, t0 in self._outstanding.items()
-                    if all_outstanding or now_ns - t0 >= self.timeout_ns]
+            gone = [
+                seq
+                for seq, t0 in self._outstanding.items()
+                if all_outstanding or now_ns - t0 >= self.timeout_ns
+            ]
             for seq in gone:
                 del self._outstanding[seq]
             self.lost += len(gone)
@@ -64,8 +67,13 @@ class HelloTracker:
     def stats(self) -> HelloStats:
         with self._lock:
             return HelloStats(
-                sent=self.sent, received=self.received, lost=self.lost,
-                outstanding=len(self._outstanding), relayed=self.relayed, late=self.late,
-                rtt_ms_p50=self.rtt_ms.quantile(50), rtt_ms_p99=self.rtt_ms.quantile(99),
+                sent=self.sent,
+                received=self.received,
+                lost=self.lost,
+                outstanding=len(self._outstanding),
+                relayed=self.relayed,
+                late=self.late,
+                rtt_ms_p50=self.rtt_ms.quantile(50),
+                rtt_ms_p99=self.rtt_ms.quantile(99),
                 rtt_ms_max=self.rtt_ms.max,
             )

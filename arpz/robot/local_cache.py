@@ -23,8 +23,9 @@ class LocalCacheCounters:
 
 
 class LocalCache:
-    def __init__(self, *, enabled: bool = True, tolerance: float = 0.0,
-                 max_silence_s: float = 1.0) -> None:
+    def __init__(
+        self, *, enabled: bool = True, tolerance: float = 0.0, max_silence_s: float = 1.0
+    ) -> None:
         if tolerance < 0 or max_silence_s <= 0:
             raise ValueError("tolerance must be >= 0 and max_silence_s > 0")
         self.enabled = enabled

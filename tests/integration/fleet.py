@@ -20,8 +20,13 @@ class Process:
         self.name = name
         self.lines: list[str] = []
         self.popen = subprocess.Popen(
-            [sys.executable, *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-            cwd=cwd, env=dict(os.environ, PYTHONUNBUFFERED="1"))
+            [sys.executable, *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            cwd=cwd,
+            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+        )
         self._reader = threading.Thread(target=self._pump, daemon=True)
         self._reader.start()
 
@@ -39,8 +44,11 @@ class Process:
 
     def wait_for(self, needle: str, timeout_s: float = 30) -> None:
         try:
-            wait_until(lambda: needle in self.output() or self.popen.poll() is not None,
-                       timeout_s=timeout_s, what=f"{self.name} to print {needle!r}")
+            wait_until(
+                lambda: needle in self.output() or self.popen.poll() is not None,
+                timeout_s=timeout_s,
+                what=f"{self.name} to print {needle!r}",
+            )
         finally:
             pass
         assert needle in self.output(), f"{self.name} exited early:\n{self.output()}"
@@ -61,12 +69,22 @@ class Process:
         self._reap()
 
 
-def write_robot(tmp: Path, robot: str, endpoint: str, *, preset: str, rate_hz: float = 50,
-                hello: bool = False, fleet: str = "itest") -> Path:
+def write_robot(
+    tmp: Path,
+    robot: str,
+    endpoint: str,
+    *,
+    preset: str,
+    rate_hz: float = 50,
+    hello: bool = False,
+    fleet: str = "itest",
+) -> Path:
     path = tmp / f"{robot}.toml"
-    text = (f'robot_id = "{robot}"\nfleet = "{fleet}"\nconnect = ["{endpoint}"]\n'
-            f'preset = "{preset}"\npreset_rate_hz = {rate_hz}\nstats_period_s = 0.2\n'
-            f"[local_cache]\nmax_silence_s = 0.5\n")
+    text = (
+        f'robot_id = "{robot}"\nfleet = "{fleet}"\nconnect = ["{endpoint}"]\n'
+        f'preset = "{preset}"\npreset_rate_hz = {rate_hz}\nstats_period_s = 0.2\n'
+        f"[local_cache]\nmax_silence_s = 0.5\n"
+    )
     if hello:
         text += "[hello]\nenabled = true\nrate_hz = 20\n"
     path.write_text(text)
@@ -74,14 +92,16 @@ def write_robot(tmp: Path, robot: str, endpoint: str, *, preset: str, rate_hz: f
 
 
 @contextmanager
-def ceddp(tmp: Path, *, fleet: str = "itest", relay: str | None = None,
-          extra: str = "") -> Iterator[tuple[Process, str]]:
+def ceddp(
+    tmp: Path, *, fleet: str = "itest", relay: str | None = None, extra: str = ""
+) -> Iterator[tuple[Process, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = tmp / "ceddp.toml"
     config.write_text(
         f'fleet = "{fleet}"\nlisten = ["{endpoint}"]\nrrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
         f'summary_json = "{(tmp / "summary.json").as_posix()}"\nmetrics_period_s = 0.2\n{extra}'
-        + (f'[hello]\nrelay = "{relay}"\n' if relay else ""))
+        + (f'[hello]\nrelay = "{relay}"\n' if relay else "")
+    )
     proc = Process("ceddp", ["-m", "arpz.ceddp", "--config", str(config)], tmp)
     try:
         proc.wait_for("ready on")
@@ -92,8 +112,9 @@ def ceddp(tmp: Path, *, fleet: str = "itest", relay: str | None = None,
 
 @contextmanager
 def robots(tmp: Path, configs: list[Path]) -> Iterator[list[Process]]:
-    procs = [Process(path.stem, ["-m", "arpz.robot", "--config", str(path)], tmp)
-             for path in configs]
+    procs = [
+        Process(path.stem, ["-m", "arpz.robot", "--config", str(path)], tmp) for path in configs
+    ]
     try:
         for proc in procs:
             proc.wait_for("running")

@@ -16,19 +16,41 @@ from tests.support import client, wait_until
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
-TABLE_1_TYPES = {"lidar": "float", "dht11": "float", "imu": "float", "ultrasonic": "float",
-                 "flame": "bool", "pir": "str", "light": "str"}
+TABLE_1_TYPES = {
+    "lidar": "float",
+    "dht11": "float",
+    "imu": "float",
+    "ultrasonic": "float",
+    "flame": "bool",
+    "pir": "str",
+    "light": "str",
+}
 
 
 def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_path: Path) -> None:
     with ceddp(tmp_path, relay="robot2") as (server, endpoint):
-        configs = [write_robot(tmp_path, "robot1", endpoint, preset="machine1", hello=True),
-                   write_robot(tmp_path, "robot2", endpoint, preset="machine2", rate_hz=100)]
+        configs = [
+            write_robot(tmp_path, "robot1", endpoint, preset="machine1", hello=True),
+            write_robot(tmp_path, "robot2", endpoint, preset="machine2", rate_hz=100),
+        ]
         with robots(tmp_path, configs) as procs:
             raw = subprocess.run(
-                [sys.executable, str(ROOT / "examples" / "raw_subscriber.py"), "--connect",
-                 endpoint, "--fleet", "itest", "--robot", "robot1", "--count", "30"],
-                capture_output=True, text=True, timeout=60)
+                [
+                    sys.executable,
+                    str(ROOT / "examples" / "raw_subscriber.py"),
+                    "--connect",
+                    endpoint,
+                    "--fleet",
+                    "itest",
+                    "--robot",
+                    "robot1",
+                    "--count",
+                    "30",
+                ],
+                capture_output=True,
+                text=True,
+                timeout=60,
+            )
             assert raw.returncode == 0, raw.stderr
             settle(2.0)
             for proc in procs:
@@ -41,7 +63,8 @@ def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_p
         assert row["writer"].startswith("robot1:") and row["seq"] >= 1
         topic = row["topic"]
         assert row["type"] == ("dict" if topic == "hello" else TABLE_1_TYPES[topic]) or (
-            topic == "hello" and row["type"] in ("int", "str"))
+            topic == "hello" and row["type"] in ("int", "str")
+        )
 
     summary = json.loads((tmp_path / "summary.json").read_text())
     for name in ("robot1", "robot2"):
@@ -64,35 +87,55 @@ def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_p
     assert summary["robots"]["robot2"]["topics"]["hello"]["received"] >= hello["received"]
 
     rrd = tmp_path / "ceddp.rrd"
-    verify = subprocess.run([sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
-                            capture_output=True, text=True, timeout=120)
+    verify = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(rrd)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert verify.returncode == 0, verify.stdout + verify.stderr
     reader = RrdReader(str(rrd))
     assert reader.blueprints(), "opening the file must show the dashboard"
-    paths = {str(chunk.entity_path) for chunk in
-             reader.stream().filter(content="/metrics/**", is_static=False).to_chunks()}
-    for expected in ("/metrics/rate_hz/robot1/lidar", "/metrics/latency_ms_p50/robot2/ultrasonic",
-                     "/metrics/held_back/robot1/pir", "/metrics/cc_discarded/robot2/pir",
-                     "/metrics/lost/robot1/imu", "/metrics/hello_rtt_ms_p50/robot1",
-                     "/metrics/cpu_percent/ceddp"):
+    paths = {
+        str(chunk.entity_path)
+        for chunk in reader.stream().filter(content="/metrics/**", is_static=False).to_chunks()
+    }
+    for expected in (
+        "/metrics/rate_hz/robot1/lidar",
+        "/metrics/latency_ms_p50/robot2/ultrasonic",
+        "/metrics/held_back/robot1/pir",
+        "/metrics/cc_discarded/robot2/pir",
+        "/metrics/lost/robot1/imu",
+        "/metrics/hello_rtt_ms_p50/robot1",
+        "/metrics/cpu_percent/ceddp",
+    ):
         assert expected in paths, f"{expected} missing from {sorted(paths)[:20]}"
 
 
 def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -> None:
     with ceddp(tmp_path) as (server, endpoint):
-        configs = [write_robot(tmp_path, "robot1", endpoint, preset="machine2"),
-                   write_robot(tmp_path, "robot2", endpoint, preset="machine3")]
+        configs = [
+            write_robot(tmp_path, "robot1", endpoint, preset="machine2"),
+            write_robot(tmp_path, "robot2", endpoint, preset="machine3"),
+        ]
         with robots(tmp_path, configs) as procs, client(endpoint) as raw:
             wait_until(lambda: "robot robot2 joined" in server.output(), what="robot2 joined")
             key = "arpz/itest/robot/robot1/sensor/pir"
-            for payload in (b"\xc1\xc1\xc1", b"not msgpack", b"",
-                            msgspec.msgpack.encode({"writer": "x", "value": 1}),
-                            msgspec.msgpack.encode(["w", "one", 2, 3.0])):
+            for payload in (
+                b"\xc1\xc1\xc1",
+                b"not msgpack",
+                b"",
+                msgspec.msgpack.encode({"writer": "x", "value": 1}),
+                msgspec.msgpack.encode(["w", "one", 2, 3.0]),
+            ):
                 raw.put(key, payload)
             raw.put("arpz/itest/robot/robot1/bogus", b"\x00")
             procs[1].kill()  # SIGKILL: no goodbye, only the router sees the session drop
-            wait_until(lambda: "robot robot2 left" in server.output(), timeout_s=15,
-                       what="the CEDDP to see robot2 gone")
+            wait_until(
+                lambda: "robot robot2 left" in server.output(),
+                timeout_s=15,
+                what="the CEDDP to see robot2 gone",
+            )
             settle(1.0)
             assert procs[0].interrupt() == 0
         assert server.interrupt() == 0, server.output()
@@ -109,9 +152,26 @@ def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -
 
 def test_the_demo_runs_and_reports(tmp_path: Path) -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "arpz", "demo", "--robots", "2", "--duration", "3", "--rrd",
-         str(tmp_path / "demo.rrd"), "--json", str(tmp_path / "demo.json"), "--workdir",
-         str(tmp_path / "work")], capture_output=True, text=True, timeout=120)
+        [
+            sys.executable,
+            "-m",
+            "arpz",
+            "demo",
+            "--robots",
+            "2",
+            "--duration",
+            "3",
+            "--rrd",
+            str(tmp_path / "demo.rrd"),
+            "--json",
+            str(tmp_path / "demo.json"),
+            "--workdir",
+            str(tmp_path / "work"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Hello robot1" in result.stdout and "held back" in result.stdout
     summary = json.loads((tmp_path / "demo.json").read_text())

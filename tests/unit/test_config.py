@@ -14,24 +14,38 @@ def write(tmp_path: Path, text: str) -> Path:
 
 
 def test_a_good_robot_config_loads(tmp_path: Path) -> None:
-    path = write(tmp_path, 'robot_id = "robot1"\npreset = "machine1"\n'
-                 '[[sensors]]\nname = "front"\nkind = "ultrasonic"\nrate_hz = 20\n')
+    path = write(
+        tmp_path,
+        'robot_id = "robot1"\npreset = "machine1"\n'
+        '[[sensors]]\nname = "front"\nkind = "ultrasonic"\nrate_hz = 20\n',
+    )
     config = load_toml(path, RobotConfig)
     assert config.robot_id == "robot1" and config.sensors[0].rate_hz == 20.0
 
 
-@pytest.mark.parametrize(("text", "expected"), [
-    ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\nrate_hz = -1\n',
-     "sensors[0]': rate_hz must be > 0"),
-    ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "sonar"\n', "sensors[0].kind"),
-    ('robot_id = "r1"\nrate = 3\n', "unknown field `rate`"),
-    ('robot_id = "r1"\n[local_cache]\nmax_silence = 3\n', "local_cache': Object contains unknown"),
-    ('robot_id = "Robot One"\n', "not a valid key chunk"),
-    ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\n[[sensors]]\nname = "a"\n'
-     'kind = "light"\n', "unique"),
-    ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\ndriver = "replay"\n', "trace"),
-    ("robot_id = \n", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (
+            'robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\nrate_hz = -1\n',
+            "sensors[0]': rate_hz must be > 0",
+        ),
+        ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "sonar"\n', "sensors[0].kind"),
+        ('robot_id = "r1"\nrate = 3\n', "unknown field `rate`"),
+        (
+            'robot_id = "r1"\n[local_cache]\nmax_silence = 3\n',
+            "local_cache': Object contains unknown",
+        ),
+        ('robot_id = "Robot One"\n', "not a valid key chunk"),
+        (
+            'robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\n[[sensors]]\nname = "a"\n'
+            'kind = "light"\n',
+            "unique",
+        ),
+        ('robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\ndriver = "replay"\n', "trace"),
+        ("robot_id = \n", "not valid TOML"),
+    ],
+)
 def test_bad_configs_name_the_file_and_the_field(tmp_path: Path, text: str, expected: str) -> None:
     path = write(tmp_path, text)
     with pytest.raises(ConfigError) as info:
@@ -44,15 +58,19 @@ def test_missing_file_and_ceddp_config(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="file not found"):
         load_toml(tmp_path / "nope.toml", RobotConfig)
     path = tmp_path / "ceddp.toml"
-    path.write_text('listen = []\n')
+    path.write_text("listen = []\n")
     with pytest.raises(ConfigError, match="listen must list"):
         load_toml(path, CeddpConfig)
 
 
 def test_robot_cli_exits_2_with_the_message(tmp_path: Path) -> None:
     path = write(tmp_path, 'robot_id = "r1"\n[[sensors]]\nname = "a"\nkind = "pir"\nrate_hz = 0\n')
-    result = subprocess.run([sys.executable, "-m", "arpz.robot", "--config", str(path)],
-                            capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-m", "arpz.robot", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 2
     assert str(path) in result.stderr and "sensors[0]" in result.stderr
 
@@ -60,7 +78,11 @@ def test_robot_cli_exits_2_with_the_message(tmp_path: Path) -> None:
 def test_ceddp_cli_exits_2_with_the_message(tmp_path: Path) -> None:
     path = tmp_path / "ceddp.toml"
     path.write_text('fleet = "demo"\nlisten = ["tcp/127.0.0.1:1"]\nmetrics_period_s = "fast"\n')
-    result = subprocess.run([sys.executable, "-m", "arpz.ceddp", "--config", str(path)],
-                            capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-m", "arpz.ceddp", "--config", str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert result.returncode == 2
     assert str(path) in result.stderr and "metrics_period_s" in result.stderr

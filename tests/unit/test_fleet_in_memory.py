@@ -15,15 +15,26 @@ from tests.support import wait_until
 
 def test_counts_reconcile_and_hello_round_trips() -> None:
     bus = MemoryBus()
-    server = CeddpServer(CeddpConfig(fleet="f", rrd="unused.rrd", metrics_period_s=0.05),
-                         MemoryTransport(bus))
+    server = CeddpServer(
+        CeddpConfig(fleet="f", rrd="unused.rrd", metrics_period_s=0.05), MemoryTransport(bus)
+    )
     server.start()
     agents = [
-        RobotAgent(RobotConfig(robot_id="r1", fleet="f", preset="machine1", preset_rate_hz=200,
-                               hello=HelloConfig(enabled=True, rate_hz=50), stats_period_s=0.1),
-                   MemoryTransport(bus)),
-        RobotAgent(RobotConfig(robot_id="r2", fleet="f", preset="machine2", preset_rate_hz=200),
-                   MemoryTransport(bus)),
+        RobotAgent(
+            RobotConfig(
+                robot_id="r1",
+                fleet="f",
+                preset="machine1",
+                preset_rate_hz=200,
+                hello=HelloConfig(enabled=True, rate_hz=50),
+                stats_period_s=0.1,
+            ),
+            MemoryTransport(bus),
+        ),
+        RobotAgent(
+            RobotConfig(robot_id="r2", fleet="f", preset="machine2", preset_rate_hz=200),
+            MemoryTransport(bus),
+        ),
     ]
     stop = threading.Event()
     threads = [threading.Thread(target=a.run, args=(stop,)) for a in agents]

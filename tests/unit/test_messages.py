@@ -19,17 +19,26 @@ values = st.one_of(st.floats(allow_nan=False), st.booleans(), st.text(max_size=3
 
 
 @given(st.text(max_size=40), ints, ints, values)
-def test_sample_round_trip_keeps_value_and_type(writer: str, seq: int, stamp: int,
-                                                value: float | bool | str) -> None:
+def test_sample_round_trip_keeps_value_and_type(
+    writer: str, seq: int, stamp: int, value: float | bool | str
+) -> None:
     decoded = SAMPLE_DECODER.decode(encode(Sample(writer, seq, stamp, value)))
     assert decoded == Sample(writer, seq, stamp, value)
     assert type(decoded.value) is type(value)
 
 
-@given(st.text(max_size=20), ints, ints, st.text(max_size=20), ints, ints,
-       st.integers(min_value=0, max_value=3))
-def test_hello_round_trip(writer: str, seq: int, stamp: int, origin: str, oseq: int, t0: int,
-                          stage: int) -> None:
+@given(
+    st.text(max_size=20),
+    ints,
+    ints,
+    st.text(max_size=20),
+    ints,
+    ints,
+    st.integers(min_value=0, max_value=3),
+)
+def test_hello_round_trip(
+    writer: str, seq: int, stamp: int, origin: str, oseq: int, t0: int, stage: int
+) -> None:
     hello = Hello(writer, seq, stamp, origin, oseq, t0, stage)
     assert HELLO_DECODER.decode(encode(hello)) == hello
 
@@ -39,12 +48,23 @@ def test_sample_is_a_plain_msgpack_array_as_docs_protocol_md_says() -> None:
     assert raw == ["robot1:abc", 7, 123, "detect"]
 
 
-@given(st.dictionaries(st.from_regex(r"[a-z]{1,8}", fullmatch=True),
-                       st.builds(TopicCounters, produced=ints, sent=ints, held_back=ints),
-                       max_size=5), st.booleans())
+@given(
+    st.dictionaries(
+        st.from_regex(r"[a-z]{1,8}", fullmatch=True),
+        st.builds(TopicCounters, produced=ints, sent=ints, held_back=ints),
+        max_size=5,
+    ),
+    st.booleans(),
+)
 def test_stats_round_trip(topics: dict[str, TopicCounters], final: bool) -> None:
-    stats = RobotStats(robot="r1", incarnation="i", stamp_ns=5, final=final, topics=topics,
-                       hello=HelloStats(sent=3, received=2, lost=1, rtt_ms_p50=1.5))
+    stats = RobotStats(
+        robot="r1",
+        incarnation="i",
+        stamp_ns=5,
+        final=final,
+        topics=topics,
+        hello=HelloStats(sent=3, received=2, lost=1, rtt_ms_p50=1.5),
+    )
     assert STATS_DECODER.decode(encode(stats)) == stats
 
 

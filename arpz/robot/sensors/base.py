@@ -71,7 +71,8 @@ def check_value(kind: str, value: object) -> SensorValue:
         return float(value)
     if type(value) is not expected:
         raise DriverValueError(
-            f"a {kind} driver must return {expected.__name__}, got {type(value).__name__}: {value!r}"
+            f"a {kind} driver must return {expected.__name__}, "
+            f"got {type(value).__name__}: {value!r}"
         )
     if kind in STRING_VALUES and value not in STRING_VALUES[kind]:
         allowed = " or ".join(repr(v) for v in STRING_VALUES[kind])

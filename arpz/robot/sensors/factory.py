@@ -23,15 +23,18 @@ def sensor_seed(robot_seed: int, robot_id: str, sensor: SensorConfig) -> int:
     return zlib.crc32(f"{robot_seed}/{robot_id}/{sensor.name}".encode())
 
 
-def make_driver(sensor: SensorConfig, *, robot_id: str, robot_seed: int, base_dir: Path) -> SensorDriver:
+def make_driver(
+    sensor: SensorConfig, *, robot_id: str, robot_seed: int, base_dir: Path
+) -> SensorDriver:
     seed = sensor_seed(robot_seed, robot_id, sensor)
     if sensor.driver == "sim":
         return SIMULATED[sensor.kind](sensor.options, seed)
     if sensor.driver == "replay":
         assert sensor.trace is not None  # checked by SensorConfig
         trace = Path(sensor.trace)
-        return ReplayDriver(sensor.kind, trace if trace.is_absolute() else base_dir / trace,
-                            sensor.options, seed)
+        return ReplayDriver(
+            sensor.kind, trace if trace.is_absolute() else base_dir / trace, sensor.options, seed
+        )
     module_name, sep, class_name = sensor.driver.partition(":")
     if not sep:
         raise DriverError(
@@ -41,12 +44,17 @@ def make_driver(sensor: SensorConfig, *, robot_id: str, robot_seed: int, base_di
     try:
         cls = getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError) as exc:
-        raise DriverError(f"sensor {sensor.name!r}: cannot load driver {sensor.driver!r}: {exc}") from None
+        raise DriverError(
+            f"sensor {sensor.name!r}: cannot load driver {sensor.driver!r}: {exc}"
+        ) from None
     if not (isinstance(cls, type) and issubclass(cls, SensorDriver)):
-        raise DriverError(f"sensor {sensor.name!r}: {sensor.driver!r} is not a SensorDriver subclass")
+        raise DriverError(
+            f"sensor {sensor.name!r}: {sensor.driver!r} is not a SensorDriver subclass"
+        )
     if cls.kind and cls.kind != sensor.kind:
         raise DriverError(
-            f"sensor {sensor.name!r}: driver {sensor.driver!r} reads {cls.kind!r}, config says {sensor.kind!r}"
+            f"sensor {sensor.name!r}: driver {sensor.driver!r} reads {cls.kind!r}, "
+            f"config says {sensor.kind!r}"
         )
     driver: SensorDriver = cls(sensor.options, seed)
     return driver

@@ -52,7 +52,9 @@ def load_trace(path: Path, kind: str) -> tuple[list[float], list[SensorValue]]:
                 record = json.loads(line)
                 rows.append((record["t_s"], record["value"], f"{path}:{number}"))
             except (json.JSONDecodeError, KeyError, TypeError) as exc:
-                raise TraceError(f"{path}:{number}: expected {{\"t_s\": ..., \"value\": ...}}: {exc}") from None
+                raise TraceError(
+                    f'{path}:{number}: expected {{"t_s": ..., "value": ...}}: {exc}'
+                ) from None
     else:
         reader = csv.DictReader(text.splitlines())
         if reader.fieldnames is None or not {"t_s", "value"} <= set(reader.fieldnames):

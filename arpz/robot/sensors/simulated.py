@@ -167,6 +167,5 @@ class SimLight(_Simulated):
 
 
 SIMULATED: dict[str, type[SensorDriver]] = {
-    cls.kind: cls
-    for cls in (SimLidar, SimDht11, SimImu, SimUltrasonic, SimFlame, SimPir, SimLight)
+    cls.kind: cls for cls in (SimLidar, SimDht11, SimImu, SimUltrasonic, SimFlame, SimPir, SimLight)
 }

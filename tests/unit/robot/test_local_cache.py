@@ -1,10 +1,13 @@
+import itertools
+
 from hypothesis import given
 from hypothesis import strategies as st
 
 from arpz.robot.local_cache import LocalCache
 
-values = st.one_of(st.floats(allow_nan=False, width=32), st.booleans(),
-                   st.sampled_from(["detect", "not detect"]))
+values = st.one_of(
+    st.floats(allow_nan=False, width=32), st.booleans(), st.sampled_from(["detect", "not detect"])
+)
 
 
 def test_identical_readings_are_held_back_until_max_silence() -> None:
@@ -43,7 +46,8 @@ def test_disabled_cache_sends_everything() -> None:
 
 @given(st.lists(values, max_size=200), st.floats(min_value=0.01, max_value=5))
 def test_counts_add_up_and_no_two_consecutive_sends_are_equal_within_silence(
-        readings: list[float | bool | str], max_silence_s: float) -> None:
+    readings: list[float | bool | str], max_silence_s: float
+) -> None:
     cache = LocalCache(max_silence_s=max_silence_s)
     sent: list[tuple[float, float | bool | str]] = []
     for i, value in enumerate(readings):
@@ -53,6 +57,6 @@ def test_counts_add_up_and_no_two_consecutive_sends_are_equal_within_silence(
     c = cache.counters
     assert c.produced == len(readings) == c.sent + c.held_back
     assert c.sent == len(sent)
-    for (t0, v0), (t1, v1) in zip(sent, sent[1:], strict=False):
+    for (t0, v0), (t1, v1) in itertools.pairwise(sent):
         if type(v0) is type(v1) and v0 == v1:
             assert t1 - t0 >= max_silence_s - 1e-9

@@ -1,3 +1,4 @@
+import itertools
 import json
 from pathlib import Path
 
@@ -10,8 +11,15 @@ from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.sensors.simulated import SIMULATED
 
-EXPECTED_TYPES = {"lidar": float, "dht11": float, "imu": float, "ultrasonic": float,
-                  "flame": bool, "pir": str, "light": str}
+EXPECTED_TYPES = {
+    "lidar": float,
+    "dht11": float,
+    "imu": float,
+    "ultrasonic": float,
+    "flame": bool,
+    "pir": str,
+    "light": str,
+}
 
 
 def readings(kind: str, seed: int, rate_hz: float = 50, seconds: float = 120) -> list[object]:
@@ -30,7 +38,7 @@ def test_every_kind_gives_the_table_1_type_and_is_seeded(kind: str) -> None:
 
 def run_lengths(values: list[object]) -> list[int]:
     runs, current = [], 1
-    for a, b in zip(values, values[1:], strict=False):
+    for a, b in itertools.pairwise(values):
         if a == b:
             current += 1
         else:
@@ -53,9 +61,20 @@ def test_mostly_constant_sensors_repeat_and_imu_changes_most_of_the_time() -> No
 
 def test_presets_follow_seed_001() -> None:
     assert [s.kind for s in preset_sensors("machine1")] == [
-        "lidar", "light", "flame", "dht11", "imu", "pir"]
+        "lidar",
+        "light",
+        "flame",
+        "dht11",
+        "imu",
+        "pir",
+    ]
     assert [s.kind for s in preset_sensors("machine2")] == [
-        "flame", "pir", "ultrasonic", "dht11", "light"]
+        "flame",
+        "pir",
+        "ultrasonic",
+        "dht11",
+        "light",
+    ]
     with pytest.raises(ValueError, match="unknown preset"):
         preset_sensors("machine9")
 
@@ -63,29 +82,48 @@ def test_presets_follow_seed_001() -> None:
 def test_replay_csv_and_jsonl(tmp_path: Path) -> None:
     (tmp_path / "t.csv").write_text("t_s,value\n0,1.5\n1,2.5\n2,2.5\n")
     (tmp_path / "p.jsonl").write_text(
-        "\n".join(json.dumps({"t_s": t, "value": v}) for t, v in [(0, "detect"), (0.5, "not detect")]))
-    csv_driver = make_driver(SensorConfig(name="a", kind="lidar", driver="replay", trace="t.csv"),
-                             robot_id="r", robot_seed=0, base_dir=tmp_path)
+        "\n".join(
+            json.dumps({"t_s": t, "value": v}) for t, v in [(0, "detect"), (0.5, "not detect")]
+        )
+    )
+    csv_driver = make_driver(
+        SensorConfig(name="a", kind="lidar", driver="replay", trace="t.csv"),
+        robot_id="r",
+        robot_seed=0,
+        base_dir=tmp_path,
+    )
     assert [csv_driver.read(t) for t in (0, 0.9, 1.0, 5.0)] == [1.5, 1.5, 2.5, 2.5]
-    jsonl = make_driver(SensorConfig(name="p", kind="pir", driver="replay", trace="p.jsonl",
-                                     options={"loop": True}),
-                        robot_id="r", robot_seed=0, base_dir=tmp_path)
+    jsonl = make_driver(
+        SensorConfig(
+            name="p", kind="pir", driver="replay", trace="p.jsonl", options={"loop": True}
+        ),
+        robot_id="r",
+        robot_seed=0,
+        base_dir=tmp_path,
+    )
     # a lap lasts from the first to the last record: at 0.5 s the last value, then round again
     assert [jsonl.read(t) for t in (0.1, 0.5, 0.6)] == ["detect", "not detect", "detect"]
 
 
-@pytest.mark.parametrize(("name", "text", "message"), [
-    ("a.csv", "time,value\n0,1\n", "header"),
-    ("b.csv", "t_s,value\n0,abc\n", "b.csv:2"),
-    ("c.csv", "t_s,value\n1,1\n0,2\n", "must not decrease"),
-    ("d.jsonl", '{"t": 0}\n', "d.jsonl:1"),
-    ("e.csv", "t_s,value\n", "no records"),
-])
+@pytest.mark.parametrize(
+    ("name", "text", "message"),
+    [
+        ("a.csv", "time,value\n0,1\n", "header"),
+        ("b.csv", "t_s,value\n0,abc\n", "b.csv:2"),
+        ("c.csv", "t_s,value\n1,1\n0,2\n", "must not decrease"),
+        ("d.jsonl", '{"t": 0}\n', "d.jsonl:1"),
+        ("e.csv", "t_s,value\n", "no records"),
+    ],
+)
 def test_bad_traces_say_where(tmp_path: Path, name: str, text: str, message: str) -> None:
     (tmp_path / name).write_text(text)
     with pytest.raises(TraceError, match=message):
-        make_driver(SensorConfig(name="a", kind="lidar", driver="replay", trace=name),
-                    robot_id="r", robot_seed=0, base_dir=tmp_path)
+        make_driver(
+            SensorConfig(name="a", kind="lidar", driver="replay", trace=name),
+            robot_id="r",
+            robot_seed=0,
+            base_dir=tmp_path,
+        )
 
 
 class ConstantPir(SensorDriver):
@@ -100,11 +138,19 @@ def test_user_driver_by_import_path_and_errors() -> None:
     driver = make_driver(config, robot_id="r", robot_seed=0, base_dir=Path())
     assert driver.read(0) == "detect"
     with pytest.raises(DriverError, match="reads 'pir'"):
-        make_driver(SensorConfig(name="p", kind="light", driver=f"{__name__}:ConstantPir"),
-                    robot_id="r", robot_seed=0, base_dir=Path())
+        make_driver(
+            SensorConfig(name="p", kind="light", driver=f"{__name__}:ConstantPir"),
+            robot_id="r",
+            robot_seed=0,
+            base_dir=Path(),
+        )
     with pytest.raises(DriverError, match="cannot load"):
-        make_driver(SensorConfig(name="p", kind="pir", driver="nowhere.mod:X"),
-                    robot_id="r", robot_seed=0, base_dir=Path())
+        make_driver(
+            SensorConfig(name="p", kind="pir", driver="nowhere.mod:X"),
+            robot_id="r",
+            robot_seed=0,
+            base_dir=Path(),
+        )
 
 
 def test_check_value_enforces_table_1() -> None:

@@ -1,0 +1,184 @@
+"""CEDDP ingest throughput against a raw zenoh-python subscriber, on the same traffic, in one run.
+
+Both subscribers live in the router's own session (where the CEDDP's subscriber lives), fed by
+the same publisher processes sending the same pre-encoded samples (3 robots x 6 topics, values
+repeating as the simulated sensors do, so cache control has both hits and misses):
+
+- raw: a callback that only counts (the ceiling for a Python subscriber);
+- arpz: the real ``CeddpServer`` with its Rerun dashboard: callback -> queue -> worker ->
+  decode -> sequence check -> latency -> cache control -> planner.
+
+Throughput = samples / (time the last one was processed - time publishing started). Rounds
+alternate raw/arpz so drift on a shared machine hits both. Target (issue 2): arpz >= 0.5x raw.
+
+    python benchmarks/ceddp_ingest.py [--samples 200000] [--rounds 3] [--publishers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import zenoh
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from arpz.ceddp.dashboard import Dashboard  # noqa: E402
+from arpz.ceddp.server import CeddpServer  # noqa: E402
+from arpz.config import CeddpConfig  # noqa: E402
+from arpz.transport import SessionSettings, ZenohTransport  # noqa: E402
+from tests.support import free_port  # noqa: E402
+
+PUBLISHER = r"""
+import sys, time
+from arpz.messages import Sample, encode
+from arpz.transport import SessionSettings, ZenohTransport
+endpoint, count, index = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+t = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]), timeout_s=10)
+topics = [(f"robot{r}", name) for r in range(1, 4)
+          for name in ("lidar", "imu", "dht11", "pir", "light", "flame")]
+pubs = [t.publisher(f"arpz/bench/robot/{r}/sensor/{n}") for r, n in topics]
+payloads = []
+for i in range(count):
+    r, n = topics[i % len(topics)]
+    value = {"pir": "detect" if (i // 400) % 2 else "not detect", "light": "light",
+             "flame": False}.get(n, float((i // 90) % 7))
+    payloads.append(encode(Sample(f"{r}:p{index}", i // len(topics) + 1, time.time_ns(), value)))
+time.sleep(0.5)
+print("go", flush=True)
+for i, payload in enumerate(payloads):
+    pubs[i % len(pubs)].put(payload)
+print("done", flush=True)
+sys.stdin.read()
+t.close()
+"""
+
+
+def start_publishers(
+    endpoint: str, per_publisher: int, publishers: int
+) -> tuple[list[subprocess.Popen[str]], float]:
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-c", PUBLISHER, endpoint, str(per_publisher), str(i)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            cwd=ROOT,
+        )
+        for i in range(publishers)
+    ]
+    for proc in procs:
+        assert proc.stdout is not None
+        line = proc.stdout.readline()
+        if line.strip() != "go":
+            raise RuntimeError(f"publisher failed to start: {line!r}")
+    return procs, time.perf_counter()
+
+
+def stop_publishers(procs: list[subprocess.Popen[str]]) -> None:
+    for proc in procs:
+        assert proc.stdin is not None and proc.stdout is not None
+        proc.stdin.close()
+        proc.wait(timeout=30)
+        proc.stdout.close()
+
+
+def wait_count(get: Callable[[], int], total: int, timeout_s: float) -> float:
+    deadline = time.perf_counter() + timeout_s
+    while time.perf_counter() < deadline:
+        if get() >= total:
+            return time.perf_counter()
+        time.sleep(0.001)
+    raise RuntimeError(f"only {get()} of {total} samples arrived within {timeout_s} s")
+
+
+def run_raw(total: int, publishers: int) -> float:
+    """A plain zenoh-python router session whose subscriber callback only counts."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    count = [0]
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        with lock:
+            count[0] += 1
+
+    with zenoh.open(conf) as session:
+        sub = session.declare_subscriber("arpz/bench/robot/*/sensor/*", on_sample)
+        try:
+            procs, t0 = start_publishers(endpoint, total // publishers, publishers)
+            t1 = wait_count(lambda: count[0], total, 120)
+            stop_publishers(procs)
+        finally:
+            sub.undeclare()
+    return total / (t1 - t0)
+
+
+def run_arpz(total: int, publishers: int, workdir: Path) -> tuple[float, dict[str, int]]:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    config = CeddpConfig(fleet="bench", listen=[endpoint], rrd=str(workdir / "bench.rrd"))
+    router = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))
+    dashboard = Dashboard(config.rrd)
+    server = CeddpServer(config, router, dashboard=dashboard)
+    try:
+        server.start()
+        procs, t0 = start_publishers(endpoint, total // publishers, publishers)
+        t1 = wait_count(lambda: server.processed + server.counters.ingest_overflow, total, 120)
+        stop_publishers(procs)
+        summary = server.shutdown()
+    finally:
+        router.close()
+        dashboard.close()
+    hits = sum(t["cc_discarded"] for r in summary["robots"].values() for t in r["topics"].values())
+    lost = sum(r["lost"] for r in summary["robots"].values())
+    return total / (t1 - t0), {
+        "processed": server.processed,
+        "cc_discarded": hits,
+        "overflow": summary["ingest"]["overflow"],
+        "lost": lost,
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--samples", type=int, default=200_000)
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--publishers", type=int, default=2)
+    args = parser.parse_args()
+    total = args.samples // args.publishers * args.publishers
+    raw_rates, arpz_rates = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for round_ in range(1, args.rounds + 1):
+            raw = run_raw(total, args.publishers)
+            raw_rates.append(raw)
+            rate, info = run_arpz(total, args.publishers, Path(tmp))
+            arpz_rates.append(rate)
+            print(
+                f"round {round_}/{args.rounds}: raw {raw:,.0f} samples/s, arpz {rate:,.0f} "
+                f"samples/s ({rate / raw:.2f}x) {info}",
+                flush=True,
+            )
+    raw_m, arpz_m = statistics.median(raw_rates), statistics.median(arpz_rates)
+    print(f"\n{total} samples from {args.publishers} publisher processes, median of {args.rounds}:")
+    print(f"  raw zenoh-python subscriber : {raw_m:>10,.0f} samples/s")
+    print(f"  arpz CEDDP ingest           : {arpz_m:>10,.0f} samples/s")
+    print(f"  ratio arpz/raw              : {arpz_m / raw_m:.2f}x  (target >= 0.5x)")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
