@@ -53,9 +53,9 @@ class Process:
             pass
         assert needle in self.output(), f"{self.name} exited early:\n{self.output()}"
 
-    def interrupt(self, timeout_s: float = 20) -> int:
+    def interrupt(self, timeout_s: float = 20, sig: int = signal.SIGINT) -> int:
         if self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGINT)
+            self.popen.send_signal(sig)
         try:
             code = self.popen.wait(timeout=timeout_s)
         finally:

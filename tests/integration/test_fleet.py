@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import signal
+import socket
 import subprocess
 import sys
 from pathlib import Path
@@ -12,7 +14,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from tests.integration.fleet import ceddp, robots, settle, write_robot
-from tests.support import client, wait_until
+from tests.support import client, free_port, wait_until
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
@@ -113,7 +115,11 @@ def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_p
 
 
 def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -> None:
-    with ceddp(tmp_path) as (server, endpoint):
+    grpc_port = free_port()
+    with ceddp(tmp_path, extra=f"grpc_port = {grpc_port}\n") as (server, endpoint):
+        # the live Rerun sink a viewer connects to is listening
+        with socket.create_connection(("127.0.0.1", grpc_port), timeout=5):
+            pass
         configs = [
             write_robot(tmp_path, "robot1", endpoint, preset="machine2"),
             write_robot(tmp_path, "robot2", endpoint, preset="machine3"),
@@ -137,8 +143,8 @@ def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -
                 what="the CEDDP to see robot2 gone",
             )
             settle(1.0)
-            assert procs[0].interrupt() == 0
-        assert server.interrupt() == 0, server.output()
+            assert procs[0].interrupt(sig=signal.SIGTERM) == 0
+        assert server.interrupt(sig=signal.SIGTERM) == 0, server.output()
 
     summary = json.loads((tmp_path / "summary.json").read_text())
     robot1 = summary["robots"]["robot1"]
@@ -148,6 +154,22 @@ def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -
     assert robot1["received"] > 0
     robot2 = summary["robots"]["robot2"]
     assert robot2["alive"] is False and robot2["leaves"] == 1
+    # SIGTERM is a clean stop too: the recording is complete and valid
+    verify = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "verify", str(tmp_path / "ceddp.rrd")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert verify.returncode == 0, verify.stdout + verify.stderr
+    events = [
+        str(c.entity_path)
+        for c in RrdReader(str(tmp_path / "ceddp.rrd"))
+        .stream()
+        .filter(content="/events", is_static=False)
+        .to_chunks()
+    ]
+    assert events, "fleet events are logged"
 
 
 def test_the_demo_runs_and_reports(tmp_path: Path) -> None:
