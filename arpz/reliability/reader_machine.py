@@ -468,26 +468,44 @@ class ReaderMachine:
         self._drain(p, actions)
         return actions
 
-    def _missing(self, p: _WriterProxy) -> list[tuple[int, int]]:
+    def _nack_limit(self, p: _WriterProxy, now: float) -> tuple[int, float]:
+        """The highest seq missing for at least nack_delay_s, and when the next run ripens.
+
+        Waiting that long keeps a heartbeat that overtook its data (seen through a router) from
+        triggering resends of samples that are only a few milliseconds behind.
+        """
+        ripe = now - self.qos.nack_delay_s
+        upto, next_s = p.expected - 1, math.inf
+        for run_end, seen_s in p.detect:
+            if seen_s > ripe:
+                next_s = seen_s + self.qos.nack_delay_s
+                break
+            upto = run_end
+        return upto, next_s
+
+    def _missing(self, p: _WriterProxy, upto: int) -> list[tuple[int, int]]:
         ranges: list[tuple[int, int]] = []
         cur = p.expected
         for seq in [*sorted(p.buffer), p.highest + 1]:
+            if cur > upto:
+                break
             if seq > cur:
-                ranges.append((cur, seq - 1))
+                ranges.append((cur, min(seq - 1, upto)))
                 if len(ranges) >= wire.MAX_RANGES:
                     break
             cur = seq + 1
         return ranges
 
     def _acknack(self, p: _WriterProxy, now: float) -> Send:
-        missing = self._missing(p) if p.highest >= p.expected else []
+        upto, next_s = self._nack_limit(p, now)
+        missing = self._missing(p, upto) if upto >= p.expected else []
         p.an_count += 1
         if missing:
             self.nacks += 1
             p.an_due_s = now + self.qos.nack_period_s
         else:
             self.acks += 1
-            p.an_due_s = math.inf
+            p.an_due_s = next_s
         payload = wire.encode_acknack(self.guid, p.guid, p.expected, p.an_count, missing)
         return Send(p.an_key, payload)
 

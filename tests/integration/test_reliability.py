@@ -1,0 +1,256 @@
+"""The reliable channel through a real Zenoh router (a Python router session) on loopback."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import pytest
+
+from arpz.reliability import (
+    QOS_RELIABLE_ALL,
+    DataInfo,
+    DurabilityPolicy,
+    HistoryFullError,
+    HistoryPolicy,
+    LivelinessChangedStatus,
+    QosProfile,
+    Reader,
+    ReaderEventCallbacks,
+    ReliabilityPolicy,
+    Writer,
+    WriterEventCallbacks,
+)
+from tests.support import client, router, wait_until
+
+pytestmark = pytest.mark.integration
+
+
+class Sink:
+    def __init__(self) -> None:
+        self.items: list[tuple[bytes, DataInfo]] = []
+        self.lock = threading.Lock()
+
+    def __call__(self, payload: bytes, info: DataInfo) -> None:
+        with self.lock:
+            self.items.append((payload, info))
+
+    def seqs(self, writer: str | None = None) -> list[int]:
+        with self.lock:
+            return [i.seq for _, i in self.items if writer is None or i.writer == writer]
+
+
+def synced(writer: Writer, readers: int = 1) -> bool:
+    return writer.matched_count == readers and writer.wait_for_acknowledgments(0.01)
+
+
+def test_keep_all_in_order_and_a_plain_subscriber_sees_only_payloads() -> None:
+    sink = Sink()
+    plain: list[tuple[str, bytes]] = []
+    with router() as (_, endpoint), client(endpoint) as a, client(endpoint) as b:
+        b.subscribe("arpz/f/robot/*/sensor/*", lambda k, p, att: plain.append((k, p)))
+        with (
+            Reader(b, "arpz/f/robot/*/sensor/*", QOS_RELIABLE_ALL, sink) as reader,
+            Writer(a, "arpz/f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+        ):
+            wait_until(lambda: synced(writer), what="match")
+            for i in range(3000):
+                writer.write(b"reading %d" % i)
+            wait_until(lambda: len(sink.seqs()) == 3000, what="3000 samples")
+            assert sink.seqs() == list(range(1, 3001))
+            assert sink.items[41][0] == b"reading 41"
+            assert writer.wait_for_acknowledgments(5.0)
+            rs, ws = reader.stats(), writer.stats()
+            assert (rs.delivered, rs.lost, rs.duplicates, ws.sent) == (3000, 0, 0, 3000)
+        wait_until(lambda: len(plain) >= 3000, what="plain subscriber")
+        assert {k for k, _ in plain} == {"arpz/f/robot/r1/sensor/lidar"}
+        assert [p for _, p in plain[:3]] == [b"reading 0", b"reading 1", b"reading 2"]
+
+
+def test_one_wildcard_reader_serves_many_writers_in_other_sessions() -> None:
+    sink = Sink()
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as b,
+        Reader(b, "arpz/f/robot/*/sensor/*", QOS_RELIABLE_ALL, sink) as reader,
+    ):
+        with (
+            client(endpoint) as a1,
+            client(endpoint) as a2,
+            Writer(a1, "arpz/f/robot/r1/sensor/imu", QOS_RELIABLE_ALL) as w1,
+            Writer(a2, "arpz/f/robot/r2/sensor/imu", QOS_RELIABLE_ALL) as w2,
+        ):
+            wait_until(lambda: synced(w1) and synced(w2), what="both writers matched")
+            assert reader.matched_count == 2
+            for i in range(500):
+                w1.write(b"a%d" % i)
+                w2.write(b"b%d" % i)
+            wait_until(lambda: len(sink.seqs()) == 1000, what="1000 samples")
+            assert sink.seqs(w1.guid) == list(range(1, 501))
+            assert sink.seqs(w2.guid) == list(range(1, 501))
+        wait_until(lambda: reader.matched_count == 0, what="writers gone")
+
+
+def test_late_transient_local_reader_gets_the_history_and_a_volatile_one_does_not() -> None:
+    qos = QosProfile(depth=5, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    late, volatile = Sink(), Sink()
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as a,
+        client(endpoint) as b,
+        Writer(a, "arpz/f/robot/r1/sensor/map", qos) as writer,
+    ):
+        for i in range(12):
+            writer.write(b"%d" % i)
+        with (
+            Reader(b, "arpz/f/robot/r1/sensor/map", qos, late),
+            Reader(b, "arpz/f/robot/r1/sensor/map", QosProfile(depth=5), volatile),
+        ):
+            wait_until(lambda: len(late.seqs()) == 5, what="history")
+            assert late.seqs() == [8, 9, 10, 11, 12]
+            assert late.items[0][0] == b"7" and late.items[0][1].retransmitted
+            wait_until(lambda: synced(writer, 2), what="both readers synced")
+            writer.write(b"12")
+            wait_until(lambda: volatile.seqs() == [13] and late.seqs()[-1] == 13, what="new sample")
+
+
+def test_incompatible_qos_pairs_do_not_match_and_both_sides_get_the_event() -> None:
+    seen: list[str] = []
+    w_events = WriterEventCallbacks(
+        incompatible_qos=lambda s: seen.append(f"w:{s.last_policy_kind.value}")
+    )
+    r_events = ReaderEventCallbacks(
+        incompatible_qos=lambda s: seen.append(f"r:{s.last_policy_kind.value}")
+    )
+    sink = Sink()
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as a,
+        client(endpoint) as b,
+        Writer(
+            a, "t/x", QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT), events=w_events
+        ) as w,
+        Reader(b, "t/*", QosProfile(deadline_s=0.5), sink, events=r_events) as reader,
+    ):
+        wait_until(lambda: len(seen) == 2, what="both events")
+        assert sorted(seen) == ["r:reliability", "w:reliability"]
+        for _ in range(5):
+            w.write(b"x")
+        time.sleep(0.2)
+        assert sink.items == [] and reader.matched_count == 0 and w.matched_count == 0
+
+
+def test_deadline_events_count_the_missed_periods_when_the_writer_pauses() -> None:
+    qos = QosProfile(deadline_s=0.1)
+    missed_r: list[int] = []
+    missed_w: list[int] = []
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as a,
+        client(endpoint) as b,
+        Reader(
+            b,
+            "t/x",
+            qos,
+            Sink(),
+            events=ReaderEventCallbacks(deadline=lambda s: missed_r.append(s.total_count_change)),
+        ),
+        Writer(
+            a,
+            "t/x",
+            qos,
+            events=WriterEventCallbacks(deadline=lambda s: missed_w.append(s.total_count_change)),
+        ) as w,
+    ):
+        wait_until(lambda: synced(w), what="match")
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:  # 50 Hz, then held-back readings: no miss
+            w.write(b"x")
+            time.sleep(0.02)
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            w.assert_unchanged()
+            time.sleep(0.02)
+        assert missed_r == [] and missed_w == []
+        time.sleep(0.55)  # a pause of 5.5 periods
+        w.write(b"back")
+        time.sleep(0.05)
+        assert sum(missed_w) == 5
+        assert 4 <= sum(missed_r) <= 6  # the reader's clock starts a network hop later
+
+
+_WRITER_PROCESS = textwrap.dedent(
+    """
+    import sys, time
+    from arpz.transport import SessionSettings, ZenohTransport
+    from arpz.reliability import Writer, QosProfile
+    with ZenohTransport.open(SessionSettings(connect=[sys.argv[1]]), timeout_s=5) as t:
+        with Writer(t, "arpz/f/robot/r9/sensor/imu", QosProfile()) as w:
+            print("ready", flush=True)
+            while True:
+                w.write(b"x")
+                time.sleep(0.01)
+    """
+)
+
+
+@contextmanager
+def writer_process(endpoint: str) -> Iterator[subprocess.Popen[str]]:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", _WRITER_PROCESS, endpoint],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=os.path.dirname(os.path.dirname(os.path.dirname(__file__))),
+    )
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait(timeout=10)
+        assert proc.stdout is not None
+        proc.stdout.close()
+
+
+def test_liveliness_changes_when_the_writer_process_is_killed() -> None:
+    changes: list[LivelinessChangedStatus] = []
+    sink = Sink()
+    with router() as (_, endpoint), client(endpoint) as b:
+        events = ReaderEventCallbacks(liveliness=changes.append)
+        with Reader(b, "arpz/f/robot/*/sensor/*", QosProfile(), sink, events=events) as reader:
+            with writer_process(endpoint) as proc:
+                wait_until(lambda: len(sink.seqs()) >= 10, what="samples from the process")
+                assert changes[-1].alive_count == 1
+                os.kill(proc.pid, signal.SIGKILL)
+                wait_until(lambda: changes[-1].alive_count == 0, timeout_s=15, what="not alive")
+            assert changes[-1].alive_count_change == -1
+            assert reader.matched_count == 0
+            stats = reader.stats()
+            assert stats.delivered + stats.lost == max(sink.seqs()) - min(sink.seqs()) + 1
+
+
+def test_keep_all_write_raises_after_max_blocking_time_when_the_reader_stops_acknowledging() -> (
+    None
+):
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=50, max_blocking_time_s=0.3)
+    with router() as (_, endpoint), client(endpoint) as a, client(endpoint) as b:
+        block = threading.Event()
+        reader = Reader(b, "t/x", qos, lambda p, i: block.wait(10))  # a reader stuck in on_data
+        with Writer(a, "t/x", qos) as w:
+            wait_until(lambda: synced(w), what="match")
+            t0 = time.monotonic()
+            with pytest.raises(HistoryFullError, match=r"max_blocking_time_s=0\.3"):
+                for i in range(10_000):
+                    w.write(b"%d" % i)
+            assert time.monotonic() - t0 >= 0.3
+            assert 50 <= w.stats().sent < 10_000
+            block.set()
+            assert w.wait_for_acknowledgments(10.0)
+        reader.close()
