@@ -1,0 +1,628 @@
+"""Exact solution of Problems 1 and 2 as mixed-integer linear programs (CVXPY + HiGHS).
+
+Robots of a fleet are interchangeable, and a MILP over "node n at setting k on computer c"
+explores every permutation of them. So the model is solved in two steps:
+
+1. An aggregated MILP that counts, for every *type* of coresidence unit (units with the same
+   settings, weights and allowed computers), how many of them run on each computer and at which
+   setting. Messages are left out, so it is a relaxation: its optimum bounds the true one.
+   Computers that are identical for it (same kind, capacity, pinned load and allowed types) are
+   ordered by load, which removes their permutations.
+2. The counts are turned back into named nodes, putting each unit where its message partners
+   already are, then swapping units of one type (which changes no load and no objective) to
+   relieve overloaded links. If the independent checker accepts the result it is optimal,
+   because it reaches the relaxation's bound. Otherwise a full MILP with link constraints runs
+   for the rest of the time limit, and the aggregated bound is kept to report the gap.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+import sys
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import cvxpy as cp
+import numpy as np
+import scipy.sparse as sp
+
+from arpz.configure.check import check
+from arpz.configure.problem import Problem
+from arpz.configure.solution import Solution, Status, build_solution, no_solution
+
+METHOD = "exact"
+DEFAULT_TIME_LIMIT_S = 60.0
+#: HiGHS stops when the relative gap is below this; tight, so "optimal" means optimal to the
+#: second decimal of any objective this module sees.
+MIP_REL_GAP = 1e-7
+_VERBOSE = False
+
+
+@contextlib.contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """HiGHS prints its banner on the C stdout, which would corrupt ``solve --json``."""
+    if _VERBOSE:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            try:
+                yield
+            finally:
+                os.dup2(saved, 1)
+    finally:
+        os.close(saved)
+
+
+@dataclass
+class _Lp:
+    """A MILP being assembled as sparse triplets: max/min obj @ x, A_eq x = b, A_ub x <= b."""
+
+    lower: list[float] = field(default_factory=list)
+    upper: list[float] = field(default_factory=list)
+    integer: list[bool] = field(default_factory=list)
+    obj: list[float] = field(default_factory=list)
+    eq: list[tuple[dict[int, float], float]] = field(default_factory=list)
+    ub: list[tuple[dict[int, float], float]] = field(default_factory=list)
+
+    def var(self, lo: float, hi: float, *, integer: bool, obj: float = 0.0) -> int:
+        self.lower.append(lo)
+        self.upper.append(hi)
+        self.integer.append(integer)
+        self.obj.append(obj)
+        return len(self.obj) - 1
+
+    def solve(
+        self, *, maximise: bool, time_limit_s: float
+    ) -> tuple[Status, np.ndarray | None, float | None, str]:
+        """Returns (status, x, bound on obj @ x, message)."""
+        n = len(self.obj)
+        cols_int = [i for i, flag in enumerate(self.integer) if flag]
+        cols_cont = [i for i, flag in enumerate(self.integer) if not flag]
+        # CVXPY sets integrality per variable: one integer and one continuous vector, joined
+        # back into column order by a permutation matrix.
+        parts: list[cp.Expression] = []
+        if cols_int:
+            parts.append(cp.Variable(len(cols_int), integer=True))
+        if cols_cont:
+            parts.append(cp.Variable(len(cols_cont)))
+        stacked = parts[0] if len(parts) == 1 else cp.hstack(parts)  # type: ignore[attr-defined]
+        order = cols_int + cols_cont
+        perm = sp.csr_matrix((np.ones(n), (order, list(range(n)))), shape=(n, n))
+        x_expr = perm @ stacked
+        constraints: list[cp.Constraint] = [
+            x_expr >= np.array(self.lower),
+            x_expr <= np.array(self.upper),
+        ]
+        for rows, sense in ((self.eq, "eq"), (self.ub, "ub")):
+            if not rows:
+                continue
+            data: list[float] = []
+            ri: list[int] = []
+            ci: list[int] = []
+            rhs: list[float] = []
+            for r, (coefs, b) in enumerate(rows):
+                for col, val in coefs.items():
+                    data.append(val)
+                    ri.append(r)
+                    ci.append(col)
+                rhs.append(b)
+            a = sp.csr_matrix((data, (ri, ci)), shape=(len(rows), n))
+            if sense == "eq":
+                constraints.append(a @ x_expr == np.array(rhs))
+            else:
+                constraints.append(a @ x_expr <= np.array(rhs))
+        c = np.array(self.obj)
+        objective = cp.Maximize(c @ x_expr) if maximise else cp.Minimize(c @ x_expr)
+        prob = cp.Problem(objective, constraints)
+        try:
+            with _quiet_stdout():
+                prob.solve(  # type: ignore[no-untyped-call]
+                    solver=cp.HIGHS,
+                    time_limit=max(time_limit_s, 0.1),
+                    mip_rel_gap=MIP_REL_GAP,
+                    verbose=_VERBOSE,
+                )
+        except cp.SolverError as exc:
+            return "error", None, None, f"HiGHS failed: {exc}"
+        status = prob.status
+        info: Any = prob.solver_stats.extra_stats if prob.solver_stats else None
+        bound: float | None = None
+        if info is not None and getattr(info, "mip_dual_bound", None) is not None:
+            raw = float(info.mip_dual_bound)
+            if np.isfinite(raw):
+                bound = -raw if maximise else raw
+        if status == cp.OPTIMAL:
+            values = np.asarray(x_expr.value, dtype=float)
+            return "optimal", values, bound, ""
+        if status == cp.USER_LIMIT and x_expr.value is not None:
+            return "time_limit", np.asarray(x_expr.value, dtype=float), bound, "time limit hit"
+        if status == cp.USER_LIMIT:
+            return "time_limit", None, bound, "time limit hit before any solution was found"
+        if status in (cp.INFEASIBLE, "infeasible_or_unbounded"):
+            return "infeasible", None, None, "the MILP is infeasible"
+        return "error", None, None, f"HiGHS ended with status {status}"
+
+
+def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> Solution:
+    start = time.perf_counter()
+    deadline = start + time_limit_s
+    agg = _aggregated(problem, time_limit_s)
+    if agg.status in ("infeasible", "error") or agg.computer is None or agg.level is None:
+        failed: Status = agg.status
+        return no_solution(
+            problem, METHOD, failed, agg.message, solve_time_s=time.perf_counter() - start
+        )
+    solution = build_solution(
+        problem,
+        METHOD,
+        agg.status,
+        agg.computer,
+        agg.level,
+        solve_time_s=time.perf_counter() - start,
+        bound=agg.bound,
+        gap=_gap(agg.objective, agg.bound),
+        message="aggregated MILP",
+    )
+    if not check(problem.model, solution):
+        return solution
+    # Messages matter. The aggregated bound stays valid; look for the best placement that
+    # respects the links: the improved heuristic, then the full MILP if it is small enough.
+    from arpz.configure import improved  # local: improved imports greedy, not exact
+
+    bound = agg.bound if agg.status == "optimal" else None
+    remaining = deadline - time.perf_counter()
+    best = improved.solve(problem, time_budget_s=max(min(remaining / 3, 30.0), 0.5))
+    if check(problem.model, best) or best.objective is None:
+        best_obj: float | None = None
+        best_cl: tuple[list[int], list[int]] | None = None
+    else:
+        best_obj = best.objective
+        best_cl = _indices(problem, best)
+    full_status: Status = "time_limit"
+    remaining = deadline - time.perf_counter()
+    if _full_size(problem) <= FULL_MILP_MAX_PAIRS and remaining > 1.0:
+        full = _full(problem, remaining)
+        if full.bound is not None:
+            bound = (
+                full.bound
+                if bound is None
+                else (min(bound, full.bound) if problem.kind == 1 else max(bound, full.bound))
+            )
+        if full.computer is not None and full.level is not None:
+            trial = build_solution(
+                problem, METHOD, "feasible", full.computer, full.level, solve_time_s=0.0
+            )
+            if (
+                not check(problem.model, trial)
+                and trial.objective is not None
+                and (best_obj is None or _better(problem, trial.objective, best_obj))
+            ):
+                best_obj, best_cl = trial.objective, (full.computer, full.level)
+                full_status = full.status
+    elapsed = time.perf_counter() - start
+    if best_cl is None:
+        return no_solution(
+            problem,
+            METHOD,
+            "time_limit",
+            "no placement found that the links can carry",
+            solve_time_s=elapsed,
+        )
+    status: Status = "optimal" if full_status == "optimal" else "time_limit"
+    gap = 0.0 if status == "optimal" else _gap(best_obj, bound)
+    return build_solution(
+        problem,
+        METHOD,
+        status,
+        best_cl[0],
+        best_cl[1],
+        solve_time_s=elapsed,
+        bound=bound,
+        gap=gap,
+        message="messages constrain the placement: full MILP and improved heuristic",
+    )
+
+
+#: the full MILP gets a (message, computer pair) variable each; beyond this it is not tried
+FULL_MILP_MAX_PAIRS = 60_000
+
+
+def _full_size(problem: Problem) -> int:
+    total = 0
+    for a, b, _ in problem.messages:
+        ua, ub = problem.unit_of[a], problem.unit_of[b]
+        if ua != ub:
+            total += len(problem.unit_allowed[ua]) * len(problem.unit_allowed[ub])
+    return total
+
+
+def _better(problem: Problem, a: float, b: float) -> bool:
+    return a > b + 1e-9 if problem.kind == 1 else a < b - 1e-9
+
+
+def _indices(problem: Problem, solution: Solution) -> tuple[list[int], list[int]]:
+    comp = {name: i for i, name in enumerate(problem.computers)}
+    computer: list[int] = []
+    level: list[int] = []
+    for n, name in enumerate(problem.nodes):
+        placement = solution.assignment[name]
+        computer.append(comp[placement.computer])
+        opts = problem.options[n]
+        level.append(
+            min(
+                range(len(opts)),
+                key=lambda k: (
+                    abs(opts[k][0] - placement.cpu) + abs(opts[k][1] - placement.performance)
+                ),
+            )
+        )
+    return computer, level
+
+
+def _gap(objective: float | None, bound: float | None) -> float | None:
+    if objective is None or bound is None:
+        return None
+    return abs(bound - objective) / max(abs(objective), 1e-9)
+
+
+@dataclass
+class _Answer:
+    status: Status
+    computer: list[int] | None = None
+    level: list[int] | None = None
+    objective: float | None = None
+    bound: float | None = None
+    message: str = ""
+
+
+# -- aggregated formulation ------------------------------------------------------------------
+
+
+def _unit_signature(problem: Problem, u: int) -> tuple[object, ...]:
+    members = sorted((problem.weight[n], problem.options[n]) for n in problem.units[u])
+    return (tuple(members), problem.unit_allowed[u])
+
+
+def _canonical_members(problem: Problem, u: int) -> list[int]:
+    """Members of unit u in the order of its signature, so types line up member by member."""
+    return sorted(problem.units[u], key=lambda n: (problem.weight[n], problem.options[n]))
+
+
+def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
+    types: dict[tuple[object, ...], list[int]] = defaultdict(list)
+    for u in range(len(problem.units)):
+        types[_unit_signature(problem, u)].append(u)
+    type_units = list(types.values())
+    n_comp = len(problem.computers)
+    lp = _Lp()
+    maximise = problem.kind == 1
+    constant = 0.0
+    fixed_load = [0.0] * n_comp
+    load_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
+    unique_comp = [False] * n_comp
+    # per type: g[c] var, per member j: {c: {k: var}} (empty when the member has one setting)
+    g_vars: list[dict[int, int]] = []
+    z_vars: list[list[dict[int, dict[int, int]]]] = []
+    type_allowed: list[tuple[int, ...]] = []
+    for units in type_units:
+        rep = units[0]
+        members = _canonical_members(problem, rep)
+        allowed = problem.unit_allowed[rep]
+        type_allowed.append(allowed)
+        count = len(units)
+        multi = any(len(problem.options[n]) > 1 for n in members)
+        if len(allowed) == 1 and not multi:
+            c = allowed[0]
+            g_vars.append({})
+            z_vars.append([{} for _ in members])
+            for n in members:
+                cpu, perf = problem.options[n][0]
+                fixed_load[c] += count * cpu
+                constant += count * problem.weight[n] * perf if maximise else 0.0
+            continue
+        if len(allowed) == 1:
+            unique_comp[allowed[0]] = True
+        g = {c: lp.var(0, count, integer=True) for c in allowed}
+        g_vars.append(g)
+        lp.eq.append(({v: 1.0 for v in g.values()}, float(count)))
+        per_member: list[dict[int, dict[int, int]]] = []
+        for n in members:
+            opts = problem.options[n]
+            w = problem.weight[n]
+            if len(opts) == 1:
+                cpu, perf = opts[0]
+                for c, gv in g.items():
+                    load_terms[c][gv] += cpu
+                    if maximise:
+                        lp.obj[gv] += w * perf
+                per_member.append({})
+                continue
+            zs: dict[int, dict[int, int]] = {}
+            for c, gv in g.items():
+                zs[c] = {}
+                row: dict[int, float] = {gv: -1.0}
+                for k, (cpu, perf) in enumerate(opts):
+                    zv = lp.var(0, count, integer=True, obj=w * perf if maximise else 0.0)
+                    zs[c][k] = zv
+                    row[zv] = 1.0
+                    load_terms[c][zv] += cpu
+                lp.eq.append((row, 0.0))
+            per_member.append(zs)
+        z_vars.append(per_member)
+
+    for c in range(n_comp):
+        if problem.growable(c):
+            if not maximise:
+                for var, coef in load_terms[c].items():
+                    lp.obj[var] += coef
+                constant += fixed_load[c]
+            continue
+        free = problem.capacity[c] - fixed_load[c]
+        if free < -1e-9:
+            return _Answer(
+                "infeasible",
+                message=f"the nodes pinned to {problem.computers[c]} exceed its capacity",
+            )
+        if load_terms[c]:
+            lp.ub.append((dict(load_terms[c]), free))
+
+    # Symmetry breaking: order identical computers by load.
+    classes: dict[tuple[object, ...], list[int]] = defaultdict(list)
+    for c in range(n_comp):
+        if unique_comp[c]:
+            continue
+        member_of = tuple(t for t, allowed in enumerate(type_allowed) if c in allowed and g_vars[t])
+        key = (
+            problem.is_server[c],
+            problem.growable(c),
+            round(problem.capacity[c], 9) if not problem.growable(c) else 0.0,
+            round(fixed_load[c], 9),
+            member_of,
+        )
+        classes[key].append(c)
+    for comps in classes.values():
+        for a, b in itertools.pairwise(comps):
+            row = defaultdict(float)
+            for var, coef in load_terms[b].items():
+                row[var] += coef
+            for var, coef in load_terms[a].items():
+                row[var] -= coef
+            if row:
+                lp.ub.append((dict(row), 0.0))
+
+    if not lp.obj:
+        values = np.zeros(0)
+        status: Status = "optimal"
+        bound: float | None = 0.0
+        message = ""
+    else:
+        status, x, bound, message = lp.solve(maximise=maximise, time_limit_s=time_limit_s)
+        if x is None:
+            return _Answer(status, message=message)
+        values = x
+    total_bound = None if bound is None else bound + constant
+
+    counts = [{c: round(values[v]) for c, v in g.items()} for g in g_vars]
+    levels: list[list[dict[int, list[int]]]] = []
+    for per_member in z_vars:
+        member_levels: list[dict[int, list[int]]] = []
+        for zs in per_member:
+            by_comp: dict[int, list[int]] = {}
+            for c, ks in zs.items():
+                pool: list[int] = []
+                for k, v in ks.items():
+                    pool.extend([k] * round(values[v]))
+                by_comp[c] = pool
+            member_levels.append(by_comp)
+        levels.append(member_levels)
+    computer, level = _disaggregate(problem, type_units, counts, levels)
+    objective = _objective(problem, computer, level)
+    if status == "optimal":
+        total_bound = objective if total_bound is None else total_bound
+    return _Answer(status, computer, level, objective, total_bound, message)
+
+
+def _objective(problem: Problem, computer: list[int], level: list[int]) -> float:
+    if problem.kind == 1:
+        return sum(problem.weight[n] * problem.options[n][level[n]][1] for n in range(len(level)))
+    return sum(
+        problem.options[n][level[n]][0] for n in range(len(level)) if problem.is_server[computer[n]]
+    )
+
+
+def _disaggregate(
+    problem: Problem,
+    type_units: list[list[int]],
+    counts: list[dict[int, int]],
+    levels: list[list[dict[int, list[int]]]],
+) -> tuple[list[int], list[int]]:
+    """Give every counted slot to a named unit, near its message partners, then swap units of
+    one type to relieve overloaded links."""
+    n_nodes = len(problem.nodes)
+    computer = [-1] * n_nodes
+    level = [0] * n_nodes
+    order = sorted(
+        range(len(type_units)),
+        key=lambda t: (len(problem.unit_allowed[type_units[t][0]]), -len(type_units[t])),
+    )
+    for t in order:
+        units = type_units[t]
+        left = dict(counts[t]) if counts[t] else {problem.unit_allowed[units[0]][0]: len(units)}
+        for u in units:
+            best_c, best_aff = -1, -1.0
+            for c, slots in left.items():
+                if slots <= 0:
+                    continue
+                aff = 0.0
+                for n in problem.units[u]:
+                    for m, bw in problem.partners[n]:
+                        if computer[m] == c:
+                            aff += bw
+                if aff > best_aff:
+                    best_c, best_aff = c, aff
+            left[best_c] -= 1
+            for n in problem.units[u]:
+                computer[n] = best_c
+        # settings: hand out each member's pooled levels on each computer
+        for j, by_comp in enumerate(levels[t]):
+            pools = {c: list(pool) for c, pool in by_comp.items()}
+            for u in units:
+                n = _canonical_members(problem, u)[j]
+                pool = pools.get(computer[n])
+                level[n] = pool.pop() if pool else 0
+    _repair_links(problem, type_units, computer, level)
+    return computer, level
+
+
+def _excess(problem: Problem, computer: list[int]) -> tuple[float, list[float]]:
+    load = [0.0] * len(problem.link_bandwidth)
+    unlinked = 0.0
+    for a, b, bw in problem.messages:
+        ca, cb = computer[a], computer[b]
+        if ca == cb:
+            continue
+        link = problem.link_between(ca, cb)
+        if link is None:
+            unlinked += 1.0 + bw
+        else:
+            load[link] += bw
+    over = sum(max(0.0, load[k] - problem.link_bandwidth[k]) for k in range(len(load)))
+    return over + 1e6 * unlinked, load
+
+
+def _repair_links(
+    problem: Problem, type_units: list[list[int]], computer: list[int], level: list[int]
+) -> None:
+    """Swap two units of one type (with their settings): loads and objective stay the same."""
+    excess, _ = _excess(problem, computer)
+    if excess <= 1e-9:
+        return
+    deadline = time.perf_counter() + 5.0
+    improved = True
+    while improved and excess > 1e-9 and time.perf_counter() < deadline:
+        improved = False
+        for units in type_units:
+            if len(units) < 2:
+                continue
+            for i, u in enumerate(units):
+                for v in units[i + 1 :]:
+                    cu, cv = computer[problem.units[u][0]], computer[problem.units[v][0]]
+                    if cu == cv:
+                        continue
+                    _swap(problem, u, v, computer, level)
+                    trial, _ = _excess(problem, computer)
+                    if trial < excess - 1e-9:
+                        excess = trial
+                        improved = True
+                    else:
+                        _swap(problem, u, v, computer, level)
+                    if excess <= 1e-9:
+                        return
+
+
+def _swap(problem: Problem, u: int, v: int, computer: list[int], level: list[int]) -> None:
+    mu, mv = _canonical_members(problem, u), _canonical_members(problem, v)
+    for a, b in zip(mu, mv, strict=True):
+        computer[a], computer[b] = computer[b], computer[a]
+        level[a], level[b] = level[b], level[a]
+
+
+# -- full formulation ------------------------------------------------------------------------
+
+
+def _full(problem: Problem, time_limit_s: float) -> _Answer:
+    """Every unit placed by a binary per allowed computer; messages on links that could
+    overflow are counted exactly; messages between unlinked computers are forbidden."""
+    lp = _Lp()
+    maximise = problem.kind == 1
+    n_comp = len(problem.computers)
+    y: list[dict[int, int]] = []
+    for u in range(len(problem.units)):
+        yu = {c: lp.var(0, 1, integer=True) for c in problem.unit_allowed[u]}
+        y.append(yu)
+        lp.eq.append(({v: 1.0 for v in yu.values()}, 1.0))
+    load_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
+    s_vars: dict[int, list[int]] = {}
+    for n in range(len(problem.nodes)):
+        opts = problem.options[n]
+        yu = y[problem.unit_of[n]]
+        w = problem.weight[n]
+        if len(opts) == 1:
+            cpu, perf = opts[0]
+            for c, v in yu.items():
+                load_terms[c][v] += cpu
+                if maximise:
+                    lp.obj[v] += w * perf
+            continue
+        s = [lp.var(0, 1, integer=True, obj=w * p if maximise else 0.0) for _, p in opts]
+        s_vars[n] = s
+        lp.eq.append(({v: 1.0 for v in s}, 1.0))
+        umax = max(u for u, _ in opts)
+        total: dict[int, float] = {k: -opts[i][0] for i, k in enumerate(s)}
+        for c, yv in yu.items():
+            vv = lp.var(0, umax, integer=False)
+            lp.ub.append(({vv: 1.0, yv: -umax}, 0.0))
+            total[vv] = 1.0
+            load_terms[c][vv] += 1.0
+        lp.eq.append((total, 0.0))
+    for c in range(n_comp):
+        if problem.growable(c):
+            if not maximise:
+                for var, coef in load_terms[c].items():
+                    lp.obj[var] += coef
+            continue
+        lp.ub.append((dict(load_terms[c]), problem.capacity[c]))
+
+    # Links: only those the messages could overflow need rows.
+    potential = [0.0] * len(problem.link_bandwidth)
+    for a, b, bw in problem.messages:
+        ua, ub = problem.unit_of[a], problem.unit_of[b]
+        if ua == ub:
+            continue
+        for k, (c, d) in enumerate(problem.link_ends):
+            if (c in y[ua] and d in y[ub]) or (d in y[ua] and c in y[ub]):
+                potential[k] += bw
+    link_rows: dict[int, dict[int, float]] = {}
+    for a, b, bw in problem.messages:
+        ua, ub = problem.unit_of[a], problem.unit_of[b]
+        if ua == ub:
+            continue
+        for c, yc in y[ua].items():
+            for d, yd in y[ub].items():
+                if c == d:
+                    continue
+                link = problem.link_between(c, d)
+                if link is None:
+                    lp.ub.append(({yc: 1.0, yd: 1.0}, 1.0))
+                elif potential[link] > problem.link_bandwidth[link] + 1e-9:
+                    q = lp.var(0, 1, integer=False)
+                    lp.ub.append(({yc: 1.0, yd: 1.0, q: -1.0}, 1.0))
+                    link_rows.setdefault(link, {})[q] = bw
+    for link, row in link_rows.items():
+        lp.ub.append((row, problem.link_bandwidth[link]))
+
+    status, x, bound, message = lp.solve(maximise=maximise, time_limit_s=time_limit_s)
+    if x is None:
+        return _Answer(status, message=message)
+    computer = [-1] * len(problem.nodes)
+    level = [0] * len(problem.nodes)
+    for u, yu in enumerate(y):
+        c = max(yu, key=lambda c: x[yu[c]])
+        for n in problem.units[u]:
+            computer[n] = c
+    for n, s in s_vars.items():
+        level[n] = int(np.argmax([x[v] for v in s]))
+    return _Answer(status, computer, level, _objective(problem, computer, level), bound, message)
