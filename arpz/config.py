@@ -144,8 +144,8 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     summary_json: str | None = None
     cache_control: bool = True
     metrics_period_s: float = 0.5
-    #: samples waiting for the ingest worker beyond this are dropped and counted
-    ingest_queue_limit: int = 200_000
+    #: samples waiting for the ingest worker; beyond this Zenoh applies backpressure to robots
+    ingest_queue_limit: int = 100_000
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0

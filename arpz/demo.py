@@ -299,8 +299,8 @@ def format_summary(summary: dict[str, Any]) -> str:
             )
     ingest = summary["ingest"]
     lines.append(
-        f"CEDDP: {ingest['processed']} samples ingested, {ingest['overflow']} dropped "
-        f"by a full ingest queue, {ingest['unknown_keys']} on unknown keys, "
+        f"CEDDP: {ingest['processed']} samples ingested, "
+        f"{ingest['unknown_keys']} on unknown keys, "
         f"{summary['dashboard']['dropped']} dashboard frames dropped"
     )
     return "\n".join(lines)

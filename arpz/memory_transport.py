@@ -8,10 +8,18 @@ integration tests.
 
 from __future__ import annotations
 
+import queue
 import threading
 from collections.abc import Callable
 
-from arpz.transport import DataCallback, Handle, LivelinessCallback, Publisher
+from arpz.transport import (
+    DataCallback,
+    Handle,
+    LivelinessCallback,
+    Publisher,
+    PullSubscriber,
+    Received,
+)
 
 
 def key_matches(key_expr: str, key: str) -> bool:
@@ -65,6 +73,28 @@ class _Publisher:
         pass
 
 
+class _PullSubscriber:
+    def __init__(self, capacity: int) -> None:
+        self.queue: queue.Queue[Received] = queue.Queue(maxsize=capacity)
+        self.handle: _Handle | None = None
+
+    def push(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+        self.queue.put((key, payload, attachment))  # blocks when full: backpressure
+
+    def try_recv(self) -> Received | None:
+        try:
+            return self.queue.get_nowait()
+        except queue.Empty:
+            return None
+
+    def recv(self) -> Received:
+        return self.queue.get()
+
+    def undeclare(self) -> None:
+        if self.handle is not None:
+            self.handle.undeclare()
+
+
 class MemoryTransport:
     def __init__(self, bus: MemoryBus) -> None:
         self.bus = bus
@@ -93,6 +123,13 @@ class MemoryTransport:
                     self.bus.subscribers.remove(entry)
 
         return self._track(_Handle(remove))
+
+    def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber:
+        pull = _PullSubscriber(capacity)
+        handle = self.subscribe(key_expr, pull.push)
+        assert isinstance(handle, _Handle)
+        pull.handle = handle
+        return pull
 
     def declare_token(self, key: str) -> Handle:
         token_id = self.bus.new_id()

@@ -42,10 +42,29 @@ class Handle(Protocol):
     def undeclare(self) -> None: ...
 
 
+#: (key, payload, attachment)
+Received = tuple[str, bytes, bytes | None]
+
+
+class PullSubscriber(Protocol):
+    """A subscriber whose samples wait in a bounded queue owned by the transport.
+
+    When the queue is full the transport stops reading the link (backpressure to the publishers,
+    which block with congestion control BLOCK): samples are delayed, never dropped. Only one
+    thread may receive. ``recv`` blocks; wake it at shutdown by putting a sample on a matching
+    key, then undeclare.
+    """
+
+    def try_recv(self) -> Received | None: ...
+    def recv(self) -> Received: ...
+    def undeclare(self) -> None: ...
+
+
 class Transport(Protocol):
     def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher: ...
     def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None: ...
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle: ...
+    def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber: ...
     def declare_token(self, key: str) -> Handle: ...
     def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Handle: ...
     def close(self) -> None: ...
@@ -104,8 +123,8 @@ class _Declared:
             self._done = True
         try:
             self._inner.undeclare()  # type: ignore[attr-defined]
-        except zenoh.ZError as exc:  # the session may already be closed
-            log.debug("undeclare after close: %s", exc)
+        except (zenoh.ZError, RuntimeError) as exc:  # closed session, or a receiver still blocked
+            log.debug("undeclare failed: %s", exc)
 
 
 class _ZenohPublisher:
@@ -123,6 +142,33 @@ class _ZenohPublisher:
             self._inner.undeclare()  # type: ignore[no-untyped-call]
         except zenoh.ZError as exc:
             log.debug("undeclare after close: %s", exc)
+
+
+class _ZenohPullSubscriber(_Declared):
+    def __init__(self, inner: zenoh.Subscriber) -> None:  # type: ignore[type-arg]
+        super().__init__(inner)
+        self._try_recv = inner.try_recv
+        self._recv = inner.recv
+
+    def try_recv(self) -> Received | None:
+        sample = self._try_recv()
+        if sample is None:
+            return None
+        att = sample.attachment
+        return (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            att.to_bytes() if att is not None else None,
+        )
+
+    def recv(self) -> Received:
+        sample = self._recv()
+        att = sample.attachment
+        return (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            att.to_bytes() if att is not None else None,
+        )
 
 
 class ZenohTransport:
@@ -184,6 +230,13 @@ class ZenohTransport:
             )
 
         handle = _Declared(self._session.declare_subscriber(key_expr, on_sample))
+        self._keep(handle)
+        return handle
+
+    def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber:
+        handle = _ZenohPullSubscriber(
+            self._session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
+        )
         self._keep(handle)
         return handle
 
