@@ -176,13 +176,21 @@ def run_demo(
         ceddp = _spawn("ceddp", ["-m", "arpz.ceddp", "--config", str(ceddp_toml)], workdir)
         procs.append(ceddp)
         ceddp.wait_line("ready on", timeout_s=30)
-        fleet_procs = [
+        # the Hello relay (the last robot) is up before the others: a Hello sent before its
+        # relay joined cannot be relayed (the CEDDP counts it as no_relay)
+        relay = _spawn(
+            robot_tomls[-1].stem, ["-m", "arpz.robot", "--config", str(robot_tomls[-1])], workdir
+        )
+        procs.append(relay)
+        relay.wait_line("running", timeout_s=30)
+        others = [
             _spawn(path.stem, ["-m", "arpz.robot", "--config", str(path)], workdir)
-            for path in robot_tomls
+            for path in robot_tomls[:-1]
         ]
-        procs.extend(fleet_procs)
-        for proc in fleet_procs:
+        procs.extend(others)
+        for proc in others:
             proc.wait_line("running", timeout_s=30)
+        fleet_procs = [*others, relay]
         print(f"demo: CEDDP and {robots} robots running; logs in {workdir}", file=progress)
         start = time.monotonic()
         while (elapsed := time.monotonic() - start) < duration_s:
@@ -294,7 +302,9 @@ def format_summary(summary: dict[str, Any]) -> str:
         if hello and hello.get("sent"):
             lines.append(
                 f"Hello {name} -> CEDDP -> relay -> CEDDP -> {name}: sent {hello['sent']}, "
-                f"back {hello['received']}, lost {hello['lost']}, late {hello['late']}, "
+                f"back {hello['received']}, lost {hello['lost']}"
+                f" ({summary['hello_relay']['no_relay']} before the relay joined), "
+                f"late {hello['late']}, "
                 f"round trip p50 {_fmt(hello['rtt_ms_p50'])} ms, p99 {_fmt(hello['rtt_ms_p99'])} ms"
             )
     ingest = summary["ingest"]
