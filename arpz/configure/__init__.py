@@ -1,0 +1,77 @@
+"""Automatic configuration of node settings and placement (seed 002, Cano et al. 2016).
+
+Pure logic: a model file in, a Solution out; only ``characterise`` talks to a fleet, and only
+through ``arpz.transport``. ``python -m arpz.configure --help`` lists the commands.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from arpz.configure.check import Loads, check, loads
+from arpz.configure.model import (
+    Computer,
+    Continuum,
+    Link,
+    Message,
+    Model,
+    ModelError,
+    Node,
+    Setting,
+    decode_model,
+    dump_json,
+    dump_toml,
+    load_model,
+    validate,
+)
+from arpz.configure.problem import Problem
+from arpz.configure.regression import Curve, FitError, best_fit, expand, fit
+from arpz.configure.solution import Placement, Solution
+
+Method = Literal["greedy", "exact", "improved"]
+METHODS: tuple[Method, ...] = ("greedy", "exact", "improved")
+
+
+def solve(
+    model: Model, *, problem: Literal[1, 2], method: Method, time_limit_s: float = 60.0
+) -> Solution:
+    """Solve Problem 1 or 2 of a model with one of the three methods."""
+    from arpz.configure import exact, greedy, improved
+
+    compiled = Problem.build(model, problem)
+    if method == "greedy":
+        return greedy.solve(compiled)
+    if method == "improved":
+        return improved.solve(compiled, time_budget_s=min(time_limit_s, 10.0))
+    return exact.solve(compiled, time_limit_s=time_limit_s)
+
+
+__all__ = [
+    "METHODS",
+    "Computer",
+    "Continuum",
+    "Curve",
+    "FitError",
+    "Link",
+    "Loads",
+    "Message",
+    "Method",
+    "Model",
+    "ModelError",
+    "Node",
+    "Placement",
+    "Problem",
+    "Setting",
+    "Solution",
+    "best_fit",
+    "check",
+    "decode_model",
+    "dump_json",
+    "dump_toml",
+    "expand",
+    "fit",
+    "load_model",
+    "loads",
+    "solve",
+    "validate",
+]

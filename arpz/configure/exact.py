@@ -195,6 +195,14 @@ def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> So
     remaining = deadline - time.perf_counter()
     if _full_size(problem) <= FULL_MILP_MAX_PAIRS and remaining > 1.0:
         full = _full(problem, remaining)
+        if full.status == "infeasible" and best_cl is None:
+            return no_solution(
+                problem,
+                METHOD,
+                "infeasible",
+                "no placement satisfies the links (proved by the full MILP)",
+                solve_time_s=time.perf_counter() - start,
+            )
         if full.bound is not None:
             bound = (
                 full.bound

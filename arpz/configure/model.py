@@ -264,3 +264,41 @@ def fixed_setting(node: Node) -> Setting:
         if setting.fixed:
             return setting
     return max(node.settings, key=lambda s: (s.performance, s.cpu))
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int | float):
+        return repr(value)
+    if isinstance(value, str):
+        return msgspec.json.encode(value).decode()
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    if isinstance(value, dict):
+        items = [f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None]
+        return "{" + ", ".join(items) + "}"
+    raise TypeError(f"cannot write {value!r} to TOML")
+
+
+def dump_toml(model: Model) -> str:
+    """The model as TOML (tomllib reads but does not write it; the format is small enough)."""
+    raw = msgspec.to_builtins(model)
+    lines: list[str] = []
+    for key in ("name", "description"):
+        if raw.get(key) is not None:
+            lines.append(f"{key} = {_toml_value(raw[key])}")
+    for section in ("computers", "links", "nodes", "messages"):
+        for item in raw.get(section, []):
+            lines.append("")
+            lines.append(f"[[{section}]]")
+            for key, value in item.items():
+                if value is None:
+                    continue
+                if key == "settings":
+                    lines.append("settings = [")
+                    lines.extend(f"  {_toml_value(s)}," for s in value)
+                    lines.append("]")
+                else:
+                    lines.append(f"{key} = {_toml_value(value)}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,81 @@
+"""Solutions as text and as JSON for the CLI (one place, so both say the same thing)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from arpz.configure.check import check, loads
+from arpz.configure.model import Model
+from arpz.configure.solution import Solution
+
+
+def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
+    measured = loads(model, solution)
+    capacity = {c.name: c.capacity for c in model.computers}
+    capacity.update(solution.server_capacity)
+    bandwidth = {f"{lk.between[0]} - {lk.between[1]}": lk.bandwidth for lk in model.links}
+    return {
+        "problem": solution.problem,
+        "method": solution.method,
+        "status": solution.status,
+        "objective": solution.objective,
+        "gap": solution.gap,
+        "bound": solution.bound,
+        "solve_time_s": round(solution.solve_time_s, 4),
+        "message": solution.message,
+        "assignment": {
+            name: {"computer": p.computer, "cpu": p.cpu, "performance": p.performance}
+            for name, p in solution.assignment.items()
+        },
+        "computers": {
+            name: {"load": round(load, 6), "capacity": capacity[name]}
+            for name, load in measured.computer.items()
+        }
+        if solution.assignment
+        else {},
+        "links": {
+            name: {"load": round(load, 6), "bandwidth": bandwidth[name]}
+            for name, load in measured.link.items()
+        }
+        if solution.assignment
+        else {},
+        "server_capacity": solution.server_capacity,
+        "violations": check(model, solution),
+    }
+
+
+def as_text(model: Model, solution: Solution) -> str:
+    data = as_dict(model, solution)
+    what = "weighted performance" if solution.problem == 1 else "total server capacity"
+    lines = [f"problem {solution.problem} ({what}), method {solution.method}"]
+    lines.append(f"status     {solution.status}")
+    if solution.objective is None:
+        lines.append(f"no solution: {solution.message}")
+        lines.append(f"solve time {solution.solve_time_s:.3f} s")
+        return "\n".join(lines) + "\n"
+    lines.append(f"objective  {solution.objective:.4f}")
+    if solution.gap is not None:
+        bound = f"{solution.bound:.4f}" if solution.bound is not None else "-"
+        lines.append(f"gap        {100 * solution.gap:.4f} % (bound {bound})")
+    lines.append(f"solve time {solution.solve_time_s:.3f} s")
+    if solution.message:
+        lines.append(f"note       {solution.message}")
+    lines.append("")
+    width = max(len(n) for n in data["assignment"]) if data["assignment"] else 4
+    lines.append(f"{'node':<{width}}  {'computer':<12} {'cpu':>8} {'performance':>12}")
+    for name, p in data["assignment"].items():
+        lines.append(f"{name:<{width}}  {p['computer']:<12} {p['cpu']:>8g} {p['performance']:>12g}")
+    lines.append("")
+    lines.append(f"{'computer':<12} {'load':>8} {'capacity':>9}")
+    for name, c in data["computers"].items():
+        lines.append(f"{name:<12} {c['load']:>8g} {c['capacity']:>9g}")
+    if data["links"]:
+        lines.append("")
+        lines.append(f"{'link':<24} {'load':>8} {'bandwidth':>10}")
+        for name, lk in data["links"].items():
+            lines.append(f"{name:<24} {lk['load']:>8g} {lk['bandwidth']:>10g}")
+    if data["violations"]:
+        lines.append("")
+        lines.append("VIOLATIONS (a solver bug):")
+        lines.extend(f"  {v}" for v in data["violations"])
+    return "\n".join(lines) + "\n"
