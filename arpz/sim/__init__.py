@@ -9,7 +9,7 @@ from arpz.sim.body import RobotBody
 from arpz.sim.clock import ManualTime, SimClock
 from arpz.sim.judge import Judge, JudgeSettings, MissionResult
 from arpz.sim.kinematics import Pose, integrate
-from arpz.sim.lidar import BEAM_ANGLES_DEG, Lidar, beam_of_topic, beam_topic
+from arpz.sim.lidar import BEAM_ANGLES_DEG, Lidar, beam_endpoints, beam_of_topic, beam_topic
 from arpz.sim.mission import STOP, MissionEvent, VelocityCommand
 from arpz.sim.world import MapError, Obstacle, World
 
@@ -29,6 +29,7 @@ __all__ = [
     "SimClock",
     "VelocityCommand",
     "World",
+    "beam_endpoints",
     "beam_of_topic",
     "beam_topic",
     "integrate",

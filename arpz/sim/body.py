@@ -111,6 +111,10 @@ class RobotBody:
         ranges = self.lidar.scan(self._pose)
         return {deg: float(r) for deg, r in zip(self.lidar.beams_deg, ranges, strict=True)}
 
+    def readings(self) -> dict[str, float]:
+        """One scan as ``{"lidar_0": range_m, ...}``: the values to publish on the beam topics."""
+        return self.lidar.readings(self._pose)
+
     def _command_expired(self) -> bool:
         return (
             self.command_timeout_s is not None

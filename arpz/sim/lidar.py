@@ -88,3 +88,14 @@ class Lidar:
             beam_topic(deg): float(r)
             for deg, r in zip(self.beams_deg, self.scan(pose), strict=True)
         }
+
+
+def beam_endpoints(
+    pose: Pose, ranges_m: FloatArray | list[float], beams_deg: tuple[int, ...] = BEAM_ANGLES_DEG
+) -> FloatArray:
+    """World-frame end points (K x 2) of the beams from ``pose``: for drawing the rays."""
+    angles = np.radians(np.array(beams_deg, dtype=np.float64)) + pose.theta_rad
+    ranges = np.asarray(ranges_m, dtype=np.float64)
+    return np.stack(
+        [pose.x_m + ranges * np.cos(angles), pose.y_m + ranges * np.sin(angles)], axis=-1
+    )

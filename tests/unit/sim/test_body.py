@@ -56,6 +56,9 @@ def test_scan_is_keyed_by_beam_angle() -> None:
     scan = RobotBody(HALLWAY, "robot1").scan()
     assert list(scan) == [0, 45, 90, 135, 180, 225, 270, 315]
     assert scan[90] == pytest.approx(2.0)
+    readings = RobotBody(HALLWAY, "robot1").readings()
+    assert list(readings) == [f"lidar_{deg}" for deg in scan]
+    assert readings["lidar_0"] == pytest.approx(10.0)
 
 
 def test_unknown_robot_needs_an_explicit_home() -> None:

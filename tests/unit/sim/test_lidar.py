@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from arpz.sim.kinematics import Pose
-from arpz.sim.lidar import BEAM_ANGLES_DEG, Lidar, beam_of_topic, beam_topic
+from arpz.sim.lidar import BEAM_ANGLES_DEG, Lidar, beam_endpoints, beam_of_topic, beam_topic
 from arpz.sim.world import World
 
 HALLWAY = World.builtin()
@@ -58,6 +58,14 @@ def test_noise_has_the_requested_spread() -> None:
     errors = np.array([lidar.scan(Pose(10.0, 2.0, math.pi))[2] - 2.0 for _ in range(2000)])
     assert abs(errors.mean()) < 0.005
     assert errors.std() == pytest.approx(0.05, rel=0.1)
+
+
+def test_beam_endpoints_are_where_the_rays_hit() -> None:
+    pose = Pose(10.0, 2.0, math.pi)
+    ends = beam_endpoints(pose, Lidar(HALLWAY).scan(pose))
+    assert ends[0] == pytest.approx([0.0, 2.0])  # front: the west wall
+    assert ends[2] == pytest.approx([10.0, 0.0])  # left: the outer wall, south
+    assert ends[5] == pytest.approx([12.0, 4.0])  # 225: the block's face, north-east
 
 
 def test_topic_names_round_trip() -> None:
