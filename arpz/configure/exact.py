@@ -213,12 +213,9 @@ def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> So
             trial = build_solution(
                 problem, METHOD, "feasible", full.computer, full.level, solve_time_s=0.0
             )
-            if (
-                not check(problem.model, trial)
-                and trial.objective is not None
-                and (best_obj is None or _better(problem, trial.objective, best_obj))
-            ):
-                best_obj, best_cl = trial.objective, (full.computer, full.level)
+            if not check(problem.model, trial) and trial.objective is not None:
+                if best_obj is None or not _better(problem, best_obj, trial.objective):
+                    best_obj, best_cl = trial.objective, (full.computer, full.level)
                 full_status = full.status
     elapsed = time.perf_counter() - start
     if best_cl is None:
