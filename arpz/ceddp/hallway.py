@@ -205,10 +205,18 @@ class HallwayPlanner:
         return dict.fromkeys(self.settings.robots, command)
 
     def _decide(self, now_s: float) -> VelocityCommand:
-        s = self.settings
-        if self._phase == "home":
+        if self._phase == "home" or self._held(now_s):
             return STOP
+        if self._phase == "waiting":
+            self._phase = "following"
+            self._emit(
+                now_s, "started", self.settings.leader, "lanes clear, data fresh: fleet starts"
+            )
+        return self._navigate(now_s)
 
+    def _held(self, now_s: float) -> bool:
+        """Whether the fleet must stand still now (stale data, an obstacle), with the events."""
+        s = self.settings
         stale = self._stalest(now_s)
         if stale is not None:
             robot, deg, age_s = stale
@@ -231,7 +239,7 @@ class HallwayPlanner:
                     beam_deg=deg,
                     age_s=None if math.isinf(age_s) else age_s,
                 )
-            return STOP
+            return True
         if self._hold == "stale":
             self._leave_hold(now_s, "resumed", "data fresh again")
 
@@ -250,14 +258,14 @@ class HallwayPlanner:
                     range_m=range_m,
                     age_s=now_s - self._stamp(robot, deg),
                 )
-            return STOP
+            return True
         if self._hold == "obstacle":
             self._leave_hold(now_s, "clear", "all lanes clear ahead")
+        return False
 
-        if self._phase == "waiting":
-            self._phase = "following"
-            self._emit(now_s, "started", s.leader, "lanes clear, data fresh: fleet starts")
-
+    def _navigate(self, now_s: float) -> VelocityCommand:
+        """The leader's corridor following, corners and home, on fresh data with clear lanes."""
+        s = self.settings
         if self._phase == "turning" and self._turned_rad >= math.pi / 2.0 - 1e-9:
             self._phase = "following"
             self._corners_done += 1
@@ -317,7 +325,7 @@ class HallwayPlanner:
         if self._phase == "turning":
             sign = -1.0 if s.turn == "right" else 1.0
             return VelocityCommand(s.cruise_speed_m_s, sign * s.cruise_speed_m_s / s.turn_radius_m)
-        return VelocityCommand(s.cruise_speed_m_s, self._centring_omega(corridor))
+        return VelocityCommand(s.cruise_speed_m_s, self._centring_omega(self._corridor_estimate()))
 
     def _stamp(self, robot: str, deg: int) -> float:
         return self._latest[(robot, deg)][1]
