@@ -2,6 +2,8 @@ import math
 
 import msgspec
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from arpz.ceddp.hallway import HallwayPlanner, PlannerSettings
 from arpz.sim.kinematics import Pose
@@ -201,3 +203,41 @@ def test_inputs_the_planner_ignores() -> None:
     assert not planner.on_topic("robot1", "imu", 3.0, 2.0)
     with pytest.raises(ValueError, match="no beam at 10"):
         planner.on_range("robot1", 10, 1.0, 2.0)
+
+
+readings = st.lists(
+    st.tuples(
+        st.sampled_from(["robot1", "robot2", "robot3"]),
+        st.sampled_from(BEAM_ANGLES_DEG),
+        st.floats(0.0, 12.0),
+        st.floats(0.0, 0.5),  # how long before the tick the reading was taken
+    ),
+    max_size=10,
+)
+# Each round: maybe a whole fleet scan from the homes (taken 0 to 0.5 s before the tick), then
+# odd readings on top; so the planner sees fresh, stale, clear and blocked fleets in turn.
+rounds = st.lists(st.tuples(st.none() | st.floats(0.0, 0.5), readings), min_size=1, max_size=8)
+
+
+@given(rounds)
+def test_the_fleet_never_moves_on_stale_data_or_with_an_obstacle_ahead(
+    plan: list[tuple[float | None, list[tuple[str, int, float, float]]]],
+) -> None:
+    planner = HallwayPlanner(SETTINGS)
+    now_s = 0.0
+    for scan_age_s, batch in plan:
+        now_s += 0.1
+        if scan_age_s is not None:
+            see_fleet(planner, HOMES["robot1"], now_s - scan_age_s)
+        for robot, deg, range_m, age_s in batch:
+            planner.on_range(robot, deg, range_m, now_s - age_s)
+        commands = planner.tick(now_s)
+        assert len(set(commands.values())) == 1  # one velocity for the whole fleet
+        if commands["robot1"] == STOP:
+            continue
+        held = planner._latest  # what the planner holds, checked against the documented rules
+        needed = [("robot1", d) for d in (0, 45, 90, 135, 225, 270, 315)]
+        needed += [("robot2", 0), ("robot3", 0)]
+        assert all(now_s - held[key][1] <= SETTINGS.max_age_s + 1e-9 for key in needed)
+        assert held[("robot2", 0)][0] >= SETTINGS.obstacle_range_m
+        assert held[("robot3", 0)][0] >= SETTINGS.obstacle_range_m
