@@ -128,9 +128,9 @@ def cmd_figure5(args: argparse.Namespace) -> int:
 
 
 def cmd_characterise(args: argparse.Namespace) -> int:
-    from arpz.configure import characterise
+    from arpz.configure.characterise import main as run_characterise
 
-    return characterise.main(args)
+    return run_characterise(args)
 
 
 def parser() -> argparse.ArgumentParser:

@@ -16,10 +16,18 @@ EXAMPLE = {
     ],
     "links": [{"between": ["robot1", "server1"], "bandwidth": 54000}],
     "nodes": [
-        {"name": "amcl1", "weight": 0.2, "residence": None, "coresidence": None,
-         "settings": [{"cpu": 19, "performance": 20}, {"cpu": 41, "performance": 50},
-                      {"cpu": 66, "performance": 100}],
-         "continuum": None},
+        {
+            "name": "amcl1",
+            "weight": 0.2,
+            "residence": None,
+            "coresidence": None,
+            "settings": [
+                {"cpu": 19, "performance": 20},
+                {"cpu": 41, "performance": 50},
+                {"cpu": 66, "performance": 100},
+            ],
+            "continuum": None,
+        },
         {"name": "tracker1", "weight": 0.2, "settings": [{"cpu": 80, "performance": 40}]},
         {"name": "environment1", "settings": [{"cpu": 1, "performance": 100}]},
     ],
@@ -110,10 +118,14 @@ def test_bad_models_are_rejected_with_a_message_that_says_where(change, needle):
 
 
 def test_a_coresidence_group_with_conflicting_residences_is_rejected():
-    text = _with(**{
-        "nodes.0.coresidence": "g", "nodes.0.residence": ["robot1"],
-        "nodes.1.coresidence": "g", "nodes.1.residence": ["server1"],
-    })
+    text = _with(
+        **{
+            "nodes.0.coresidence": "g",
+            "nodes.0.residence": ["robot1"],
+            "nodes.1.coresidence": "g",
+            "nodes.1.residence": ["server1"],
+        }
+    )
     with pytest.raises(ModelError, match="coresidence group 'g'.*none in common"):
         decode_model(text)
 

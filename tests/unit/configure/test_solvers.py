@@ -44,8 +44,10 @@ def brute_force(model: Model, kind: int) -> float | None:
             for n, (c, u, p) in zip(model.nodes, combo, strict=True)
         }
         if kind == 1:
-            objective = sum(n.weight * a.performance for n, a in
-                            zip(model.nodes, assignment.values(), strict=True))
+            objective = sum(
+                n.weight * a.performance
+                for n, a in zip(model.nodes, assignment.values(), strict=True)
+            )
             server_capacity: dict[str, float] = {}
         else:
             server_capacity = {c.name: 0.0 for c in model.computers if c.kind == "server"}
@@ -53,9 +55,14 @@ def brute_force(model: Model, kind: int) -> float | None:
                 if a.computer in server_capacity:
                     server_capacity[a.computer] += a.cpu
             objective = sum(server_capacity.values())
-        candidate = Solution(problem=kind, method="brute", status="feasible",
-                             objective=objective, assignment=assignment,
-                             server_capacity=server_capacity)
+        candidate = Solution(
+            problem=kind,
+            method="brute",
+            status="feasible",
+            objective=objective,
+            assignment=assignment,
+            server_capacity=server_capacity,
+        )
         if check(model, candidate):
             continue
         if best is None or (objective > best if kind == 1 else objective < best):
@@ -67,8 +74,11 @@ def brute_force(model: Model, kind: int) -> float | None:
 def small_models(draw, max_nodes: int = 4) -> Model:
     n_comp = draw(st.integers(1, 3))
     computers = [
-        Computer(name=f"c{i}", kind=draw(st.sampled_from(["robot", "server"])),
-                 capacity=draw(st.integers(5, 60)))
+        Computer(
+            name=f"c{i}",
+            kind=draw(st.sampled_from(["robot", "server"])),
+            capacity=draw(st.integers(5, 60)),
+        )
         for i in range(n_comp)
     ]
     links = []
@@ -79,14 +89,23 @@ def small_models(draw, max_nodes: int = 4) -> Model:
     n_nodes = draw(st.integers(1, max_nodes))
     for k in range(n_nodes):
         n_set = draw(st.integers(1, 3))
-        settings_ = [Setting(cpu=draw(st.integers(1, 30)), performance=draw(st.integers(0, 100)))
-                     for _ in range(n_set)]
+        settings_ = [
+            Setting(cpu=draw(st.integers(1, 30)), performance=draw(st.integers(0, 100)))
+            for _ in range(n_set)
+        ]
         residence = None
         if draw(st.booleans()):
             residence = sorted({f"c{draw(st.integers(0, n_comp - 1))}" for _ in range(2)})
         coresidence = draw(st.sampled_from([None, None, "g"]))
-        nodes.append(Node(name=f"n{k}", weight=draw(st.sampled_from([0.1, 0.25, 0.5, 1.0])),
-                          settings=settings_, residence=residence, coresidence=coresidence))
+        nodes.append(
+            Node(
+                name=f"n{k}",
+                weight=draw(st.sampled_from([0.1, 0.25, 0.5, 1.0])),
+                settings=settings_,
+                residence=residence,
+                coresidence=coresidence,
+            )
+        )
     messages = []
     for a, b in itertools.permutations(range(n_nodes), 2):
         if draw(st.integers(0, 3)) == 0:
@@ -96,8 +115,11 @@ def small_models(draw, max_nodes: int = 4) -> Model:
     return model
 
 
-FAST = settings(max_examples=60, deadline=None,
-                suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
+FAST = settings(
+    max_examples=60,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+)
 
 
 @FAST
@@ -150,22 +172,33 @@ def test_improved_beats_greedy_where_the_convex_curve_hurts_it():
 # -- the checker against hand-made violations -------------------------------------------------
 
 TWO = Model(
-    computers=[Computer(name="r", kind="robot", capacity=10),
-               Computer(name="s", kind="server", capacity=100),
-               Computer(name="t", kind="server", capacity=100)],
+    computers=[
+        Computer(name="r", kind="robot", capacity=10),
+        Computer(name="s", kind="server", capacity=100),
+        Computer(name="t", kind="server", capacity=100),
+    ],
     links=[Link(between=("r", "s"), bandwidth=3)],
-    nodes=[Node(name="a", settings=[Setting(cpu=6, performance=1)], residence=["r", "s"]),
-           Node(name="b", settings=[Setting(cpu=6, performance=2)], coresidence="g"),
-           Node(name="c", settings=[Setting(cpu=1, performance=3)], coresidence="g")],
+    nodes=[
+        Node(name="a", settings=[Setting(cpu=6, performance=1)], residence=["r", "s"]),
+        Node(name="b", settings=[Setting(cpu=6, performance=2)], coresidence="g"),
+        Node(name="c", settings=[Setting(cpu=1, performance=3)], coresidence="g"),
+    ],
     messages=[Message(source="a", to="b", bandwidth=2), Message(source="c", to="a", bandwidth=2)],
 )
 
 
 def _sol(where: dict[str, str], objective: float = 6.0) -> Solution:
     perf = {"a": (6, 1), "b": (6, 2), "c": (1, 3)}
-    return Solution(problem=1, method="hand", status="feasible", objective=objective,
-                    assignment={n: Placement(computer=c, cpu=perf[n][0], performance=perf[n][1])
-                                for n, c in where.items()})
+    return Solution(
+        problem=1,
+        method="hand",
+        status="feasible",
+        objective=objective,
+        assignment={
+            n: Placement(computer=c, cpu=perf[n][0], performance=perf[n][1])
+            for n, c in where.items()
+        },
+    )
 
 
 def test_checker_accepts_a_feasible_answer_and_counts_same_computer_messages_free():
@@ -180,8 +213,9 @@ def test_checker_counts_both_directions_on_one_link():
 def test_checker_finds_each_kind_of_violation():
     assert any("exceeds capacity" in e for e in check(TWO, _sol({"a": "r", "b": "r", "c": "r"})))
     assert any("no link" in e for e in check(TWO, _sol({"a": "s", "b": "t", "c": "t"})))
-    assert any("outside its residence" in e
-               for e in check(TWO, _sol({"a": "t", "b": "t", "c": "t"})))
+    assert any(
+        "outside its residence" in e for e in check(TWO, _sol({"a": "t", "b": "t", "c": "t"}))
+    )
     assert any("split" in e for e in check(TWO, _sol({"a": "s", "b": "s", "c": "t"})))
     assert any("objective" in e for e in check(TWO, _sol({"a": "s", "b": "s", "c": "s"}, 7.0)))
     assert any("not placed" in e for e in check(TWO, _sol({"a": "s", "b": "s"})))
