@@ -58,7 +58,9 @@ class Channel:
         self.machine = machine
         self.events = events
         self.on_data = on_data
-        self.lock = threading.Condition(threading.Lock())
+        #: guards the machine; ``cond`` (on the same lock) wakes a KEEP_ALL write waiting for room
+        self.mutex = threading.Lock()
+        self.lock = threading.Condition(self.mutex)
         self.queue_dropped = 0
         self.callback_errors = 0
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
@@ -105,23 +107,29 @@ class Channel:
     def _run(self) -> None:
         q = self._queue
         next_tick = 0.0
+        is_writer = isinstance(self.machine, WriterMachine)
         while True:
             try:
-                item = q.get(timeout=self._tick_s)
+                batch = [q.get(timeout=self._tick_s)]
             except queue.Empty:
-                item = None
-            n = 0
-            while item is not None:
-                if item is _STOP:
-                    return
-                self._handle(item)
-                n += 1
-                if n >= _BATCH:
-                    break
+                batch = []
+            # Drain what is already queued and run it under one lock acquisition: at high rates
+            # this is what keeps the worker ahead of the transport thread.
+            while batch and len(batch) < _BATCH:
                 try:
-                    item = q.get_nowait()
+                    batch.append(q.get_nowait())
                 except queue.Empty:
-                    item = None
+                    break
+            stop = any(item is _STOP for item in batch)
+            if batch:
+                with self.lock:
+                    results = [self._dispatch(item) for item in batch if item is not _STOP]
+                    if is_writer:
+                        self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
+                for actions in results:
+                    self.perform(actions)
+            if stop:
+                return
             now = time.monotonic()
             if now >= next_tick:
                 next_tick = now + self._tick_s
@@ -129,25 +137,23 @@ class Channel:
                     actions = self.machine.tick()
                 self.perform(actions)
 
-    def _handle(self, item: tuple[Any, Any, Any, Any]) -> None:
+    def _dispatch(self, item: tuple[Any, Any, Any, Any]) -> list[Action]:
+        """Run one queued item through the machine (the lock is held); never raises."""
         head, a, b, c = item
         try:
             if head is _POST:
-                self.perform(a)
-                return
-            with self.lock:
-                if head is _TOKEN:
-                    if isinstance(self.machine, WriterMachine):
-                        actions = self.machine.on_reader_token(a, b)
-                    else:
-                        actions = self.machine.on_writer_token(a, b)
-                else:
-                    actions = head(a, b, c)
-                self.lock.notify_all()
-            self.perform(actions)
+                result: list[Action] = a
+                return result
+            if head is _TOKEN:
+                if isinstance(self.machine, WriterMachine):
+                    return self.machine.on_reader_token(a, b)
+                return self.machine.on_writer_token(a, b)
+            result = head(a, b, c)
+            return result
         except Exception:  # a bug must not kill the worker and silently stop the channel
             self.callback_errors += 1
             log.exception("reliable channel worker: unexpected error")
+            return []
 
     def perform(self, actions: list[Action]) -> None:
         for action in actions:

@@ -39,6 +39,7 @@ class Writer(Endpoint):
         )
         self._publisher = transport.publisher(key, express=express, block=True)
         self._lock = self._channel.lock
+        self._mutex = self._channel.mutex
         self._channel.start()
         self._channel.declare_token(self._machine.token_key)
 
@@ -52,7 +53,7 @@ class Writer(Endpoint):
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
         give_up = 0.0
-        with self._lock:
+        with self._mutex:
             while True:
                 try:
                     seq, attachment, actions = self._machine.write(payload, stamp_ns)

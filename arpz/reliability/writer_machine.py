@@ -120,8 +120,14 @@ class WriterMachine:
         self._deadline = DeadlineTimer(qos.deadline_s, now)
         self._lease = LeaseTimer(qos.lease_duration_s if self._manual else 0.0, now)
         self._hb_key = wire.heartbeat_key(topic, self.hex)
+        self._mono = clock.monotonic_s
+        self._wall_ns = clock.wall_ns
+        self._pack = wire.DATA.pack
+        #: deadline or manual liveliness: only then does a write need the time
+        self._timed = qos.deadline_s > 0 or self._manual
+        self._n_reliable = 0
         self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
-        self.sent = self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
+        self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
         self.lost = self.lifespan_expired = self.unchanged = 0
         self.liveliness_lost = self.incompatible = 0
         self.matched_total = 0
@@ -147,7 +153,11 @@ class WriterMachine:
         if self.qos.transient_local:
             return
         limit = self._min_acked()
-        while self.first < limit and self.first <= self.last_seq:
+        if limit > self.last_seq:
+            self.history.clear()
+            self.first = self.last_seq + 1
+            return
+        while self.first < limit:
             del self.history[self.first]
             self.first += 1
 
@@ -162,30 +172,35 @@ class WriterMachine:
     def write(self, payload: bytes, stamp_ns: int | None = None) -> tuple[int, bytes, list[Action]]:
         """Assign the next seq and return (seq, DATA attachment, actions); the driver publishes
         the payload with the attachment on the topic key. Raises HistoryFullError if KEEP_ALL has
-        no room (the driver waits for acknowledgements and retries up to max_blocking_time)."""
+        no room (the driver waits for acknowledgements and retries up to max_blocking_time).
+
+        This is the hot path of a publisher: everything that can be decided once is decided in
+        ``__init__`` or on (un)matching, not here."""
         actions: list[Action] = []
-        if len(self.history) >= self._capacity:
+        history = self.history
+        if len(history) >= self._capacity:
             if self._keep_all:
                 if self.first >= self._min_acked():
                     raise HistoryFullError(self._full_message())
                 self._drop_front()
             else:
                 self._overwrite_front(actions)
-        now = self.clock.monotonic_s()
         if stamp_ns is None:
-            stamp_ns = self.clock.wall_ns()
-        self.last_seq += 1
-        seq = self.last_seq
-        self.history[seq] = (payload, stamp_ns)
-        self.sent += 1
+            stamp_ns = self._wall_ns()
+        seq = self.last_seq = self.last_seq + 1
+        history[seq] = (payload, stamp_ns)
         flags = 0
-        if seq - self._last_ack_request >= self._ack_interval and self.proxies:
+        if self._n_reliable and seq - self._last_ack_request >= self._ack_interval:
             flags = wire.F_ACK_REQUEST
             self._last_ack_request = seq
-        self._deadline.reset(now)
-        self._assert(now)
-        self._purge()
-        return seq, wire.encode_data(flags, self.guid, seq, stamp_ns), actions
+        self._asserted_since_hb = True
+        if self._timed:
+            now = self._mono()
+            self._deadline.reset(now)
+            self._lease.assert_alive(now)
+        if not self._n_reliable:
+            self._purge()
+        return seq, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns), actions
 
     def _full_message(self) -> str:
         waiting = [p.hex for p in self.proxies.values() if p.reliable and p.acked <= self.first]
@@ -215,8 +230,7 @@ class WriterMachine:
 
     def _assert(self, now: float) -> None:
         self._asserted_since_hb = True
-        if self._lease.assert_alive(now):
-            pass  # a writer regaining liveliness has no ROS 2 event of its own
+        self._lease.assert_alive(now)  # regaining liveliness has no ROS 2 writer event
 
     def assert_unchanged(self) -> list[Action]:
         """The local cache held back a reading equal to the last one sent: the topic is alive and
@@ -277,6 +291,7 @@ class WriterMachine:
             p = self.proxies.pop(guid, None)
             if p is None:
                 return []
+            self._n_reliable -= p.reliable
             self._purge()
             return [self._matched(-1, hex_)]
         if guid in self.proxies or guid in self._incompatible:
@@ -295,6 +310,7 @@ class WriterMachine:
         )
         p = _ReaderProxy(guid, hex_, mq.reliable, start, wire.directed_key(self.topic, hex_))
         self.proxies[guid] = p
+        self._n_reliable += p.reliable
         self.matched_total += 1
         now = self.clock.monotonic_s()
         return [self._matched(1, hex_), self._sync(p, now)]
@@ -371,7 +387,7 @@ class WriterMachine:
 
     def stats(self) -> WriterStats:
         return WriterStats(
-            sent=self.sent,
+            sent=self.last_seq,
             retransmitted=self.retransmitted,
             nacks=self.nacks,
             gaps=self.gaps,

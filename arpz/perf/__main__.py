@@ -1,0 +1,382 @@
+"""``python -m arpz.perf``: the project's performance_test (docs/perf.md).
+
+    python -m arpz.perf router --listen tcp/127.0.0.1:7447
+    python -m arpz.perf sub --connect tcp/127.0.0.1:7447 --key perf/t --transport arpz --json r.json
+    python -m arpz.perf pub --connect tcp/127.0.0.1:7447 --key perf/t --transport arpz \\
+        --rate 1000 --count 5000
+
+``ping``/``pong`` measure round trips the same way. Every command closes its Zenoh session on
+every exit path (end, error, SIGINT, SIGTERM): a process exiting with a declared callback
+subscriber would hang.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import signal
+import sys
+import threading
+import time
+from types import FrameType
+from typing import Any
+
+import msgspec
+
+from arpz.perf.endpoints import (
+    TRANSPORTS,
+    AdvancedPub,
+    AdvancedSub,
+    ArpzPub,
+    ArpzSub,
+    OnPayload,
+    Pub,
+    Sub,
+    ZenohPub,
+    ZenohSub,
+    open_session,
+)
+from arpz.perf.report import HEADER, Recorder, build_report, make_payload
+from arpz.reliability.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QosProfile,
+    ReliabilityPolicy,
+    load_qos,
+)
+from arpz.transport import SessionSettings, ZenohTransport
+
+STOP = threading.Event()
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    STOP.set()
+
+
+def _endpoints(text: str) -> list[str]:
+    return [e.strip() for e in text.split(",") if e.strip()]
+
+
+def add_qos_flags(ap: argparse.ArgumentParser) -> None:
+    g = ap.add_argument_group("QoS (arpz transport)")
+    g.add_argument("--qos-file", help="TOML profile; the flags below override it")
+    g.add_argument("--reliability", choices=[p.value for p in ReliabilityPolicy])
+    g.add_argument("--history", choices=[p.value for p in HistoryPolicy])
+    g.add_argument("--depth", type=int)
+    g.add_argument("--max-samples", type=int)
+    g.add_argument("--durability", choices=[p.value for p in DurabilityPolicy])
+    g.add_argument("--deadline-ms", type=float)
+    g.add_argument("--lifespan-ms", type=float)
+    g.add_argument("--liveliness", choices=[p.value for p in LivelinessPolicy])
+    g.add_argument("--lease-ms", type=float)
+    g.add_argument("--heartbeat-ms", type=float)
+    g.add_argument("--nack-delay-ms", type=float)
+    g.add_argument("--reorder-timeout-ms", type=float)
+    g.add_argument("--cache", type=int, default=10000, help="advanced: publisher cache size")
+
+
+def qos_from_args(args: argparse.Namespace) -> QosProfile:
+    base = load_qos(args.qos_file) if args.qos_file else QosProfile(history=HistoryPolicy.KEEP_ALL)
+    changes: dict[str, Any] = {}
+    for flag, field, conv in (
+        ("reliability", "reliability", ReliabilityPolicy),
+        ("history", "history", HistoryPolicy),
+        ("depth", "depth", int),
+        ("max_samples", "max_samples", int),
+        ("durability", "durability", DurabilityPolicy),
+        ("deadline_ms", "deadline_s", lambda v: v / 1000),
+        ("lifespan_ms", "lifespan_s", lambda v: v / 1000),
+        ("liveliness", "liveliness", LivelinessPolicy),
+        ("lease_ms", "lease_duration_s", lambda v: v / 1000),
+        ("heartbeat_ms", "heartbeat_period_s", lambda v: v / 1000),
+        ("nack_delay_ms", "nack_delay_s", lambda v: v / 1000),
+        ("reorder_timeout_ms", "reorder_timeout_s", lambda v: v / 1000),
+    ):
+        value = getattr(args, flag)
+        if value is not None:
+            changes[field] = conv(value)
+    return msgspec.structs.replace(base, **changes) if changes else base
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="python -m arpz.perf", description="arpz performance test")
+    sub = ap.add_subparsers(dest="command", required=True)
+    r = sub.add_parser("router", help="a bare Zenoh router")
+    r.add_argument("--listen", required=True, help="ENDPOINT[,ENDPOINT...]")
+    r.add_argument("--duration", type=float, default=0.0)
+    for name in ("pub", "sub", "ping", "pong"):
+        p = sub.add_parser(name)
+        p.add_argument("--connect", required=True, help="ENDPOINT[,ENDPOINT...]")
+        p.add_argument("--key", default="perf/topic")
+        p.add_argument("--transport", choices=TRANSPORTS, default="arpz")
+        p.add_argument("--express", action="store_true", help="no batching (lower latency)")
+        p.add_argument("--rate", type=float, default=0.0, help="Hz; 0 = as fast as possible")
+        p.add_argument("--count", type=int, default=0)
+        p.add_argument("--duration", type=float, default=0.0)
+        p.add_argument("--size", type=int, default=24, help="payload bytes (at least 16)")
+        p.add_argument("--json", metavar="FILE", help="write the report to FILE")
+        p.add_argument(
+            "--linger",
+            type=float,
+            default=5.0,
+            help="pub: seconds to wait for acknowledgements at the end",
+        )
+        p.add_argument(
+            "--idle-timeout",
+            type=float,
+            default=3.0,
+            help="sub/ping: stop this long after the last sample once the end is known",
+        )
+        add_qos_flags(p)
+    return ap
+
+
+def _transport(args: argparse.Namespace) -> ZenohTransport:
+    return ZenohTransport.open(SessionSettings(connect=_endpoints(args.connect)), timeout_s=10)
+
+
+def make_pub(args: argparse.Namespace, key: str) -> Pub:
+    if args.transport == "arpz":
+        return ArpzPub(_transport(args), key, qos_from_args(args), args.express)
+    session = open_session(SessionSettings(connect=_endpoints(args.connect)))
+    if args.transport == "zenoh":
+        return ZenohPub(session, key, args.express)
+    return AdvancedPub(session, key, args.express, args.cache)
+
+
+def make_sub(args: argparse.Namespace, key: str, on_payload: OnPayload) -> Sub:
+    if args.transport == "arpz":
+        return ArpzSub(_transport(args), key, qos_from_args(args), on_payload)
+    session = open_session(SessionSettings(connect=_endpoints(args.connect)))
+    if args.transport == "zenoh":
+        return ZenohSub(session, key, on_payload)
+    return AdvancedSub(session, key, on_payload)
+
+
+class EndMarker:
+    """The publisher's final count on ``{key}/perf/end``: the subscriber's "sent"."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.key = f"{args.key}/perf/end"
+        self.transport = _transport(args)
+        self.count: int | None = None
+
+    def announce(self, count: int) -> None:
+        for _ in range(5):
+            self.transport.put(self.key, str(count).encode())
+            time.sleep(0.05)
+
+    def listen(self) -> None:
+        def on_end(key: str, payload: bytes, attachment: bytes | None) -> None:
+            with contextlib.suppress(ValueError):  # not ours: the highest seq stands in
+                self.count = int(payload)
+
+        self.transport.subscribe(self.key, on_end)
+
+    def close(self) -> None:
+        self.transport.close()
+
+
+def _pace(args: argparse.Namespace) -> tuple[int, float]:
+    if not args.count and not args.duration:
+        raise SystemExit("give --count N or --duration S")
+    return args.count, args.duration
+
+
+def run_pub(args: argparse.Namespace) -> dict[str, Any]:
+    count, duration = _pace(args)
+    marker = EndMarker(args)
+    pub = make_pub(args, args.key)
+    try:
+        if not pub.wait_matched(10.0):
+            print(
+                "arpz.perf pub: no subscriber matched within 10 s; publishing anyway",
+                file=sys.stderr,
+            )
+        seq = 0
+        t0 = time.monotonic()
+        period = 1.0 / args.rate if args.rate > 0 else 0.0
+        while not STOP.is_set():
+            if count and seq >= count:
+                break
+            if duration and time.monotonic() - t0 >= duration:
+                break
+            seq += 1
+            pub.put(make_payload(seq, time.time_ns(), args.size))
+            if period:
+                delay = t0 + seq * period - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+        elapsed = time.monotonic() - t0
+        extra = pub.finish(args.linger)
+        marker.announce(seq)
+        return {
+            "sent": seq,
+            "elapsed_s": elapsed,
+            "rate_msg_s": seq / elapsed if elapsed else 0.0,
+            **extra,
+        }
+    finally:
+        pub.close()
+        marker.close()
+
+
+def _receive(
+    args: argparse.Namespace, rec: Recorder, sub: Sub, marker: EndMarker, t0: float
+) -> None:
+    """Wait until everything sent is received or reported lost, or idle, or time is up."""
+    while not STOP.is_set():
+        time.sleep(0.02)
+        now = time.monotonic()
+        if args.duration and now - t0 >= args.duration:
+            return
+        expected = marker.count or args.count
+        if expected and len(rec) and len(set(rec.seqs)) + sub.lost() >= expected:
+            return
+        if marker.count is not None and (
+            not len(rec) or now - rec.arrival_s[-1] > args.idle_timeout
+        ):
+            return
+
+
+def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, Any]:
+    rec = Recorder()
+
+    def on_payload(payload: bytes) -> None:
+        seq, stamp = HEADER.unpack_from(payload)
+        rec.add(seq, time.time_ns() - stamp, time.monotonic())
+
+    marker = EndMarker(args)
+    marker.listen()
+    sub = make_sub(args, key or args.key, on_payload)
+    t0 = time.monotonic()
+    try:
+        print("arpz.perf sub: ready", file=sys.stderr, flush=True)
+        _receive(args, rec, sub, marker, t0)
+        lost = sub.lost()
+        counters = sub.counters()
+    finally:
+        sub.close()
+        marker.close()
+    report = build_report(
+        rec,
+        transport=args.transport,
+        key=args.key,
+        size=args.size,
+        rate_hz=args.rate,
+        sent=marker.count,
+        lost=lost,
+        retransmissions=int(counters.get("retransmitted", 0)),
+        nacks=int(counters.get("nacks", 0)),
+        duration_s=time.monotonic() - t0,
+    )
+    return {**msgspec.to_builtins(report), "channel": counters}
+
+
+def run_pong(args: argparse.Namespace) -> dict[str, Any]:
+    """Echo every ping back, until stopped (or --duration)."""
+    pub = make_pub(args, f"{args.key}/pong")
+    sub = make_sub(args, f"{args.key}/ping", pub.put)
+    echoed = 0
+    t0 = time.monotonic()
+    try:
+        print("arpz.perf pong: ready", file=sys.stderr, flush=True)
+        while not STOP.is_set() and not (args.duration and time.monotonic() - t0 >= args.duration):
+            time.sleep(0.05)
+        echoed = len(sub.counters())
+    finally:
+        sub.close()
+        pub.close()
+    return {"pong": True, "channel_fields": echoed}
+
+
+def run_ping(args: argparse.Namespace) -> dict[str, Any]:
+    count, duration = _pace(args)
+    rec = Recorder()
+
+    def on_pong(payload: bytes) -> None:
+        seq, stamp = HEADER.unpack_from(payload)
+        rec.add(seq, time.time_ns() - stamp, time.monotonic())
+
+    sub = make_sub(args, f"{args.key}/pong", on_pong)
+    pub = make_pub(args, f"{args.key}/ping")
+    t0 = time.monotonic()
+    seq = 0
+    try:
+        if not pub.wait_matched(10.0):
+            print("arpz.perf ping: no pong matched within 10 s", file=sys.stderr)
+        time.sleep(0.5)  # the pong's return path matches too
+        t0 = time.monotonic()
+        period = 1.0 / args.rate if args.rate > 0 else 0.001
+        while not STOP.is_set():
+            if (count and seq >= count) or (duration and time.monotonic() - t0 >= duration):
+                break
+            seq += 1
+            pub.put(make_payload(seq, time.time_ns(), args.size))
+            delay = t0 + seq * period - time.monotonic()
+            if delay > 0:
+                time.sleep(delay)
+        end = time.monotonic() + args.idle_timeout
+        while len(rec) < seq and time.monotonic() < end and not STOP.is_set():
+            time.sleep(0.01)
+        lost = sub.lost()
+        counters = sub.counters()
+    finally:
+        pub.close()
+        sub.close()
+    report = build_report(
+        rec,
+        transport=args.transport,
+        key=args.key,
+        size=args.size,
+        rate_hz=args.rate,
+        sent=seq,
+        lost=lost,
+        retransmissions=int(counters.get("retransmitted", 0)),
+        nacks=int(counters.get("nacks", 0)),
+        duration_s=time.monotonic() - t0,
+    )
+    return {**msgspec.to_builtins(report), "round_trip": True}
+
+
+def run_router(args: argparse.Namespace) -> dict[str, Any]:
+    settings = SessionSettings(mode="router", listen=_endpoints(args.listen))
+    with ZenohTransport.open(settings):
+        print(f"arpz.perf router: listening on {args.listen}", file=sys.stderr, flush=True)
+        t0 = time.monotonic()
+        while not STOP.is_set() and not (args.duration and time.monotonic() - t0 >= args.duration):
+            time.sleep(0.1)
+    return {"router": args.listen}
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    signal.signal(signal.SIGINT, _on_signal)
+    signal.signal(signal.SIGTERM, _on_signal)
+    if args.command != "router" and args.size < HEADER.size:
+        print(f"arpz.perf: --size must be at least {HEADER.size}", file=sys.stderr)
+        return 2
+    runner = {
+        "router": run_router,
+        "pub": run_pub,
+        "sub": run_sub,
+        "ping": run_ping,
+        "pong": run_pong,
+    }
+    try:
+        result = runner[args.command](args)
+    except (ValueError, msgspec.ValidationError) as exc:
+        print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)
+        return 2
+    text = json.dumps(result)
+    print(text, flush=True)
+    if getattr(args, "json", None):
+        with open(args.json, "w") as fh:
+            fh.write(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,145 @@
+"""Run the perf tool's processes (router, sub, pub, ping, pong) for benchmarks and tests.
+
+Every child is stopped (SIGTERM, then SIGKILL) on every exit path, so a failed run never leaves a
+router or a subscriber behind.
+"""
+
+from __future__ import annotations
+
+import json
+import select
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import ExitStack, contextmanager
+from typing import Any
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+def _perf(*args: str) -> list[str]:
+    return [sys.executable, "-m", "arpz.perf", *args]
+
+
+@contextmanager
+def child(
+    argv: Sequence[str], ready: str | None = None, timeout_s: float = 20.0
+) -> Iterator[subprocess.Popen[str]]:
+    """Start a process; if ``ready`` is given, wait for that text on its stderr."""
+    proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        if ready is not None:
+            assert proc.stderr is not None
+            end = time.monotonic() + timeout_s
+            seen = ""
+            while ready not in seen:
+                left = end - time.monotonic()
+                if left <= 0 or proc.poll() is not None:
+                    raise RuntimeError(f"{' '.join(argv)} not ready: {seen}")
+                if select.select([proc.stderr], [], [], left)[0]:
+                    seen += proc.stderr.readline()
+        yield proc
+    finally:
+        if proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        for stream in (proc.stdout, proc.stderr):
+            if stream is not None:
+                stream.close()
+
+
+def last_json(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
+    """Wait for the process and return the last JSON line it printed."""
+    try:
+        out, err = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, err = proc.communicate()
+        raise RuntimeError(f"timed out; stderr: {err[-2000:]}") from None
+    lines = [line for line in out.splitlines() if line.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        raise RuntimeError(f"exit {proc.returncode}; stderr: {err[-2000:]}")
+    result: dict[str, Any] = json.loads(lines[-1])
+    return result
+
+
+@contextmanager
+def perf_router(*listen: str) -> Iterator[None]:
+    with child(_perf("router", "--listen", ",".join(listen)), ready="listening"):
+        yield
+
+
+def pubsub(
+    *,
+    transport: str,
+    pub_connect: str,
+    sub_connect: str,
+    count: int,
+    rate_hz: float = 0.0,
+    size: int = 24,
+    extra: Sequence[str] = (),
+    timeout_s: float = 120.0,
+    key: str = "perf/topic",
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """One publisher process and one subscriber process; returns (pub result, sub report)."""
+    common = [
+        "--key",
+        key,
+        "--transport",
+        transport,
+        "--size",
+        str(size),
+        "--rate",
+        str(rate_hz),
+        *extra,
+    ]
+    with ExitStack() as stack:
+        sub = stack.enter_context(
+            child(
+                _perf("sub", "--connect", sub_connect, "--count", str(count), *common),
+                ready="ready",
+            )
+        )
+        pub = stack.enter_context(
+            child(_perf("pub", "--connect", pub_connect, "--count", str(count), *common))
+        )
+        pub_result = last_json(pub, timeout_s)
+        sub_report = last_json(sub, timeout_s)
+    return pub_result, sub_report
+
+
+def pingpong(
+    *,
+    transport: str,
+    connect: str,
+    count: int,
+    rate_hz: float = 1000.0,
+    size: int = 24,
+    extra: Sequence[str] = (),
+    timeout_s: float = 120.0,
+    key: str = "perf/rtt",
+) -> dict[str, Any]:
+    common = [
+        "--connect",
+        connect,
+        "--key",
+        key,
+        "--transport",
+        transport,
+        "--size",
+        str(size),
+        *extra,
+    ]
+    with child(_perf("pong", *common), ready="ready"):
+        with child(_perf("ping", *common, "--count", str(count), "--rate", str(rate_hz))) as ping:
+            return last_json(ping, timeout_s)
