@@ -36,6 +36,8 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     tolerance: float = 0.0
     #: overrides the robot's local_cache.max_silence_s for this sensor
     max_silence_s: float | None = None
+    #: the fastest this sensor can be read; a QoS assignment above it is refused
+    max_rate_hz: float | None = None
     seed: int | None = None
     #: free-form options handed to the driver (e.g. a GPIO pin for a hardware driver)
     options: dict[str, Any] = msgspec.field(default_factory=dict)
@@ -132,6 +134,38 @@ class CeddpHelloConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
             keys.check_chunk(self.relay, what="hello.relay")
 
 
+class QosLimitsConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Per-robot limits of the QoS optimiser (any field left out uses the [qos] default)."""
+
+    rmax_hz: float | None = None
+    rmin_hz: float | None = None
+    dmax: int | None = None
+    dmin: int | None = None
+
+
+class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Live QoS balancing (seed 001 section 2.4): R and D for every robot, re-solved when the
+    fleet changes."""
+
+    enabled: bool = False
+    rmax_hz: float = 100.0
+    rmin_hz: float = 1.0
+    dmax: int = 5000
+    dmin: int = 1
+    #: "paper" (eq. 5), "loss_aware" or "max" (the larger): see docs/qos-optimiser.md
+    depth_policy: Literal["paper", "loss_aware", "max"] = "paper"
+    #: the link model for the loss-aware depth (used by "loss_aware" and "max")
+    link_rtt_ms: float = 5.0
+    link_loss_pct: float = 0.0
+    robots: dict[str, QosLimitsConfig] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not 0 < self.rmin_hz <= self.rmax_hz:
+            raise ValueError(f"need 0 < rmin_hz <= rmax_hz, got {self.rmin_hz} and {self.rmax_hz}")
+        if not 1 <= self.dmin <= self.dmax:
+            raise ValueError(f"need 1 <= dmin <= dmax, got {self.dmin} and {self.dmax}")
+
+
 class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
@@ -147,6 +181,7 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     #: samples waiting for the ingest worker; beyond this Zenoh applies backpressure to robots
     ingest_queue_limit: int = 100_000
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
+    qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 

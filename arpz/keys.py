@@ -62,6 +62,16 @@ def announce_key(fleet: str, robot: str) -> str:
     return f"{robot_prefix(fleet, robot)}/announce"
 
 
+def qos_ack_key(fleet: str, robot: str) -> str:
+    """A robot's answer (applied / refused) to the CEDDP's QoS assignment."""
+    return f"{robot_prefix(fleet, robot)}/qos"
+
+
+def ceddp_qos_request_key(fleet: str) -> str:
+    """Any put here asks the CEDDP to run the QoS optimiser again now."""
+    return f"{fleet_prefix(fleet)}/ceddp/qos/request"
+
+
 def ceddp_presence_key(fleet: str) -> str:
     """Liveliness token of the CEDDP server."""
     return f"{fleet_prefix(fleet)}/ceddp/presence"

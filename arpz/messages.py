@@ -69,7 +69,10 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     held_back: int = 0
     last_seq: int = 0
     bytes_sent: int = 0
+    #: sent per second over the last reporting interval
     rate_hz: float = 0.0
+    #: read from the driver per second over the last interval (the scheduled rate, in effect)
+    produced_rate_hz: float = 0.0
 
 
 class HelloStats(msgspec.Struct, frozen=True):
@@ -100,6 +103,10 @@ class RobotStats(msgspec.Struct, frozen=True):
     hello: HelloStats | None = None
     #: CPU used by the robot agent process since the last report, in % of one core
     cpu_percent: float = 0.0
+    #: the CEDDP QoS assignment in force (epoch 0: none, the robot runs its own config)
+    qos_epoch: int = 0
+    qos_rate_hz: float | None = None
+    qos_depth: int | None = None
 
 
 class TopicRate(msgspec.Struct, frozen=True):
@@ -135,6 +142,49 @@ class Announce(msgspec.Struct, frozen=True):
     commands: list[str]
 
 
+class RobotQos(msgspec.Struct, frozen=True):
+    """What one robot must run at: every sensor at ``rate_hz`` (DEADLINE period ``deadline_s``)
+    with writer history depth ``depth`` (KEEP_LAST)."""
+
+    rate_hz: float
+    deadline_s: float
+    depth: int
+
+
+class QosAssignmentMsg(msgspec.Struct, frozen=True):
+    """The CEDDP's QoS assignment for the whole fleet, on ``arpz/{fleet}/ceddp/qos``.
+
+    ``epoch`` grows with every new assignment of this CEDDP incarnation; a robot answers each one
+    on its ``.../qos`` key with a ``QosAck``.
+    """
+
+    ceddp: str
+    epoch: int
+    stamp_ns: int
+    reason: str
+    t_avg: float
+    topics_per_robot: dict[str, int]
+    robots: dict[str, RobotQos]
+
+
+class QosAck(msgspec.Struct, frozen=True):
+    """A robot's answer to an assignment: applied, or refused with the reason."""
+
+    robot: str
+    incarnation: str
+    ceddp: str
+    epoch: int
+    stamp_ns: int
+    status: str
+    reason: str
+    rate_hz: float
+    depth: int
+
+
+#: what decoding untrusted bytes may raise: msgspec raises UnicodeDecodeError, not DecodeError,
+#: for a msgpack string that is not valid UTF-8 (found by the property tests)
+DECODE_ERRORS: Final = (msgspec.DecodeError, UnicodeDecodeError)
+
 SAMPLE_ENCODER: Final = msgspec.msgpack.Encoder()
 SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(Sample)
 HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
@@ -142,6 +192,8 @@ COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
 ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
+QOS_ASSIGNMENT_DECODER: Final = msgspec.msgpack.Decoder(QosAssignmentMsg)
+QOS_ACK_DECODER: Final = msgspec.msgpack.Decoder(QosAck)
 
 
 def same_value(a: SensorValue, b: SensorValue, tolerance: float = 0.0) -> bool:

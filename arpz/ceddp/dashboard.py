@@ -38,6 +38,8 @@ TOPIC_METRICS: dict[str, str] = {
 ROBOT_METRICS: dict[str, str] = {
     "hello_rtt_ms_p50": "Hello round trip p50 (ms)",
     "cpu_percent": "CPU (% of one core)",
+    "qos_rate_hz": "QoS rate R applied (Hz)",
+    "qos_depth": "QoS depth D applied (samples)",
 }
 TIMELINE = "time"
 

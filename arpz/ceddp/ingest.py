@@ -12,12 +12,10 @@ import logging
 import threading
 from dataclasses import dataclass, field
 
-import msgspec
-
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
-from arpz.messages import HELLO_DECODER, SAMPLE_DECODER
+from arpz.messages import DECODE_ERRORS, HELLO_DECODER, SAMPLE_DECODER
 from arpz.percentiles import Distribution
 
 log = logging.getLogger(__name__)
@@ -99,7 +97,7 @@ class Ingest:
             return
         try:
             sample = SAMPLE_DECODER.decode(payload)
-        except msgspec.DecodeError as exc:
+        except DECODE_ERRORS as exc:
             self._decode_error(metrics, key, payload, exc)
             return
         # the common case (same writer, next number) inlined: this runs for every sample
@@ -130,7 +128,7 @@ class Ingest:
     def _handle_hello(self, metrics: TopicMetrics, payload: bytes, arrival_ns: int) -> None:
         try:
             hello = HELLO_DECODER.decode(payload)
-        except msgspec.DecodeError as exc:
+        except DECODE_ERRORS as exc:
             self.counters.hello_decode_errors += 1
             self._decode_error(metrics, metrics.topic, payload, exc)
             return

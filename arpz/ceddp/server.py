@@ -28,9 +28,12 @@ from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.planner import HelloRelay, Planner
+from arpz.ceddp.qos_control import QosController
 from arpz.config import CeddpConfig
 from arpz.messages import (
     ANNOUNCE_DECODER,
+    DECODE_ERRORS,
+    QOS_ACK_DECODER,
     STATS_DECODER,
     Announce,
     CeddpStats,
@@ -45,7 +48,7 @@ from arpz.transport import PullSubscriber, Transport
 
 log = logging.getLogger(__name__)
 
-_CONTROL, _PRESENCE = 1, 2
+_CONTROL, _PRESENCE, _QOS_REQUEST = 1, 2, 3
 
 
 class DashboardLike(Protocol):
@@ -64,6 +67,8 @@ class RobotRecord:
     leaves: int = 0
     stats: RobotStats | None = None
     announce: Announce | None = None
+    #: eq. 1 of seed 001 for this robot's current incarnation (None while it is away)
+    topic_count: int | None = None
     #: a report that could not be decoded
     control_decode_errors: int = 0
 
@@ -105,6 +110,11 @@ class CeddpServer:
             config.fleet, _Fanout(self.planners), CacheControl(enabled=config.cache_control)
         )
         self.robots: dict[str, RobotRecord] = {}
+        self.qos = (
+            QosController(config.qos, writer_id("ceddp", self.incarnation))
+            if config.qos.enabled
+            else None
+        )
         self.counters = ServerCounters()
         self._control: queue.SimpleQueue[tuple[int, str, bytes] | None] = queue.SimpleQueue()
         self._sensors: PullSubscriber | None = None
@@ -135,6 +145,10 @@ class CeddpServer:
             keys.all_sensors(fleet), self.config.ingest_queue_limit
         )
         self.transport.subscribe(f"{keys.fleet_prefix(fleet)}/robot/*/*", on_control)
+        self.transport.subscribe(
+            keys.ceddp_qos_request_key(fleet),
+            lambda key, payload, _att: control.put((_QOS_REQUEST, key, payload)),
+        )
         self.transport.watch_liveliness(keys.all_presence(fleet), on_presence)
         self.transport.declare_token(keys.ceddp_presence_key(fleet))
         for target, name in (
@@ -208,14 +222,16 @@ class CeddpServer:
                 try:
                     if kind == _CONTROL:
                         self._handle_control(key, payload)
-                    else:
+                    elif kind == _PRESENCE:
                         self._handle_presence(key, bool(payload))
+                    else:
+                        self._reassign_qos("requested", force=True)
                 except Exception:
                     log.exception("control message failed on %s", key)
 
     def _handle_control(self, key: str, payload: bytes) -> None:
         parsed = keys.parse_robot_key(key)
-        if parsed is None or parsed[1] not in ("stats", "announce") or parsed[2]:
+        if parsed is None or parsed[1] not in ("stats", "announce", "qos") or parsed[2]:
             self.counters.unknown_control_keys += 1
             return
         robot, kind, _ = parsed
@@ -225,9 +241,15 @@ class CeddpServer:
                 stats = STATS_DECODER.decode(payload)
                 if record.stats is None or not record.stats.final or stats.final:
                     record.stats = stats
-            else:
+            elif kind == "announce":
                 record.announce = ANNOUNCE_DECODER.decode(payload)
-        except msgspec.DecodeError as exc:
+                count = len(record.announce.sensors) + len(record.announce.commands)
+                if count != record.topic_count:
+                    record.topic_count = count
+                    self._reassign_qos(f"robot {robot} uses {count} topics")
+            elif self.qos is not None:
+                self._event(self.qos.on_ack(QOS_ACK_DECODER.decode(payload)))
+        except DECODE_ERRORS as exc:
             record.control_decode_errors += 1
             log.warning("undecodable %s report from %s: %s", kind, robot, exc)
 
@@ -249,8 +271,32 @@ class CeddpServer:
         )
         if not alive:
             self.ingest.cache_control.forget(robot)
+            if record.topic_count is not None:
+                record.topic_count = None
+                self._reassign_qos(f"robot {robot} left")
         for planner in self.planners:
             planner.on_robot(robot, alive)
+
+    def _reassign_qos(self, reason: str, *, force: bool = False) -> None:
+        """Re-solve problem (6) for the robots present now; publish if the answer changed."""
+        if self.qos is None:
+            return
+        topics = {
+            robot: record.topic_count
+            for robot, record in self.robots.items()
+            if record.alive and record.topic_count is not None
+        }
+        before = len(self.qos.errors)
+        message = self.qos.update(topics, reason, force=force)
+        if message is None:
+            if len(self.qos.errors) > before:
+                self._event(self.qos.errors[-1], level="ERROR")
+            return
+        self.transport.put(keys.ceddp_qos_key(self.config.fleet), encode(message))
+        rates = ", ".join(
+            f"{robot} {q.rate_hz:.2f} Hz D={q.depth}" for robot, q in message.robots.items()
+        )
+        self._event(f"QoS epoch {message.epoch} ({reason}): T_avg={message.t_avg:.3f}, {rates}")
 
     # -- metrics ------------------------------------------------------------------------------
 
@@ -300,6 +346,10 @@ class CeddpServer:
                 if record.stats is None:
                     continue
                 row = {"cpu_percent": record.stats.cpu_percent}
+                if record.stats.qos_rate_hz is not None:
+                    row["qos_rate_hz"] = record.stats.qos_rate_hz
+                if record.stats.qos_depth is not None:
+                    row["qos_depth"] = float(record.stats.qos_depth)
                 hello = record.stats.hello
                 if hello is not None and hello.rtt_ms_p50 is not None:
                     row["hello_rtt_ms_p50"] = hello.rtt_ms_p50
@@ -326,7 +376,7 @@ class CeddpServer:
             planner.tick(now)
 
     def _event(self, text: str, level: str = "INFO") -> None:
-        log.log(logging.WARNING if level == "WARN" else logging.INFO, text)
+        log.log({"WARN": logging.WARNING, "ERROR": logging.ERROR}.get(level, logging.INFO), text)
         stamp = time.time_ns()
         self.counters.events.append(f"{stamp}: {text}")
         if self.dashboard is not None:
@@ -389,7 +439,18 @@ class CeddpServer:
                 "unknown_control_keys": self.counters.unknown_control_keys,
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
+            "qos": self._qos_summary(),
             "events": self.counters.events,
+        }
+
+    def _qos_summary(self) -> dict[str, Any] | None:
+        if self.qos is None:
+            return None
+        return {
+            "assignments": [msgspec.to_builtins(m) for m in self.qos.history],
+            "acks": {robot: msgspec.to_builtins(a) for robot, a in self.qos.acks.items()},
+            "refusals": [msgspec.to_builtins(a) for a in self.qos.refusals],
+            "errors": list(self.qos.errors),
         }
 
     def _topic_summary(self, m: TopicMetrics, stats: RobotStats | None) -> dict[str, Any]:

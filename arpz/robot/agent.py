@@ -24,9 +24,14 @@ from arpz import keys
 from arpz.config import RobotConfig, SensorConfig
 from arpz.messages import (
     COMMAND_DECODER,
+    DECODE_ERRORS,
     HELLO_DECODER,
+    QOS_ASSIGNMENT_DECODER,
     Announce,
     Hello,
+    QosAck,
+    QosAssignmentMsg,
+    RobotQos,
     RobotStats,
     Sample,
     TopicCounters,
@@ -38,6 +43,7 @@ from arpz.messages import (
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.hello import HelloTracker
 from arpz.robot.local_cache import LocalCache
+from arpz.robot.qos import decide
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors, value_type_of
 from arpz.robot.sensors.base import check_value
 from arpz.transport import Publisher, Transport
@@ -68,6 +74,9 @@ class _SensorChannel:
     driver_errors: int = 0
     late_ticks: int = 0
     sent_at_last_report: int = 0
+    produced_at_last_report: int = 0
+    #: the rate the scheduler runs this sensor at (the config's, until a QoS assignment)
+    rate_hz: float = 0.0
 
 
 @dataclass(order=True)
@@ -124,8 +133,15 @@ class RobotAgent:
                     publisher=transport.publisher(
                         keys.sensor_key(config.fleet, config.robot_id, sensor.name)
                     ),
+                    rate_hz=sensor.rate_hz,
                 )
             )
+        #: the QoS the CEDDP assigned and this robot applied (None: running its own config)
+        self.qos: RobotQos | None = None
+        self.qos_epoch = 0
+        self.qos_refused = 0
+        self._jobs = self._make_jobs()
+        self._sensor_jobs = {job.name: job for job in self._jobs}
         self._worker = threading.Thread(
             target=self._command_loop, name="arpz-commands", daemon=True
         )
@@ -139,6 +155,10 @@ class RobotAgent:
         self._worker.start()
         self.transport.subscribe(
             f"{keys.robot_prefix(cfg.fleet, cfg.robot_id)}/cmd/*",
+            lambda key, payload, _att: self._commands.put((key, payload)),
+        )
+        self.transport.subscribe(
+            keys.ceddp_qos_key(cfg.fleet),
             lambda key, payload, _att: self._commands.put((key, payload)),
         )
         self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
@@ -155,7 +175,7 @@ class RobotAgent:
         """Run the periodic jobs until ``stop`` is set or the configured duration has passed."""
         if not self._started:
             self.start()
-        jobs = self._jobs()
+        jobs = self._jobs
         heapq.heapify(jobs)
         end_s = self.config.duration_s or float("inf")
         while not stop.is_set():
@@ -191,7 +211,7 @@ class RobotAgent:
 
     # -- jobs -----------------------------------------------------------------------------------
 
-    def _jobs(self) -> list[_Job]:
+    def _make_jobs(self) -> list[_Job]:
         cfg = self.config
         jobs: list[_Job] = []
         for sensor in self.sensors:
@@ -199,7 +219,7 @@ class RobotAgent:
                 _Job(
                     0.0,
                     len(jobs),
-                    1.0 / sensor.config.rate_hz,
+                    1.0 / sensor.rate_hz,
                     functools.partial(self._sense, sensor),
                     sensor.config.name,
                 )
@@ -279,16 +299,56 @@ class RobotAgent:
             with self._counter_lock:
                 self.commands_received += 1
             try:
-                if name == HELLO_TOPIC:
+                if key == keys.ceddp_qos_key(self.config.fleet):
+                    self._on_qos(QOS_ASSIGNMENT_DECODER.decode(payload))
+                elif name == HELLO_TOPIC:
                     self._on_hello(HELLO_DECODER.decode(payload))
                 else:
                     self.actuator.apply(name, COMMAND_DECODER.decode(payload))
-            except msgspec.DecodeError as exc:
+            except DECODE_ERRORS as exc:
                 with self._counter_lock:
                     self.command_decode_errors += 1
                 log.warning("undecodable command on %s (%d bytes): %s", key, len(payload), exc)
             except Exception:
                 log.exception("actuator failed on a command on %s", key)
+
+    def _on_qos(self, message: QosAssignmentMsg) -> None:
+        """Apply the CEDDP's R and D without restarting, or refuse; answer either way."""
+        cfg = self.config
+        decision = decide(cfg.robot_id, message, [s.config for s in self.sensors])
+        if decision.qos is None and not decision.applies and cfg.robot_id not in message.robots:
+            return  # an assignment for a fleet this robot is not (yet) part of
+        if decision.applies and decision.qos is not None:
+            for sensor in self.sensors:
+                sensor.rate_hz = decision.qos.rate_hz
+                # the scheduler picks the new period up at the sensor's next tick
+                self._sensor_jobs[sensor.config.name].period_s = 1.0 / decision.qos.rate_hz
+            self.qos = decision.qos
+            self.qos_epoch = message.epoch
+            log.info(
+                "QoS epoch %d applied: %.2f Hz, deadline %.4f s, depth %d",
+                message.epoch,
+                decision.qos.rate_hz,
+                decision.qos.deadline_s,
+                decision.qos.depth,
+            )
+            self._publish_announce(0.0)
+        else:
+            self.qos_refused += 1
+            log.warning("QoS epoch %d refused: %s", message.epoch, decision.reason)
+        current_rate = self.sensors[0].rate_hz if self.sensors else 0.0
+        ack = QosAck(
+            robot=cfg.robot_id,
+            incarnation=self.incarnation,
+            ceddp=message.ceddp,
+            epoch=message.epoch,
+            stamp_ns=time.time_ns(),
+            status="applied" if decision.applies else "refused",
+            reason=decision.reason,
+            rate_hz=current_rate,
+            depth=self.qos.depth if self.qos else 0,
+        )
+        self.transport.put(keys.qos_ack_key(cfg.fleet, cfg.robot_id), encode(ack))
 
     def _on_hello(self, hello: Hello) -> None:
         if hello.stage == 1:
@@ -327,8 +387,12 @@ class RobotAgent:
         for sensor in self.sensors:
             c = counters[sensor.config.name]
             rate = (c.sent - sensor.sent_at_last_report) / interval_s
+            produced_rate = (c.produced - sensor.produced_at_last_report) / interval_s
             sensor.sent_at_last_report = c.sent
-            rated[sensor.config.name] = msgspec.structs.replace(c, rate_hz=round(rate, 3))
+            sensor.produced_at_last_report = c.produced
+            rated[sensor.config.name] = msgspec.structs.replace(
+                c, rate_hz=round(rate, 3), produced_rate_hz=round(produced_rate, 3)
+            )
         with self._counter_lock:
             received, errors = self.commands_received, self.command_decode_errors
         hello = self.hello.stats()
@@ -342,6 +406,9 @@ class RobotAgent:
             command_decode_errors=errors,
             hello=hello if (self.config.hello.enabled or hello.relayed) else None,
             cpu_percent=round(cpu_percent, 2),
+            qos_epoch=self.qos_epoch,
+            qos_rate_hz=self.qos.rate_hz if self.qos else None,
+            qos_depth=self.qos.depth if self.qos else None,
         )
 
     def _publish_stats(self, *, final: bool) -> None:
@@ -357,7 +424,7 @@ class RobotAgent:
                 TopicInfo(
                     topic=s.config.name,
                     kind=s.config.kind,
-                    rate_hz=s.config.rate_hz,
+                    rate_hz=s.rate_hz,
                     value_type=value_type_of(s.config.kind),
                 )
                 for s in self.sensors

@@ -55,10 +55,11 @@ def test_bad_payloads_and_unknown_keys_are_counted_not_raised() -> None:
     ingest = Ingest("f", planner, CacheControl())
     ingest.handle_sensor(KEY, b"\xff\x00garbage", 0)
     ingest.handle_sensor(KEY, encode(Sample("w", 1, 0, "x")) + b"trailing", 0)
+    ingest.handle_sensor(KEY, b"\x94\xa1\x80", 0)  # a str that is not UTF-8
     ingest.handle_sensor("arpz/f/robot/r1/sensor/pir/extra", b"", 0)
     ingest.handle_sensor("arpz/other/robot/r1/sensor/pir", b"", 0)
     ingest.handle_sensor("arpz/f/robot/r1/sensor/hello", b"\x01", 0)
-    assert ingest.topics[("r1", "pir")].decode_errors == 2
+    assert ingest.topics[("r1", "pir")].decode_errors == 3
     assert ingest.topics[("r1", "hello")].decode_errors == 1
     assert ingest.counters.unknown_keys == 2
     assert planner.readings == []
