@@ -1,4 +1,4 @@
-"""Model files: the issue's example decodes from JSON and TOML; bad files are named and explained."""
+"""Model files: the issue's example decodes (JSON, TOML); bad files are named and explained."""
 
 from __future__ import annotations
 
@@ -126,7 +126,7 @@ def test_a_coresidence_group_with_conflicting_residences_is_rejected():
             "nodes.1.residence": ["server1"],
         }
     )
-    with pytest.raises(ModelError, match="coresidence group 'g'.*none in common"):
+    with pytest.raises(ModelError, match=r"coresidence group 'g'.*none in common"):
         decode_model(text)
 
 
@@ -147,14 +147,14 @@ def test_all_problems_are_reported_at_once():
 def test_load_model_names_the_file(tmp_path):
     path = tmp_path / "broken.json"
     path.write_text(_with(**{"nodes.0.settings": []}))
-    with pytest.raises(ModelError, match="broken.json"):
+    with pytest.raises(ModelError, match=r"broken\.json"):
         load_model(path)
     missing = tmp_path / "missing.toml"
-    with pytest.raises(ModelError, match="missing.toml"):
+    with pytest.raises(ModelError, match=r"missing\.toml"):
         load_model(missing)
     bad_toml = tmp_path / "bad.toml"
     bad_toml.write_text("[[computers]\nname=")
-    with pytest.raises(ModelError, match="bad.toml"):
+    with pytest.raises(ModelError, match=r"bad\.toml"):
         load_model(bad_toml)
 
 

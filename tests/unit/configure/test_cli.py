@@ -1,0 +1,115 @@
+"""The CLI as a user runs it: subprocesses, exit codes, one JSON object with --json."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from arpz.configure.check import check
+from arpz.configure.model import load_model
+from arpz.configure.solution import Placement, Solution
+
+
+def run(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "arpz.configure", *args], capture_output=True, text=True, timeout=120
+    )
+
+
+@pytest.fixture(scope="module")
+def instance4(tmp_path_factory):
+    path = tmp_path_factory.mktemp("cli") / "i4.toml"
+    proc = run(
+        "instance",
+        "--robots",
+        "2",
+        "--cameras",
+        "1",
+        "--computers",
+        "3",
+        "--format",
+        "toml",
+        "--out",
+        str(path),
+    )
+    assert proc.returncode == 0, proc.stderr
+    return path
+
+
+@pytest.mark.parametrize("method", ["greedy", "exact", "improved"])
+@pytest.mark.parametrize("problem", ["1", "2"])
+def test_solve_json_is_one_feasible_object(instance4, method, problem):
+    proc = run("solve", str(instance4), "--problem", problem, "--method", method, "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert data["status"] in ("optimal", "feasible")
+    model = load_model(instance4)
+    assert set(data["assignment"]) == {n.name for n in model.nodes}
+    # re-check what the CLI printed, independently of the solver's own objects
+    solution = Solution(
+        problem=int(problem),
+        method=method,
+        status=data["status"],
+        objective=data["objective"],
+        server_capacity=data["server_capacity"],
+        assignment={k: Placement(**v) for k, v in data["assignment"].items()},
+    )
+    assert check(model, solution) == []
+    assert data["violations"] == []
+
+
+def test_solve_text_has_nodes_computers_and_links(instance4):
+    proc = run("solve", str(instance4), "--method", "exact", "--time-limit", "30")
+    assert proc.returncode == 0, proc.stderr
+    assert "status     optimal" in proc.stdout
+    for needle in ("youbot_core1", "robot1 - server1", "capacity", "bandwidth", "solve time"):
+        assert needle in proc.stdout
+
+
+def test_bad_model_exits_2_naming_the_file_and_the_problem(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text(
+        json.dumps(
+            {
+                "computers": [{"name": "r", "kind": "robot", "capacity": 100}],
+                "links": [{"between": ["r", "nowhere"], "bandwidth": 1}],
+                "nodes": [{"name": "a", "settings": []}],
+            }
+        )
+    )
+    proc = run("solve", str(bad), "--method", "greedy")
+    assert proc.returncode == 2
+    assert "bad.json" in proc.stderr
+    assert "unknown computer 'nowhere'" in proc.stderr and "settings is empty" in proc.stderr
+
+
+def test_infeasible_model_exits_3(tmp_path):
+    path = tmp_path / "tight.json"
+    path.write_text(
+        json.dumps(
+            {
+                "computers": [{"name": "r", "kind": "robot", "capacity": 10}],
+                "nodes": [{"name": "a", "settings": [{"cpu": 20, "performance": 1}]}],
+            }
+        )
+    )
+    proc = run("solve", str(path), "--method", "exact", "--json")
+    assert proc.returncode == 3
+    assert json.loads(proc.stdout)["status"] == "infeasible"
+
+
+def test_fit_reports_the_three_curves_and_the_choice(tmp_path):
+    points = tmp_path / "amcl.csv"
+    points.write_text("cpu,performance\n19,20\n41,50\n66,100\n")
+    proc = run("fit", str(points), "--json")
+    assert proc.returncode == 0, proc.stderr
+    data = json.loads(proc.stdout)
+    assert {c["kind"] for c in data["candidates"]} == {"linear", "log", "poly2"}
+    assert data["chosen"]["kind"] == "poly2"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("cpu,performance\n19,abc\n")
+    proc = run("fit", str(bad))
+    assert proc.returncode == 2 and "bad.csv" in proc.stderr
