@@ -140,6 +140,6 @@ def pingpong(
         str(size),
         *extra,
     ]
-    with child(_perf("pong", *common), ready="ready"):
-        with child(_perf("ping", *common, "--count", str(count), "--rate", str(rate_hz))) as ping:
-            return last_json(ping, timeout_s)
+    ping_args = _perf("ping", *common, "--count", str(count), "--rate", str(rate_hz))
+    with child(_perf("pong", *common), ready="ready"), child(ping_args) as ping:
+        return last_json(ping, timeout_s)

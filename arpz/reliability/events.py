@@ -81,7 +81,7 @@ class WriterEventCallbacks:
     liveliness: Callable[[LivelinessLostStatus], None] | None = None
     incompatible_qos: Callable[[IncompatibleQosStatus], None] | None = None
     matched: Callable[[MatchedStatus], None] | None = None
-    #: KEEP_LAST overwrote samples some matched reader had not acknowledged
+    #: a reader asked for samples KEEP_LAST had already overwritten (they were answered by GAP)
     message_lost: Callable[[MessageLostStatus], None] | None = None
 
 

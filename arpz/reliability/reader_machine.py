@@ -72,6 +72,7 @@ class _WriterProxy:
         "detect",
         "expected",
         "gaps",
+        "gone_below",
         "guid",
         "hex",
         "highest",
@@ -110,6 +111,8 @@ class _WriterProxy:
         self.highest = 0
         #: out-of-order samples: seq -> (payload, stamp_ns, flags)
         self.buffer: dict[int, tuple[bytes, int, int]] = {}
+        #: (seq, when): a heartbeat said nothing below seq is held any more; settle at ``when``
+        self.gone_below: tuple[int, float] | None = None
         #: GAP ranges not yet reached, sorted
         self.gaps: list[tuple[int, int]] = []
         #: (last seq of a missing run, time it was first seen missing), increasing in both
@@ -454,8 +457,7 @@ class ReaderMachine:
                 if not p.an_count:  # one ACKNACK so the writer stops repeating SYNC
                     actions.append(self._acknack(p, now))
             elif p.synced and hb.last >= p.expected:
-                self._add_lost(p, hb.last - p.expected + 1, actions)
-                p.expected = hb.last + 1
+                self._defer_loss(p, hb.last + 1, now)
             return actions
         if sync:
             if not p.synced:
@@ -472,7 +474,7 @@ class ReaderMachine:
         elif not p.synced:
             return actions
         elif hb.first > p.expected:
-            self._skip_to(p, hb.first, actions)
+            self._defer_loss(p, hb.first, now)
         if hb.last > p.highest:
             p.detect.append((hb.last, now))
             p.highest = hb.last
@@ -555,12 +557,36 @@ class ReaderMachine:
                 self.alive_count -= 1
                 self.not_alive_count += 1
                 actions.append(self._liveliness(-1, 1, p.hex))
-            if not (self._reliable and p.synced):
+            if not p.synced:
+                continue
+            self._settle(p, now, actions)
+            if not self._reliable:
                 continue
             self._give_up(p, now, actions)
             if p.an_due_s <= now:
                 actions.append(self._acknack(p, now))
         return actions
+
+    def _defer_loss(self, p: _WriterProxy, below: int, now: float) -> None:
+        """A heartbeat says nothing below ``below`` will ever be (re)sent to us. Through a router
+        a heartbeat can overtake the data it covers by milliseconds, so what is missing is
+        declared lost only after nack_period_s, when it has had every chance to arrive."""
+        if p.gone_below is None:
+            p.gone_below = (below, now + self.qos.nack_period_s)
+        elif below > p.gone_below[0]:
+            p.gone_below = (below, p.gone_below[1])
+
+    def _settle(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        if p.gone_below is None or now < p.gone_below[1]:
+            return
+        below, p.gone_below = p.gone_below[0], None
+        if below <= p.expected:
+            return
+        if self._reliable:
+            self._skip_to(p, below, actions)
+        else:
+            self._add_lost(p, below - p.expected, actions)
+            p.expected = below
 
     def _give_up(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
         """Bound head-of-line blocking: a run missing for reorder_timeout_s is declared lost."""

@@ -48,9 +48,11 @@ class WriterStats(msgspec.Struct, frozen=True):
     #: sequence numbers answered with GAP (no longer held)
     gaps: int
     heartbeats: int
-    #: KEEP_LAST overwrote a sample before every matched reliable reader acknowledged it
-    #: (an upper bound: a reader may have received it without having acknowledged it yet)
+    #: samples a reader asked for that were no longer held (answered by GAP): lost for sure
     lost: int
+    #: KEEP_LAST overwrote a sample some matched reliable reader had not yet acknowledged
+    #: (an upper bound of the losses: a reader may have it without having acknowledged it yet)
+    overwritten_unacked: int
     lifespan_expired: int
     unchanged: int
     deadline_missed: int
@@ -128,7 +130,7 @@ class WriterMachine:
         self._n_reliable = 0
         self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
         self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
-        self.lost = self.lifespan_expired = self.unchanged = 0
+        self.lost = self.lifespan_expired = self.unchanged = self.overwritten_unacked = 0
         self.liveliness_lost = self.incompatible = 0
         self.matched_total = 0
 
@@ -216,17 +218,15 @@ class WriterMachine:
         self.first += 1
 
     def _overwrite_front(self, actions: list[Action]) -> None:
+        """KEEP_LAST is full: the oldest goes. Whether a reader still needed it is known only
+        when it NACKs it (then it gets a GAP and both sides count it lost); until then it is
+        counted as ``overwritten_unacked``, an upper bound of the losses this write causes."""
         seq = self.first
         self._drop_front()
-        lost = 0
         for p in self.proxies.values():
             if p.reliable and seq >= p.acked:
-                p.lost += 1
-                lost += 1
+                self.overwritten_unacked += 1
                 p.acked = seq + 1
-        if lost:
-            self.lost += lost
-            actions.append(Notify("message_lost", MessageLostStatus(self.lost, lost)))
 
     def _assert(self, now: float) -> None:
         self._asserted_since_hb = True
@@ -355,8 +355,12 @@ class WriterMachine:
                 seq += 1
             self.retransmitted += seq - lo
         if lost_ranges:
-            self.gaps += sum(hi - lo + 1 for lo, hi in lost_ranges)
+            n_lost = sum(hi - lo + 1 for lo, hi in lost_ranges)
+            self.gaps += n_lost
+            p.lost += n_lost
+            self.lost += n_lost
             actions.append(Send(p.rx_key, wire.encode_gap(self.guid, p.guid, lost_ranges)))
+            actions.append(Notify("message_lost", MessageLostStatus(self.lost, n_lost, p.hex)))
         self._purge()
         return actions
 
@@ -393,6 +397,7 @@ class WriterMachine:
             gaps=self.gaps,
             heartbeats=self.heartbeats,
             lost=self.lost,
+            overwritten_unacked=self.overwritten_unacked,
             lifespan_expired=self.lifespan_expired,
             unchanged=self.unchanged,
             deadline_missed=self._deadline.total,
