@@ -184,7 +184,7 @@ def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> So
 
     bound = agg.bound if agg.status == "optimal" else None
     remaining = deadline - time.perf_counter()
-    best = improved.solve(problem, time_budget_s=max(min(remaining / 3, 30.0), 0.5))
+    best = improved.solve(problem, time_budget_s=max(min(remaining / 3, 30.0), 10.0))
     if check(problem.model, best) or best.objective is None:
         best_obj: float | None = None
         best_cl: tuple[list[int], list[int]] | None = None
