@@ -122,6 +122,7 @@ def write_configs(
     hello_rate_hz: float,
     local_cache: bool,
     cache_control: bool,
+    rmax_hz: float = 0.0,
 ) -> tuple[Path, list[Path]]:
     endpoint = f"tcp/127.0.0.1:{port}"
     relay = f'relay = "robot{robots}"' if robots > 1 else ""
@@ -129,7 +130,8 @@ def write_configs(
     ceddp.write_text(
         f'fleet = "{fleet}"\nlisten = ["{endpoint}"]\nrrd = "{rrd.as_posix()}"\n'
         f'summary_json = "summary.json"\ncache_control = {str(cache_control).lower()}\n'
-        f"\n[hello]\n{relay}\n",
+        f"\n[hello]\n{relay}\n"
+        + (f"\n[qos]\nenabled = true\nrmax_hz = {rmax_hz}\n" if rmax_hz > 0 else ""),
         encoding="utf-8",
     )
     robot_files = []
@@ -156,6 +158,7 @@ def run_demo(
     local_cache: bool,
     cache_control: bool,
     workdir: Path,
+    rmax_hz: float = 0.0,
     progress: TextIO = sys.stderr,
 ) -> dict[str, Any]:
     """Run the fleet and return the CEDDP's summary; raise DemoError when a part failed."""
@@ -170,6 +173,7 @@ def run_demo(
         hello_rate_hz=hello_rate_hz,
         local_cache=local_cache,
         cache_control=cache_control,
+        rmax_hz=rmax_hz,
     )
     procs: list[Proc] = []
     try:
@@ -307,6 +311,23 @@ def format_summary(summary: dict[str, Any]) -> str:
                 f"late {hello['late']}, "
                 f"round trip p50 {_fmt(hello['rtt_ms_p50'])} ms, p99 {_fmt(hello['rtt_ms_p99'])} ms"
             )
+    qos = summary.get("qos")
+    if qos:
+        for assignment in qos["assignments"]:
+            robots = assignment["robots"]
+            first = next(iter(robots.values()))
+            lines.append(
+                f"QoS epoch {assignment['epoch']} ({assignment['reason']}): "
+                f"T_avg {assignment['t_avg']:.3f}, R {first['rate_hz']:.2f} Hz "
+                f"(deadline {first['deadline_s'] * 1000:.1f} ms), D {first['depth']} "
+                f"for {', '.join(robots)}"
+            )
+        acks = ", ".join(
+            f"{robot} {ack['status']} epoch {ack['epoch']}" for robot, ack in qos["acks"].items()
+        )
+        lines.append(f"QoS acknowledgements: {acks or 'none'}")
+        for error in qos["errors"]:
+            lines.append(f"QoS error: {error}")
     ingest = summary["ingest"]
     lines.append(
         f"CEDDP: {ingest['processed']} samples ingested, "
@@ -325,6 +346,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hello-rate", type=float, default=10.0, help="Hello rate (Hz)")
     parser.add_argument("--no-local-cache", action="store_true")
     parser.add_argument("--no-cache-control", action="store_true")
+    parser.add_argument(
+        "--rmax", type=float, default=500.0, help="QoS balancing: Rmax (Hz) of seed 001 eq. 4"
+    )
+    parser.add_argument("--no-qos", action="store_true", help="keep --rate, no QoS optimiser")
     parser.add_argument("--workdir", type=Path, help="where configs and logs go (default: temp)")
     parser.add_argument("--json", type=Path, help="also write the summary here")
     args = parser.parse_args(argv)
@@ -344,6 +369,7 @@ def main(argv: list[str] | None = None) -> int:
             local_cache=not args.no_local_cache,
             cache_control=not args.no_cache_control,
             workdir=workdir,
+            rmax_hz=0.0 if args.no_qos else args.rmax,
         )
     except DemoError as exc:
         print(f"demo FAILED: {exc}", file=sys.stderr)
