@@ -124,6 +124,12 @@ def build_parser() -> argparse.ArgumentParser:
             help="pub: seconds to wait for acknowledgements at the end",
         )
         p.add_argument(
+            "--warmup",
+            type=float,
+            default=0.0,
+            help="pub/ping: seconds to wait after matching before the first sample",
+        )
+        p.add_argument(
             "--idle-timeout",
             type=float,
             default=3.0,
@@ -195,6 +201,7 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
                 "arpz.perf pub: no subscriber matched within 10 s; publishing anyway",
                 file=sys.stderr,
             )
+        STOP.wait(args.warmup)
         seq = 0
         t0 = time.monotonic()
         period = 1.0 / args.rate if args.rate > 0 else 0.0
@@ -307,7 +314,7 @@ def run_ping(args: argparse.Namespace) -> dict[str, Any]:
     try:
         if not pub.wait_matched(10.0):
             print("arpz.perf ping: no pong matched within 10 s", file=sys.stderr)
-        time.sleep(0.5)  # the pong's return path matches too
+        STOP.wait(max(0.5, args.warmup))  # the pong's return path matches too
         t0 = time.monotonic()
         period = 1.0 / args.rate if args.rate > 0 else 0.001
         while not STOP.is_set():

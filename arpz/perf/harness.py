@@ -143,3 +143,25 @@ def pingpong(
     ping_args = _perf("ping", *common, "--count", str(count), "--rate", str(rate_hz))
     with child(_perf("pong", *common), ready="ready"), child(ping_args) as ping:
         return last_json(ping, timeout_s)
+
+
+@contextmanager
+def lossy_setup(loss_pct: float, clean_s: float, *netem_args: str) -> Iterator[tuple[str, str]]:
+    """A router (UDP + TCP), and a netem proxy in front of its UDP endpoint losing ``loss_pct`` %
+    each way after ``clean_s``; yields (lossy udp endpoint for the publisher, tcp endpoint)."""
+    from arpz.netem.process import netem_process  # the perf tool itself does not need netem
+
+    udp, tcp, proxy = free_port(socket.SOCK_DGRAM), free_port(), free_port(socket.SOCK_DGRAM)
+    with (
+        perf_router(f"udp/127.0.0.1:{udp}", f"tcp/127.0.0.1:{tcp}"),
+        netem_process(
+            f"udp/127.0.0.1:{proxy}",
+            f"udp/127.0.0.1:{udp}",
+            "--loss",
+            str(loss_pct),
+            "--clean-s",
+            str(clean_s),
+            *netem_args,
+        ),
+    ):
+        yield f"udp/127.0.0.1:{proxy}", f"tcp/127.0.0.1:{tcp}"

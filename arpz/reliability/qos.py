@@ -73,7 +73,7 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     #: writer heartbeat period (also the proof of life of an unchanged topic)
     heartbeat_period_s: float = 0.1
     #: reader waits this long after seeing a gap before NACKing (tolerates reordering)
-    nack_delay_s: float = 0.005
+    nack_delay_s: float = 0.002
     #: reader repeats an unanswered NACK at this period
     nack_period_s: float = 0.02
     #: longest time a missing sample holds later ones back before it is declared lost

@@ -79,6 +79,8 @@ class _WriterProxy:
         "lease",
         "lost",
         "manual",
+        "nack_sent_s",
+        "srtt_s",
         "start",
         "synced",
         "topic",
@@ -119,6 +121,9 @@ class _WriterProxy:
         self.detect: list[tuple[int, float]] = []
         self.an_due_s = math.inf
         self.an_count = 0
+        #: when the last NACK left, and the smoothed NACK -> resend round trip it measures
+        self.nack_sent_s = 0.0
+        self.srtt_s = 0.0
         self.delivered = 0
         self.lost = 0
         self.deadline = DeadlineTimer(deadline_s, now)
@@ -290,6 +295,7 @@ class ReaderMachine:
             retransmitted = bool(flags & wire.F_RETRANSMIT)
             if retransmitted:
                 self.retransmitted += 1
+                self._measure_rtt(p, now)
             actions: list[Action] = [
                 Deliver(payload, DataInfo(p.topic, p.hex, seq, stamp, retransmitted))
             ]
@@ -322,6 +328,8 @@ class ReaderMachine:
     def _sample(self, p: _WriterProxy, h: wire.DataHeader, payload: bytes) -> list[Action]:
         now = self.clock.monotonic_s()
         actions: list[Action] = []
+        if h.flags & wire.F_RETRANSMIT:
+            self._measure_rtt(p, now)
         self._alive(p, now, actions)
         seq = h.seq
         if not self._reliable:
@@ -476,7 +484,8 @@ class ReaderMachine:
         elif hb.first > p.expected:
             self._defer_loss(p, hb.first, now)
         if hb.last > p.highest:
-            p.detect.append((hb.last, now))
+            # A heartbeat may overtake its data through a router: give the data a head start.
+            p.detect.append((hb.last, now + self.qos.nack_period_s / 4))
             p.highest = hb.last
             p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
         self._drain(p, actions)
@@ -530,13 +539,28 @@ class ReaderMachine:
             cur = seq + 1
         return ranges
 
+    def _nack_repeat_s(self, p: _WriterProxy) -> float:
+        """Repeat an unanswered NACK after a few measured round trips, never later than
+        nack_period_s: on a lossy link the NACK or the resend is often lost, and a fixed long
+        period would turn every double loss into a long stall."""
+        if p.srtt_s <= 0:
+            return self.qos.nack_period_s
+        return min(self.qos.nack_period_s, max(0.002, 3 * p.srtt_s))
+
+    def _measure_rtt(self, p: _WriterProxy, now: float) -> None:
+        if p.nack_sent_s > 0:
+            sample = now - p.nack_sent_s
+            p.srtt_s = sample if p.srtt_s <= 0 else 0.875 * p.srtt_s + 0.125 * sample
+            p.nack_sent_s = 0.0
+
     def _acknack(self, p: _WriterProxy, now: float) -> Send:
         upto, next_s = self._nack_limit(p, now)
         missing = self._missing(p, upto) if upto >= p.expected else []
         p.an_count += 1
         if missing:
             self.nacks += 1
-            p.an_due_s = now + self.qos.nack_period_s
+            p.nack_sent_s = now
+            p.an_due_s = now + self._nack_repeat_s(p)
         else:
             self.acks += 1
             p.an_due_s = next_s
