@@ -112,6 +112,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--key", default="perf/topic")
         p.add_argument("--transport", choices=TRANSPORTS, default="arpz")
         p.add_argument("--express", action="store_true", help="no batching (lower latency)")
+        p.add_argument(
+            "--inline",
+            action="store_true",
+            help="arpz: deliver on the transport thread (Reader inline_delivery=True)",
+        )
         p.add_argument("--rate", type=float, default=0.0, help="Hz; 0 = as fast as possible")
         p.add_argument("--count", type=int, default=0)
         p.add_argument("--duration", type=float, default=0.0)
@@ -154,7 +159,7 @@ def make_pub(args: argparse.Namespace, key: str) -> Pub:
 
 def make_sub(args: argparse.Namespace, key: str, on_payload: OnPayload) -> Sub:
     if args.transport == "arpz":
-        return ArpzSub(_transport(args), key, qos_from_args(args), on_payload)
+        return ArpzSub(_transport(args), key, qos_from_args(args), on_payload, args.inline)
     session = open_session(SessionSettings(connect=_endpoints(args.connect)))
     if args.transport == "zenoh":
         return ZenohSub(session, key, on_payload)

@@ -84,7 +84,12 @@ class ArpzPub:
 
 class ArpzSub:
     def __init__(
-        self, transport: ZenohTransport, key: str, qos: QosProfile, on_payload: OnPayload
+        self,
+        transport: ZenohTransport,
+        key: str,
+        qos: QosProfile,
+        on_payload: OnPayload,
+        inline: bool = False,
     ) -> None:
         self.transport = transport
 
@@ -95,7 +100,7 @@ class ArpzSub:
             pass  # the total is read from stats(); the event proves the path works
 
         events = ReaderEventCallbacks(message_lost=on_lost)
-        self.reader = Reader(transport, key, qos, on_data, events=events)
+        self.reader = Reader(transport, key, qos, on_data, events=events, inline_delivery=inline)
 
     def lost(self) -> int:
         return self.reader.stats().lost

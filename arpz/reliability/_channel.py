@@ -34,15 +34,17 @@ _TOKEN = object()
 _POST = object()
 
 
-def tick_interval_s(machine: WriterMachine | ReaderMachine) -> float:
+def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, float]:
+    """(fine, idle) timer periods. The fine one serves pending NACKs and give-ups; when nothing
+    is pending the worker sleeps for the idle one, so an idle channel does not wake 500 times a
+    second and take the GIL from the threads that carry data."""
     qos = machine.qos
-    periods = [qos.heartbeat_period_s, qos.nack_period_s, qos.reorder_timeout_s / 4]
-    if qos.nack_delay_s > 0:
-        periods.append(qos.nack_delay_s)
+    fine = min(0.05, max(0.001, min(qos.nack_delay_s or qos.nack_period_s, qos.nack_period_s)))
+    periods = [qos.heartbeat_period_s, qos.reorder_timeout_s / 4, 0.05]
     for value in (qos.deadline_s, qos.lease_duration_s):
         if value > 0:
             periods.append(value / 10)
-    return min(0.05, max(0.001, min(periods)))
+    return fine, max(fine, min(periods))
 
 
 class Channel:
@@ -53,8 +55,11 @@ class Channel:
         events: object,
         on_data: Callable[[bytes, DataInfo], None] | None,
         name: str,
+        *,
+        inline: bool = False,
     ) -> None:
         self.transport = transport
+        self.inline = inline
         self.machine = machine
         self.events = events
         self.on_data = on_data
@@ -66,7 +71,7 @@ class Channel:
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._handles: list[Handle] = []
         self._tokens: dict[str, Handle] = {}
-        self._tick_s = tick_interval_s(machine)
+        self._fine_s, self._idle_s = tick_intervals_s(machine)
         self._closed = False
         self._worker = threading.Thread(target=self._run, name=name, daemon=True)
 
@@ -87,6 +92,21 @@ class Channel:
         self, handler: Callable[[str, bytes, bytes | None], list[Action]]
     ) -> Callable[[str, bytes, bytes | None], None]:
         q = self._queue
+        if self.inline:
+
+            def run_inline(key: str, payload: bytes, attachment: bytes | None) -> None:
+                try:
+                    with self.lock:
+                        actions = handler(key, payload, attachment)
+                except Exception:
+                    self.callback_errors += 1
+                    log.exception("reliable channel: unexpected error")
+                    return
+                # data and protocol messages here; events and tokens on the worker as always
+                self.perform([a for a in actions if type(a) is Deliver or type(a) is Send])
+                self.post([a for a in actions if type(a) is Notify or type(a) is TokenChange])
+
+            return run_inline
 
         def enqueue(key: str, payload: bytes, attachment: bytes | None) -> None:
             if q.qsize() >= MAX_QUEUE:
@@ -110,7 +130,7 @@ class Channel:
         is_writer = isinstance(self.machine, WriterMachine)
         while True:
             try:
-                batch = [q.get(timeout=self._tick_s)]
+                batch = [q.get(timeout=max(0.0, next_tick - time.monotonic()))]
             except queue.Empty:
                 batch = []
             # Drain what is already queued and run it under one lock acquisition: at high rates
@@ -126,15 +146,19 @@ class Channel:
                     results = [self._dispatch(item) for item in batch if item is not _STOP]
                     if is_writer:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
+                    busy = self.machine.busy()
                 for actions in results:
                     self.perform(actions)
+                if busy:
+                    next_tick = min(next_tick, time.monotonic() + self._fine_s)
             if stop:
                 return
             now = time.monotonic()
             if now >= next_tick:
-                next_tick = now + self._tick_s
                 with self.lock:
                     actions = self.machine.tick()
+                    busy = self.machine.busy()
+                next_tick = now + (self._fine_s if busy else self._idle_s)
                 self.perform(actions)
 
     def _dispatch(self, item: tuple[Any, Any, Any, Any]) -> list[Action]:

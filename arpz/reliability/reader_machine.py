@@ -612,6 +612,16 @@ class ReaderMachine:
             self._add_lost(p, below - p.expected, actions)
             p.expected = below
 
+    def busy(self) -> bool:
+        """Something is pending that needs the fine timer (a NACK, a loss to settle)."""
+        return any(
+            p.an_due_s != math.inf
+            or p.buffer
+            or p.gone_below is not None
+            or p.highest >= p.expected
+            for p in self.writers.values()
+        )
+
     def _give_up(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
         """Bound head-of-line blocking: a run missing for reorder_timeout_s is declared lost."""
         limit = now - self.qos.reorder_timeout_s

@@ -383,6 +383,10 @@ class WriterMachine:
             actions.append(Notify("liveliness", LivelinessLostStatus(self.liveliness_lost, 1)))
         return actions
 
+    def busy(self) -> bool:
+        """A reader has not yet confirmed where its match starts (SYNC is being repeated)."""
+        return any(not p.synced for p in self.proxies.values())
+
     def _expire(self, wall_ns: int) -> None:
         limit_ns = wall_ns - int(self.qos.lifespan_s * 1e9)
         while self.first <= self.last_seq and self.history[self.first][1] < limit_ns:

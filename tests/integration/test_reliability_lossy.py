@@ -134,4 +134,4 @@ def test_keep_last_depth_1_at_a_high_rate_loses_and_reports_every_loss_exactly()
         assert stats.delivered + stats.lost == n
         assert stats.delivered == len(sink.seqs)
         assert stats.lost > 0 and sum(e.total_count_change for e in lost_events) == stats.lost
-        assert writer.stats().lost > 0  # overwritten before acknowledged, seen by the writer too
+        assert writer.stats().overwritten_unacked >= stats.lost  # the writer saw them go
