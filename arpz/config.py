@@ -82,6 +82,25 @@ class HelloConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
             raise ValueError(f"timeout_s must be > 0, got {self.timeout_s}")
 
 
+class SimConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Simulate this robot's body in a 2-D world (issue 6): the 8 LIDAR beams become 8 sensor
+    topics ``lidar_0`` ... ``lidar_315`` and ``cmd/velocity`` drives the kinematics."""
+
+    #: a built-in map ("hallway", "hallway_small") or a map file (TOML or JSON)
+    world: str = "hallway"
+    beam_rate_hz: float = 20.0
+    noise_std_m: float = 0.01
+    step_hz: float = 50.0
+    telemetry_hz: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("beam_rate_hz", "step_hz", "telemetry_hz"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if self.noise_std_m < 0:
+            raise ValueError(f"noise_std_m must be >= 0, got {self.noise_std_m}")
+
+
 class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
@@ -95,6 +114,8 @@ class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     sensors: list[SensorConfig] = msgspec.field(default_factory=list)
     local_cache: LocalCacheConfig = msgspec.field(default_factory=LocalCacheConfig)
     hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
+    #: simulate the body in a 2-D world (None: a real robot, or sensors only)
+    sim: SimConfig | None = None
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
@@ -166,6 +187,24 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
             raise ValueError(f"need 1 <= dmin <= dmax, got {self.dmin} and {self.dmax}")
 
 
+class MissionConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Run the hallway mission of seed 001 section 3.2 on this CEDDP (issue 6)."""
+
+    kind: Literal["hallway"] = "hallway"
+    #: the same world the robots simulate: "hallway", "hallway_small" or a map file
+    world: str = "hallway"
+    time_limit_s: float = 150.0
+    #: how often the planner decides and sends velocity commands
+    tick_hz: float = 20.0
+    #: LIDAR data older than this stops the fleet (about 3 periods of the nominal beam rate)
+    max_age_s: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("time_limit_s", "tick_hz", "max_age_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+
 class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
@@ -182,6 +221,7 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     ingest_queue_limit: int = 100_000
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
+    mission: MissionConfig | None = None
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 

@@ -57,6 +57,11 @@ def stats_key(fleet: str, robot: str) -> str:
     return f"{robot_prefix(fleet, robot)}/stats"
 
 
+def telemetry_key(fleet: str, robot: str) -> str:
+    """A simulated robot's true pose (judging and drawing only; the planner never reads it)."""
+    return f"{robot_prefix(fleet, robot)}/telemetry"
+
+
 def announce_key(fleet: str, robot: str) -> str:
     """What a robot publishes and subscribes to (its topics), re-sent periodically."""
     return f"{robot_prefix(fleet, robot)}/announce"

@@ -61,6 +61,19 @@ class Command(msgspec.Struct, array_like=True, frozen=True):
     value: CommandValue
 
 
+class Telemetry(msgspec.Struct, array_like=True, frozen=True):
+    """A simulated robot's TRUE pose, on ``.../telemetry``: for judging and drawing only, never
+    for planning (the planner must make do with what the sensors say, as on real robots)."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    x_m: float
+    y_m: float
+    theta_rad: float
+    collided: bool
+
+
 class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     """Per-topic counters kept by a robot's local cache: produced == sent + held_back."""
 
@@ -194,6 +207,7 @@ ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
 QOS_ASSIGNMENT_DECODER: Final = msgspec.msgpack.Decoder(QosAssignmentMsg)
 QOS_ACK_DECODER: Final = msgspec.msgpack.Decoder(QosAck)
+TELEMETRY_DECODER: Final = msgspec.msgpack.Decoder(Telemetry)
 
 
 def same_value(a: SensorValue, b: SensorValue, tolerance: float = 0.0) -> bool:

@@ -13,10 +13,12 @@ viewer can connect to; never a client-side gRPC sink, which blocks forever when 
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import rerun as rr
 import rerun.blueprint as rrb
@@ -54,6 +56,15 @@ class MetricsFrame:
 
 
 @dataclass(frozen=True)
+class WorldMap:
+    """The static world of a mission: wall polylines and obstacle outlines."""
+
+    stamp_ns: int
+    walls: list[list[tuple[float, float]]]
+    obstacles: list[list[tuple[float, float]]]
+
+
+@dataclass(frozen=True)
 class Event:
     stamp_ns: int
     text: str
@@ -66,13 +77,20 @@ def blueprint() -> rrb.Blueprint:
         for name, title in {**TOPIC_METRICS, **ROBOT_METRICS}.items()
     ]
     return rrb.Blueprint(
-        rrb.Vertical(
-            rrb.Grid(*views),
-            rrb.TextLogView(origin="/events", name="fleet events"),
-            row_shares=[4, 1],
+        rrb.Horizontal(
+            rrb.Vertical(
+                rrb.Grid(*views),
+                rrb.TextLogView(origin="/events", name="fleet events"),
+                row_shares=[4, 1],
+            ),
+            rrb.Spatial2DView(origin="/world", name="world (missions)"),
+            column_shares=[3, 2],
         ),
         collapse_panels=True,
     )
+
+
+ROBOT_COLOURS = [(230, 80, 60), (60, 140, 230), (60, 190, 90), (200, 160, 40), (160, 90, 200)]
 
 
 class Dashboard:
@@ -88,7 +106,7 @@ class Dashboard:
         self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
         self.dropped = 0
         self.logged_rows = 0
-        self._queue: queue.Queue[MetricsFrame | Event | None] = queue.Queue(maxsize=queue_limit)
+        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_limit)
         self._rec = rr.RecordingStream("arpz-ceddp", recording_id=recording_id)
         sinks: list[rr.FileSink | rr.GrpcServerSink] = [rr.FileSink(str(self.rrd_path))]
         if grpc_port:
@@ -100,7 +118,7 @@ class Dashboard:
         self._thread.start()
         self._closed = False
 
-    def submit(self, item: MetricsFrame | Event) -> bool:
+    def submit(self, item: MetricsFrame | Event | WorldMap | Any) -> bool:
         """Queue an item for logging; False (and counted) if the queue is full."""
         try:
             self._queue.put_nowait(item)
@@ -120,6 +138,23 @@ class Dashboard:
                 if isinstance(item, Event):
                     rec.log("/events", rr.TextLog(item.text, level=item.level))
                     continue
+                if isinstance(item, WorldMap):
+                    rec.log(
+                        "/world/walls",
+                        rr.LineStrips2D(item.walls, colors=(90, 90, 90)),
+                        static=True,
+                    )
+                    if item.obstacles:
+                        closed = [[*o, o[0]] for o in item.obstacles]
+                        rec.log(
+                            "/world/obstacles",
+                            rr.LineStrips2D(closed, colors=(200, 0, 0)),
+                            static=True,
+                        )
+                    continue
+                if not isinstance(item, MetricsFrame):
+                    self._log_world(item)
+                    continue
                 for (robot, topic), metrics in item.topics.items():
                     for name, value in metrics.items():
                         rec.log(f"/metrics/{name}/{_part(robot)}/{_part(topic)}", rr.Scalars(value))
@@ -130,6 +165,34 @@ class Dashboard:
                         self.logged_rows += 1
             except Exception:  # a Rerun failure must not kill the server's reporting
                 log.exception("Rerun logging failed")
+
+    def _log_world(self, view: Any) -> None:
+        """A ``WorldView`` of arpz.ceddp.mission: poses, rays and paths per robot."""
+        rec = self._rec
+        for index, (robot, (x, y, theta)) in enumerate(sorted(view.poses.items())):
+            colour = ROBOT_COLOURS[index % len(ROBOT_COLOURS)]
+            part = _part(robot)
+            rec.log(
+                f"/world/robots/{part}",
+                rr.Points2D([(x, y)], radii=0.2, colors=colour, labels=robot),
+            )
+            rec.log(
+                f"/world/heading/{part}",
+                rr.Arrows2D(
+                    origins=[(x, y)],
+                    vectors=[(0.6 * math.cos(theta), 0.6 * math.sin(theta))],
+                    colors=colour,
+                ),
+            )
+            if robot in view.rays:
+                rec.log(
+                    f"/world/rays/{part}",
+                    rr.LineStrips2D(
+                        [[(x, y), end] for end in view.rays[robot]], colors=(*colour, 90)
+                    ),
+                )
+            if view.paths.get(robot):
+                rec.log(f"/world/paths/{part}", rr.LineStrips2D([view.paths[robot]], colors=colour))
 
     def close(self) -> None:
         """Log what is queued, then flush and close the file so it is valid."""

@@ -124,6 +124,8 @@ class Ingest:
                     sample.seq,
                 )
             )
+        elif self.planner.wants_unchanged:
+            self.planner.on_unchanged(metrics.robot, metrics.topic, sample.stamp_ns)
 
     def _handle_hello(self, metrics: TopicMetrics, payload: bytes, arrival_ns: int) -> None:
         try:

@@ -16,7 +16,7 @@ from typing import Protocol
 
 import msgspec
 
-from arpz.messages import Hello, SensorValue
+from arpz.messages import Hello, SensorValue, Telemetry
 
 log = logging.getLogger(__name__)
 
@@ -38,6 +38,22 @@ class CommandSink(Protocol):
 
 class Planner:
     """Base planner: ignores everything. Subclass and override what you need."""
+
+    #: set True to be told of readings cache control discarded (``on_unchanged``): a planner that
+    #: judges freshness needs to know an unchanged topic is still alive
+    wants_unchanged: bool = False
+
+    def on_unchanged(self, robot: str, topic: str, stamp_ns: int) -> None:
+        """A reading equal to the cached one arrived (and was discarded) at source time stamp_ns."""
+
+    def start(self) -> None:
+        """Called once when the server starts (start a thread here if the planner needs one)."""
+
+    def stop(self) -> None:
+        """Called once when the server stops, before the summary is made."""
+
+    def on_telemetry(self, robot: str, telemetry: Telemetry) -> None:
+        """A simulated robot's true pose: only for judging and drawing, never for planning."""
 
     def on_reading(self, reading: Reading) -> None:
         """A de-duplicated sensor reading."""

@@ -27,6 +27,7 @@ import msgspec
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import Ingest, TopicMetrics
+from arpz.ceddp.mission import MissionRunner, WorldView
 from arpz.ceddp.planner import HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.config import CeddpConfig
@@ -35,6 +36,7 @@ from arpz.messages import (
     DECODE_ERRORS,
     QOS_ACK_DECODER,
     STATS_DECODER,
+    TELEMETRY_DECODER,
     Announce,
     CeddpStats,
     RobotStats,
@@ -44,11 +46,13 @@ from arpz.messages import (
     writer_id,
 )
 from arpz.percentiles import Distribution, percentile
+from arpz.sim.judge import MissionResult
 from arpz.transport import PullSubscriber, Transport
 
 log = logging.getLogger(__name__)
 
 _CONTROL, _PRESENCE, _QOS_REQUEST = 1, 2, 3
+_CONTROL_KINDS = ("stats", "announce", "qos", "telemetry")
 
 
 class DashboardLike(Protocol):
@@ -106,9 +110,19 @@ class CeddpServer:
             self.sink, writer_id("ceddp", self.incarnation), relay=config.hello.relay
         )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
-        self.ingest = Ingest(
-            config.fleet, _Fanout(self.planners), CacheControl(enabled=config.cache_control)
-        )
+        self.mission: MissionRunner | None = None
+        if config.mission is not None:
+            self.mission = MissionRunner(
+                config.mission,
+                self.sink,
+                writer_id("ceddp", self.incarnation),
+                self._event,
+                on_result=self._on_mission_result,
+                on_view=self._on_world_view,
+            )
+            self.planners.append(self.mission)
+        self._fanout = _Fanout(self.planners)
+        self.ingest = Ingest(config.fleet, self._fanout, CacheControl(enabled=config.cache_control))
         self.robots: dict[str, RobotRecord] = {}
         self.qos = (
             QosController(config.qos, writer_id("ceddp", self.incarnation))
@@ -159,6 +173,22 @@ class CeddpServer:
             thread = threading.Thread(target=target, name=name, daemon=True)
             thread.start()
             self._threads.append(thread)
+        self._fanout.refresh()
+        for planner in self.planners:
+            planner.start()
+        if self.mission is not None and self.dashboard is not None:
+            from arpz.ceddp.dashboard import WorldMap
+
+            world = self.mission.world
+            self.dashboard.submit(
+                WorldMap(
+                    time.time_ns(),
+                    walls=[[(float(x), float(y)) for x, y in strip] for strip in world.wall_strips],
+                    obstacles=[
+                        [(float(x), float(y)) for x, y in o.corners()] for o in world.obstacles
+                    ],
+                )
+            )
         self._event(
             f"CEDDP {self.incarnation} serving fleet '{fleet}' on {', '.join(self.config.listen)}"
         )
@@ -170,6 +200,8 @@ class CeddpServer:
 
     def shutdown(self) -> dict[str, Any]:
         """Process what is queued, log a last frame, close the dashboard, write the summary."""
+        for planner in self.planners:
+            planner.stop()
         self._stop.set()
         # wake the ingest worker: this sample queues behind everything already received
         self.transport.put(self._wake_key, b"")
@@ -231,7 +263,7 @@ class CeddpServer:
 
     def _handle_control(self, key: str, payload: bytes) -> None:
         parsed = keys.parse_robot_key(key)
-        if parsed is None or parsed[1] not in ("stats", "announce", "qos") or parsed[2]:
+        if parsed is None or parsed[1] not in _CONTROL_KINDS or parsed[2]:
             self.counters.unknown_control_keys += 1
             return
         robot, kind, _ = parsed
@@ -247,6 +279,10 @@ class CeddpServer:
                 if count != record.topic_count:
                     record.topic_count = count
                     self._reassign_qos(f"robot {robot} uses {count} topics")
+            elif kind == "telemetry":
+                telemetry = TELEMETRY_DECODER.decode(payload)
+                for planner in self.planners:
+                    planner.on_telemetry(robot, telemetry)
             elif self.qos is not None:
                 self._event(self.qos.on_ack(QOS_ACK_DECODER.decode(payload)))
         except DECODE_ERRORS as exc:
@@ -276,6 +312,14 @@ class CeddpServer:
                 self._reassign_qos(f"robot {robot} left")
         for planner in self.planners:
             planner.on_robot(robot, alive)
+
+    def _on_mission_result(self, result: MissionResult) -> None:
+        # the line the demo (and a person at the console) waits for
+        print(f"arpz.ceddp: mission {result.mission}: {result.reason}", flush=True)
+
+    def _on_world_view(self, view: WorldView) -> None:
+        if self.dashboard is not None:
+            self.dashboard.submit(view)
 
     def _reassign_qos(self, reason: str, *, force: bool = False) -> None:
         """Re-solve problem (6) for the robots present now; publish if the answer changed."""
@@ -440,6 +484,7 @@ class CeddpServer:
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
             "qos": self._qos_summary(),
+            "mission": self.mission.summary() if self.mission is not None else None,
             "events": self.counters.events,
         }
 
@@ -493,6 +538,15 @@ class _Fanout(Planner):
 
     def __init__(self, planners: list[Planner]) -> None:
         self.planners = planners
+
+    def refresh(self) -> None:
+        """Ask for unchanged readings only if some planner wants them (they are most samples)."""
+        self.wants_unchanged = any(p.wants_unchanged for p in self.planners)
+
+    def on_unchanged(self, robot: str, topic: str, stamp_ns: int) -> None:
+        for planner in self.planners:
+            if planner.wants_unchanged:
+                planner.on_unchanged(robot, topic, stamp_ns)
 
     def on_reading(self, reading: Any) -> None:
         for planner in self.planners:

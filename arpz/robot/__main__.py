@@ -35,6 +35,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int)
     parser.add_argument("--hello", action="store_true", help="be the Hello origin")
     parser.add_argument("--no-local-cache", action="store_true", help="send every reading")
+    parser.add_argument(
+        "--sim", metavar="WORLD", help="simulate the body in a 2-D world: 'hallway' or a map file"
+    )
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)
 
@@ -62,12 +65,14 @@ def load(args: argparse.Namespace) -> RobotConfig:
         extra["hello"] = {"enabled": True}
     if args.no_local_cache:
         extra["local_cache"] = {"enabled": False}
+    if args.sim:
+        extra["sim"] = {"world": args.sim}
     if extra:
         import msgspec
 
         merged = msgspec.to_builtins(config)
         for key, value in extra.items():
-            merged[key] = {**merged.get(key, {}), **value}
+            merged[key] = {**(merged.get(key) or {}), **value}
         config = from_dict(merged, RobotConfig, source=source)
     return config
 

@@ -34,6 +34,7 @@ from arpz.messages import (
     RobotQos,
     RobotStats,
     Sample,
+    Telemetry,
     TopicCounters,
     TopicInfo,
     encode,
@@ -46,6 +47,7 @@ from arpz.robot.local_cache import LocalCache
 from arpz.robot.qos import decide
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors, value_type_of
 from arpz.robot.sensors.base import check_value
+from arpz.robot.sim_host import BeamDriver, SimActuator, SimHost
 from arpz.transport import Publisher, Transport
 
 log = logging.getLogger(__name__)
@@ -99,7 +101,11 @@ class RobotAgent:
     ) -> None:
         self.config = config
         self.transport = transport
-        self.actuator = actuator or RecordingActuator()
+        base_dir = base_dir or Path.cwd()
+        self.sim: SimHost | None = None
+        if config.sim is not None:
+            self.sim = SimHost(config.sim, config.robot_id, seed=config.seed, base_dir=base_dir)
+        self.actuator = actuator or (SimActuator(self.sim) if self.sim else RecordingActuator())
         self.incarnation = new_incarnation()
         self.writer = writer_id(config.robot_id, self.incarnation)
         self.hello = HelloTracker(config.hello.timeout_s)
@@ -115,14 +121,19 @@ class RobotAgent:
         )
         self._start_s = time.monotonic()
         self._last_cpu = (time.monotonic(), time.process_time())
-        base_dir = base_dir or Path.cwd()
+        self._telemetry_seq = 0
         self.sensors: list[_SensorChannel] = []
-        for sensor in effective_sensors(config):
+        sensor_configs = effective_sensors(config)
+        if self.sim is not None and config.sim is not None:
+            sensor_configs = self.sim.beam_sensors(config.sim.beam_rate_hz) + sensor_configs
+        for sensor in sensor_configs:
             silence = sensor.max_silence_s or config.local_cache.max_silence_s
             self.sensors.append(
                 _SensorChannel(
                     config=sensor,
-                    driver=make_driver(
+                    driver=BeamDriver(self.sim, sensor.name)
+                    if self.sim is not None and sensor.driver == "sim-body"
+                    else make_driver(
                         sensor, robot_id=config.robot_id, robot_seed=config.seed, base_dir=base_dir
                     ),
                     cache=LocalCache(
@@ -226,6 +237,12 @@ class RobotAgent:
             )
         if cfg.hello.enabled:
             jobs.append(_Job(0.0, len(jobs), 1.0 / cfg.hello.rate_hz, self._send_hello, "hello"))
+        if self.sim is not None and cfg.sim is not None:
+            sim = self.sim
+            jobs.append(_Job(0.0, len(jobs), 1.0 / cfg.sim.step_hz, sim.step, "sim-step"))
+            jobs.append(
+                _Job(0.0, len(jobs), 1.0 / cfg.sim.telemetry_hz, self._send_telemetry, "telemetry")
+            )
         jobs.append(
             _Job(
                 cfg.stats_period_s,
@@ -280,6 +297,23 @@ class RobotAgent:
             hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns()
         )
         self._hello_pub.put(encode(stamped))
+
+    def _send_telemetry(self, now_s: float) -> None:
+        assert self.sim is not None
+        pose = self.sim.body.pose
+        self._telemetry_seq += 1
+        telemetry = Telemetry(
+            writer=self.writer,
+            seq=self._telemetry_seq,
+            stamp_ns=time.time_ns(),
+            x_m=pose.x_m,
+            y_m=pose.y_m,
+            theta_rad=pose.theta_rad,
+            collided=self.sim.body.collided,
+        )
+        self.transport.put(
+            keys.telemetry_key(self.config.fleet, self.config.robot_id), encode(telemetry)
+        )
 
     def _count_late(self, job_name: str, ticks: int) -> None:
         for sensor in self.sensors:

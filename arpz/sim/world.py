@@ -28,7 +28,7 @@ FloatArray = npt.NDArray[np.float64]
 Direction = Literal["clockwise", "counterclockwise"]
 
 #: Names of the maps shipped in ``arpz/sim/maps/``.
-BUILTIN_MAPS = ("hallway",)
+BUILTIN_MAPS = ("hallway", "hallway_small")
 
 # Ray-segment hits at a segment's very end count, so a ray aimed exactly at a corner is not lost
 # between the two walls that meet there.
