@@ -46,7 +46,7 @@ from arpz.reliability.qos import (
     ReliabilityPolicy,
     load_qos,
 )
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings, TransportError, ZenohTransport
 
 STOP = threading.Event()
 
@@ -378,8 +378,10 @@ def main(argv: list[str] | None = None) -> int:
         "pong": run_pong,
     }
     try:
+        if args.command != "router":
+            qos_from_args(args)  # a bad profile is refused before any session opens
         result = runner[args.command](args)
-    except (ValueError, msgspec.ValidationError) as exc:
+    except (ValueError, msgspec.ValidationError, TransportError) as exc:
         print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)
         return 2
     text = json.dumps(result)

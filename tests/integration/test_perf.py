@@ -1,0 +1,95 @@
+"""``python -m arpz.perf`` as separate processes through a router process."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from arpz.perf.harness import child, free_port, perf_router, pingpong, pubsub
+
+pytestmark = pytest.mark.integration
+
+
+@pytest.mark.parametrize("transport", ["arpz", "zenoh", "advanced"])
+def test_pub_sub_report_counts_every_sample(transport: str) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with perf_router(endpoint):
+        pub, report = pubsub(
+            transport=transport,
+            pub_connect=endpoint,
+            sub_connect=endpoint,
+            count=2000,
+            rate_hz=4000,
+        )
+    assert pub["sent"] == 2000
+    assert (report["sent"], report["received"], report["lost"], report["unaccounted"]) == (
+        2000,
+        2000,
+        0,
+        0,
+    )
+    assert report["duplicates"] == 0 and report["out_of_order"] == 0
+    lat = report["latency_us"]
+    assert 0 < lat["min"] <= lat["p50"] <= lat["p90"] <= lat["p99"] <= lat["max"]
+    assert report["throughput_msg_s"] > 500
+    if transport == "arpz":
+        assert report["channel"]["delivered"] == 2000 and pub["acknowledged"] is True
+
+
+def test_ping_pong_measures_round_trips_for_arpz() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with perf_router(endpoint):
+        report = pingpong(
+            transport="arpz", connect=endpoint, count=300, rate_hz=500, extra=["--express"]
+        )
+    assert report["received"] == 300 and report["round_trip"] is True
+    assert report["latency_us"]["p50"] > 0
+
+
+def test_sub_writes_its_json_report_on_sigint_and_qos_flags_are_validated(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "report.json"
+    argv = [
+        sys.executable,
+        "-m",
+        "arpz.perf",
+        "sub",
+        "--connect",
+        endpoint,
+        "--key",
+        "perf/x",
+        "--deadline-ms",
+        "100",
+        "--json",
+        str(out),
+    ]
+    with perf_router(endpoint), child(argv, ready="ready") as sub:
+        time.sleep(0.2)
+        sub.send_signal(signal.SIGINT)
+        assert sub.wait(timeout=15) == 0
+    report = json.loads(out.read_text())
+    assert report["received"] == 0 and report["latency_us"] is None
+    bad = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "arpz.perf",
+            "sub",
+            "--connect",
+            endpoint,
+            "--depth",
+            "0",
+            "--count",
+            "1",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert bad.returncode == 2 and "depth" in bad.stderr
