@@ -41,6 +41,10 @@ DEFAULT_TIME_LIMIT_S = 60.0
 #: second decimal of any objective this module sees.
 MIP_REL_GAP = 1e-7
 _VERBOSE = False
+#: explicit symmetry breaking of the aggregated MILP: "none" (HiGHS detects the permutations of
+#: identical computers itself), "load" (order identical computers by load) or "hash" (by a
+#: random linear signature). Measured on 20 robots: none 9.6 s, load 14 s, hash > 60 s.
+_SYMMETRY = "none"
 
 
 @contextlib.contextmanager
@@ -85,9 +89,90 @@ class _Lp:
         return len(self.obj) - 1
 
     def solve(
-        self, *, maximise: bool, time_limit_s: float
+        self,
+        *,
+        maximise: bool,
+        time_limit_s: float,
+        initial: np.ndarray | None = None,
+        backend: str = "highs",
     ) -> tuple[Status, np.ndarray | None, float | None, str]:
         """Returns (status, x, bound on obj @ x, message)."""
+        if backend == "cvxpy":
+            return self._solve_cvxpy(maximise=maximise, time_limit_s=time_limit_s)
+        return self._solve_highs(maximise=maximise, time_limit_s=time_limit_s, initial=initial)
+
+    def _matrix(self) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray]:
+        data: list[float] = []
+        ri: list[int] = []
+        ci: list[int] = []
+        lower: list[float] = []
+        upper: list[float] = []
+        for r, (coefs, b) in enumerate(self.eq + self.ub):
+            for col, val in coefs.items():
+                data.append(val)
+                ri.append(r)
+                ci.append(col)
+            lower.append(b if r < len(self.eq) else -np.inf)
+            upper.append(b)
+        a = sp.csc_matrix((data, (ri, ci)), shape=(len(lower), len(self.obj)))
+        return a, np.array(lower, dtype=float), np.array(upper, dtype=float)
+
+    def _solve_highs(
+        self, *, maximise: bool, time_limit_s: float, initial: np.ndarray | None
+    ) -> tuple[Status, np.ndarray | None, float | None, str]:
+        """HiGHS through highspy: the same model, plus a starting solution, which CVXPY's
+        HiGHS interface cannot pass (its incumbent lets HiGHS prune from the first node)."""
+        import highspy as hp
+
+        a, row_lower, row_upper = self._matrix()
+        lp = hp.HighsLp()
+        lp.num_col_ = len(self.obj)
+        lp.num_row_ = len(row_lower)
+        lp.col_cost_ = np.array(self.obj, dtype=float)
+        lp.col_lower_ = np.array(self.lower, dtype=float)
+        lp.col_upper_ = np.array(self.upper, dtype=float)
+        lp.row_lower_ = row_lower
+        lp.row_upper_ = row_upper
+        lp.sense_ = hp.ObjSense.kMaximize if maximise else hp.ObjSense.kMinimize
+        lp.a_matrix_.format_ = hp.MatrixFormat.kColwise
+        lp.a_matrix_.start_ = a.indptr
+        lp.a_matrix_.index_ = a.indices
+        lp.a_matrix_.value_ = a.data
+        lp.integrality_ = [
+            hp.HighsVarType.kInteger if flag else hp.HighsVarType.kContinuous
+            for flag in self.integer
+        ]
+        with _quiet_stdout():
+            highs = hp.Highs()  # type: ignore[no-untyped-call]
+            highs.setOptionValue("output_flag", _VERBOSE)
+            highs.setOptionValue("time_limit", max(time_limit_s, 0.1))
+            highs.setOptionValue("mip_rel_gap", MIP_REL_GAP)
+            highs.passModel(lp)
+            if initial is not None:
+                start = hp.HighsSolution()
+                start.col_value = [float(v) for v in initial]
+                highs.setSolution(start)
+            highs.run()
+        status = highs.getModelStatus()
+        info = highs.getInfo()
+        bound: float | None = None
+        if np.isfinite(info.mip_dual_bound):
+            bound = float(info.mip_dual_bound)
+        has_solution = info.primal_solution_status == 2  # kSolutionStatusFeasible
+        x = np.array(highs.getSolution().col_value, dtype=float) if has_solution else None
+        if status == hp.HighsModelStatus.kOptimal and x is not None:
+            return "optimal", x, bound, ""
+        if status == hp.HighsModelStatus.kTimeLimit:
+            if x is None:
+                return "time_limit", None, bound, "time limit hit before any solution was found"
+            return "time_limit", x, bound, "time limit hit"
+        if status in (hp.HighsModelStatus.kInfeasible, hp.HighsModelStatus.kUnboundedOrInfeasible):
+            return "infeasible", None, None, "the MILP is infeasible"
+        return "error", None, None, f"HiGHS ended with status {highs.modelStatusToString(status)}"
+
+    def _solve_cvxpy(
+        self, *, maximise: bool, time_limit_s: float
+    ) -> tuple[Status, np.ndarray | None, float | None, str]:
         n = len(self.obj)
         cols_int = [i for i, flag in enumerate(self.integer) if flag]
         cols_cont = [i for i, flag in enumerate(self.integer) if not flag]
@@ -156,41 +241,54 @@ class _Lp:
         return "error", None, None, f"HiGHS ended with status {status}"
 
 
-def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> Solution:
+def solve(
+    problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S, backend: str = "highs"
+) -> Solution:
+    """Optimal (or time-limited, with its gap) solution. ``backend``: "highs" (highspy, with the
+    improved heuristic's answer as starting incumbent) or "cvxpy" (the same MILP through CVXPY's
+    HiGHS interface, without a starting incumbent)."""
+    from arpz.configure import improved  # improved imports greedy, not exact
+
     start = time.perf_counter()
     deadline = start + time_limit_s
-    agg = _aggregated(problem, time_limit_s)
-    if agg.status in ("infeasible", "error") or agg.computer is None or agg.level is None:
+    # A good incumbent lets HiGHS prune from the first node; most of its time otherwise goes
+    # into finding one.
+    best = improved.solve(problem, time_budget_s=min(time_limit_s / 10, 5.0))
+    best_obj: float | None = None
+    best_cl: tuple[list[int], list[int]] | None = None
+    if best.objective is not None and not check(problem.model, best):
+        best_obj = best.objective
+        best_cl = _indices(problem, best)
+    agg = _aggregated(
+        problem, max(deadline - time.perf_counter(), 0.5), incumbent=best_cl, backend=backend
+    )
+    if agg.status in ("infeasible", "error"):
         failed: Status = agg.status
         return no_solution(
             problem, METHOD, failed, agg.message, solve_time_s=time.perf_counter() - start
         )
-    solution = build_solution(
-        problem,
-        METHOD,
-        agg.status,
-        agg.computer,
-        agg.level,
-        solve_time_s=time.perf_counter() - start,
-        bound=agg.bound,
-        gap=_gap(agg.objective, agg.bound),
-        message="aggregated MILP",
-    )
-    if not check(problem.model, solution):
-        return solution
-    # Messages matter. The aggregated bound stays valid; look for the best placement that
-    # respects the links: the improved heuristic, then the full MILP if it is small enough.
-    from arpz.configure import improved  # local: improved imports greedy, not exact
-
-    bound = agg.bound if agg.status == "optimal" else None
-    remaining = deadline - time.perf_counter()
-    best = improved.solve(problem, time_budget_s=max(min(remaining / 3, 30.0), 10.0))
-    if check(problem.model, best) or best.objective is None:
-        best_obj: float | None = None
-        best_cl: tuple[list[int], list[int]] | None = None
-    else:
-        best_obj = best.objective
-        best_cl = _indices(problem, best)
+    if agg.computer is not None and agg.level is not None:
+        solution = build_solution(
+            problem,
+            METHOD,
+            agg.status,
+            agg.computer,
+            agg.level,
+            solve_time_s=time.perf_counter() - start,
+            bound=agg.bound,
+            gap=0.0 if agg.status == "optimal" else _gap(agg.objective, agg.bound),
+            message="aggregated MILP",
+        )
+        if not check(problem.model, solution) and (
+            best_obj is None
+            or solution.objective is None
+            or not _better(problem, best_obj, solution.objective)
+        ):
+            return solution
+    # Messages matter (or the aggregated MILP found nothing better than the heuristic). The
+    # aggregated bound stays valid; look for the best placement the links carry: the improved
+    # heuristic's, or the full MILP's when it is small enough to try.
+    bound = agg.bound
     full_status: Status = "time_limit"
     remaining = deadline - time.perf_counter()
     if _full_size(problem) <= FULL_MILP_MAX_PAIRS and remaining > 1.0:
@@ -226,8 +324,11 @@ def solve(problem: Problem, *, time_limit_s: float = DEFAULT_TIME_LIMIT_S) -> So
             "no placement found that the links can carry",
             solve_time_s=elapsed,
         )
-    status: Status = "optimal" if full_status == "optimal" else "time_limit"
-    gap = 0.0 if status == "optimal" else _gap(best_obj, bound)
+    gap = _gap(best_obj, bound)
+    reached = gap is not None and gap <= 10 * MIP_REL_GAP and agg.status == "optimal"
+    status: Status = "optimal" if full_status == "optimal" or reached else "time_limit"
+    if status == "optimal":
+        gap = 0.0
     return build_solution(
         problem,
         METHOD,
@@ -306,7 +407,13 @@ def _canonical_members(problem: Problem, u: int) -> list[int]:
     return sorted(problem.units[u], key=lambda n: (problem.weight[n], problem.options[n]))
 
 
-def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
+def _aggregated(
+    problem: Problem,
+    time_limit_s: float,
+    *,
+    incumbent: tuple[list[int], list[int]] | None = None,
+    backend: str = "highs",
+) -> _Answer:
     types: dict[tuple[object, ...], list[int]] = defaultdict(list)
     for u in range(len(problem.units)):
         types[_unit_signature(problem, u)].append(u)
@@ -317,6 +424,8 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
     constant = 0.0
     fixed_load = [0.0] * n_comp
     load_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
+    sig_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
+    rng = np.random.default_rng(12345)
     unique_comp = [False] * n_comp
     # per type: g[c] var, per member j: {c: {k: var}} (empty when the member has one setting)
     g_vars: list[dict[int, int]] = []
@@ -342,6 +451,9 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
             unique_comp[allowed[0]] = True
         g = {c: lp.var(0, count, integer=True) for c in allowed}
         g_vars.append(g)
+        coef_g = float(rng.uniform(1.0, 2.0))
+        for c, gv in g.items():
+            sig_terms[c][gv] += coef_g
         lp.eq.append(({v: 1.0 for v in g.values()}, float(count)))
         per_member: list[dict[int, dict[int, int]]] = []
         for n in members:
@@ -356,11 +468,13 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
                 per_member.append({})
                 continue
             zs: dict[int, dict[int, int]] = {}
+            coefs_k = rng.uniform(1.0, 2.0, size=len(opts)).tolist()
             for c, gv in g.items():
                 zs[c] = {}
                 row: dict[int, float] = {gv: -1.0}
                 for k, (cpu, perf) in enumerate(opts):
                     zv = lp.var(0, count, integer=True, obj=w * perf if maximise else 0.0)
+                    sig_terms[c][zv] += coefs_k[k]
                     zs[c][k] = zv
                     row[zv] = 1.0
                     load_terms[c][zv] += cpu
@@ -398,12 +512,13 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
             member_of,
         )
         classes[key].append(c)
-    for comps in classes.values():
+    order_by = load_terms if _SYMMETRY == "load" else sig_terms
+    for comps in classes.values() if _SYMMETRY != "none" else []:
         for a, b in itertools.pairwise(comps):
             row = defaultdict(float)
-            for var, coef in load_terms[b].items():
+            for var, coef in order_by[b].items():
                 row[var] += coef
-            for var, coef in load_terms[a].items():
+            for var, coef in order_by[a].items():
                 row[var] -= coef
             if row:
                 lp.ub.append((dict(row), 0.0))
@@ -414,7 +529,12 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
         bound: float | None = 0.0
         message = ""
     else:
-        status, x, bound, message = lp.solve(maximise=maximise, time_limit_s=time_limit_s)
+        initial = None
+        if incumbent is not None and _SYMMETRY == "none":
+            initial = _counts_of(problem, incumbent, type_units, g_vars, z_vars, len(lp.obj))
+        status, x, bound, message = lp.solve(
+            maximise=maximise, time_limit_s=time_limit_s, initial=initial, backend=backend
+        )
         if x is None:
             return _Answer(status, message=message)
         values = x
@@ -438,6 +558,30 @@ def _aggregated(problem: Problem, time_limit_s: float) -> _Answer:
     if status == "optimal":
         total_bound = objective if total_bound is None else total_bound
     return _Answer(status, computer, level, objective, total_bound, message)
+
+
+def _counts_of(
+    problem: Problem,
+    incumbent: tuple[list[int], list[int]],
+    type_units: list[list[int]],
+    g_vars: list[dict[int, int]],
+    z_vars: list[list[dict[int, dict[int, int]]]],
+    size: int,
+) -> np.ndarray:
+    """A known allocation as values of the aggregated variables (HiGHS's starting incumbent)."""
+    computer, level = incumbent
+    x0 = np.zeros(size)
+    for t, units in enumerate(type_units):
+        for u in units:
+            members = _canonical_members(problem, u)
+            c = computer[members[0]]
+            if c in g_vars[t]:
+                x0[g_vars[t][c]] += 1
+            for j, n in enumerate(members):
+                zs = z_vars[t][j]
+                if c in zs:
+                    x0[zs[c][level[n]]] += 1
+    return x0
 
 
 def _objective(problem: Problem, computer: list[int], level: list[int]) -> float:
