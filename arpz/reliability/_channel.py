@@ -156,7 +156,7 @@ class Channel:
             now = time.monotonic()
             if now >= next_tick:
                 with self.lock:
-                    actions = self.machine.tick()
+                    actions = self.machine.tick(q.qsize())
                     busy = self.machine.busy()
                 next_tick = now + (self._fine_s if busy else self._idle_s)
                 self.perform(actions)
@@ -180,18 +180,25 @@ class Channel:
             return []
 
     def perform(self, actions: list[Action]) -> None:
+        on_data = self.on_data
         for action in actions:
-            if type(action) is Deliver:
-                self._call(self.on_data, action.payload, action.info)
-            elif type(action) is Send:
+            kind = type(action)
+            if kind is Deliver:
+                if on_data is not None:
+                    try:
+                        on_data(action.payload, action.info)  # type: ignore[union-attr]
+                    except Exception:
+                        self.callback_errors += 1
+                        log.exception("on_data raised; the channel goes on")
+            elif kind is Send:
                 try:
-                    self.transport.put(action.key, action.payload, attachment=action.attachment)
+                    self.transport.put(action.key, action.payload, attachment=action.attachment)  # type: ignore[union-attr]
                 except Exception as exc:  # a closed session during shutdown
-                    log.debug("put on %s failed: %s", action.key, exc)
-            elif type(action) is Notify:
-                self._call(getattr(self.events, action.event, None), action.status)
-            elif type(action) is TokenChange:
-                self._token(action)
+                    log.debug("put on %s failed: %s", action.key, exc)  # type: ignore[union-attr]
+            elif kind is Notify:
+                self._call(getattr(self.events, action.event, None), action.status)  # type: ignore[union-attr]
+            elif kind is TokenChange:
+                self._token(action)  # type: ignore[arg-type]
 
     def _call(self, callback: Callable[..., None] | None, *args: object) -> None:
         if callback is None:

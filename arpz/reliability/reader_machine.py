@@ -567,7 +567,9 @@ class ReaderMachine:
         payload = wire.encode_acknack(self.guid, p.guid, p.expected, p.an_count, missing)
         return Send(p.an_key, payload)
 
-    def tick(self) -> list[Action]:
+    def tick(self, backlog: int = 0) -> list[Action]:
+        """Timers. ``backlog``: samples still queued before this machine; while there are some,
+        nothing is declared lost by time (the missing sample may be among them)."""
         now = self.clock.monotonic_s()
         actions: list[Action] = []
         for p in self.writers.values():
@@ -583,11 +585,11 @@ class ReaderMachine:
                 actions.append(self._liveliness(-1, 1, p.hex))
             if not p.synced:
                 continue
-            self._settle(p, now, actions)
-            if not self._reliable:
-                continue
-            self._give_up(p, now, actions)
-            if p.an_due_s <= now:
+            if not backlog:
+                self._settle(p, now, actions)
+                if self._reliable:
+                    self._give_up(p, now, actions)
+            if self._reliable and p.an_due_s <= now:
                 actions.append(self._acknack(p, now))
         return actions
 

@@ -6,6 +6,7 @@ import time
 
 from arpz.reliability._channel import Channel, Endpoint
 from arpz.reliability._common import new_guid
+from arpz.reliability.actions import Action
 from arpz.reliability.events import WriterEventCallbacks
 from arpz.reliability.qos import QosProfile
 from arpz.reliability.timers import Clock, SystemClock
@@ -40,6 +41,8 @@ class Writer(Endpoint):
         self._publisher = transport.publisher(key, express=express, block=True)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
+        self._machine_write = self._machine.write
+        self._put = self._publisher.put
         self._channel.start()
         self._channel.declare_token(self._machine.token_key)
 
@@ -52,22 +55,30 @@ class Writer(Endpoint):
         """
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
-        give_up = 0.0
         with self._mutex:
-            while True:
-                try:
-                    seq, attachment, actions = self._machine.write(payload, stamp_ns)
-                    break
-                except HistoryFullError:
-                    now = time.monotonic()
-                    if not give_up:
-                        give_up = now + self.qos.max_blocking_time_s
-                    if now >= give_up:
-                        raise
-                    self._lock.wait(give_up - now)
-            self._publisher.put(payload, attachment=attachment)
-        self._channel.post(actions)
+            try:
+                seq, attachment, actions = self._machine_write(payload, stamp_ns)
+            except HistoryFullError:
+                seq, attachment, actions = self._wait_for_room(payload, stamp_ns)
+            self._put(payload, attachment=attachment)
+        if actions:
+            self._channel.post(actions)
         return seq
+
+    def _wait_for_room(
+        self, payload: bytes, stamp_ns: int | None
+    ) -> tuple[int, bytes, list[Action]]:
+        """KEEP_ALL is full: wait (the lock is held and released by ``wait``) for ACKNACKs."""
+        give_up = time.monotonic() + self.qos.max_blocking_time_s
+        while True:
+            now = time.monotonic()
+            if now >= give_up:
+                return self._machine_write(payload, stamp_ns)  # raises HistoryFullError again
+            self._lock.wait(give_up - now)
+            try:
+                return self._machine_write(payload, stamp_ns)
+            except HistoryFullError:
+                continue
 
     def assert_unchanged(self) -> None:
         """Call when a reading equal to the last one sent is held back (the local cache): the

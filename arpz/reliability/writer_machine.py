@@ -364,7 +364,7 @@ class WriterMachine:
         self._purge()
         return actions
 
-    def tick(self) -> list[Action]:
+    def tick(self, backlog: int = 0) -> list[Action]:
         now = self.clock.monotonic_s()
         actions: list[Action] = []
         if self.qos.lifespan_s > 0:
