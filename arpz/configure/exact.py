@@ -289,6 +289,16 @@ def solve(
     # aggregated bound stays valid; look for the best placement the links carry: the improved
     # heuristic's, or the full MILP's when it is small enough to try.
     bound = agg.bound
+    if best.message == improved.BUDGET_HIT and deadline - time.perf_counter() > 1.0:
+        longer = improved.solve(
+            problem, time_budget_s=min((deadline - time.perf_counter()) / 2, 60.0)
+        )
+        if (
+            longer.objective is not None
+            and not check(problem.model, longer)
+            and (best_obj is None or _better(problem, longer.objective, best_obj))
+        ):
+            best_obj, best_cl = longer.objective, _indices(problem, longer)
     full_status: Status = "time_limit"
     remaining = deadline - time.perf_counter()
     if _full_size(problem) <= FULL_MILP_MAX_PAIRS and remaining > 1.0:

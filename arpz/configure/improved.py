@@ -27,6 +27,8 @@ from arpz.configure.solution import Solution, build_solution, no_solution
 from arpz.configure.state import EPS, State
 
 METHOD = "improved"
+LOCAL_OPTIMUM = "local optimum: no move or swap improves"
+BUDGET_HIT = "time budget hit before a local optimum"
 NEG = -1e18
 
 
@@ -77,6 +79,7 @@ class _Search:
         for u in range(len(problem.units)):
             self.members[state.computer[problem.units[u][0]]].append(u)
         self.cache: dict[tuple[int, tuple[int, ...]], float] = {}
+        self.tables: dict[tuple[int, tuple[int, ...]], np.ndarray] = {}
 
     # value of a set of units on a computer ------------------------------------------------
     def base(self, c: int) -> np.ndarray:
@@ -84,12 +87,33 @@ class _Search:
         dp = np.zeros(self.grid.capacity[c] + 1)
         return dp
 
-    def dp(self, c: int, units: list[int]) -> np.ndarray:
+    def table(self, c: int, units: list[int]) -> np.ndarray:
+        """Knapsack table of a set of units on c, built from a cached table of the same set
+        less one unit when there is one (a move or swap then costs one knapsack step)."""
         assert self.grid is not None
-        table = self.base(c)
-        for u in units:
-            for n in self.p.units[u]:
-                table = _add(table, self.grid.cpu[n], self.grid.value[n])
+        key = (c, tuple(sorted(units)))
+        hit = self.tables.get(key)
+        if hit is not None:
+            return hit
+        table: np.ndarray | None = None
+        for i, u in enumerate(key[1]):
+            smaller = self.tables.get((c, key[1][:i] + key[1][i + 1 :]))
+            if smaller is not None:
+                table = self._add_unit(smaller, u)
+                break
+        if table is None:
+            table = self.base(c)
+            for u in key[1]:
+                table = self._add_unit(table, u)
+        if len(self.tables) > 20_000:
+            self.tables.clear()
+        self.tables[key] = table
+        return table
+
+    def _add_unit(self, table: np.ndarray, u: int) -> np.ndarray:
+        assert self.grid is not None
+        for n in self.p.units[u]:
+            table = _add(table, self.grid.cpu[n], self.grid.value[n])
         return table
 
     def value(self, c: int, units: list[int]) -> float:
@@ -104,7 +128,7 @@ class _Search:
             else:
                 result = 0.0 if load <= self.p.capacity[c] + EPS else NEG
         else:
-            result = float(self.dp(c, units)[-1])
+            result = float(self.table(c, units)[-1])
         if len(self.cache) > 200_000:
             self.cache.clear()
         self.cache[key] = result
@@ -141,10 +165,14 @@ class _Search:
             self.state.place(u, c)
             self.members[c].append(u)
 
-    def run(self, deadline: float) -> None:
+    def run(self, deadline: float) -> bool:
+        """Search until no move or swap improves (True) or the deadline (False)."""
         improved = True
-        while improved and time.perf_counter() < deadline:
+        while improved:
+            if time.perf_counter() >= deadline:
+                return False
             improved = self._move_pass(deadline) or self._swap_pass(deadline)
+        return time.perf_counter() < deadline
 
     def _move_pass(self, deadline: float) -> bool:
         p = self.p
@@ -240,7 +268,7 @@ def solve(problem: Problem, *, time_budget_s: float = 10.0) -> Solution:
     for n, c in enumerate(state.computer):
         state.load[c] += state.cpu(n)
     search = _Search(problem, state)
-    search.run(start + time_budget_s)
+    converged = search.run(start + time_budget_s)
     level = search.levels()
     return build_solution(
         problem,
@@ -249,6 +277,7 @@ def solve(problem: Problem, *, time_budget_s: float = 10.0) -> Solution:
         list(state.computer),
         level,
         solve_time_s=time.perf_counter() - start,
+        message=LOCAL_OPTIMUM if converged else BUDGET_HIT,
     )
 
 

@@ -219,3 +219,33 @@ def test_checker_finds_each_kind_of_violation():
     assert any("split" in e for e in check(TWO, _sol({"a": "s", "b": "s", "c": "t"})))
     assert any("objective" in e for e in check(TWO, _sol({"a": "s", "b": "s", "c": "s"}, 7.0)))
     assert any("not placed" in e for e in check(TWO, _sol({"a": "s", "b": "s"})))
+
+
+@settings(
+    max_examples=15,
+    deadline=None,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much],
+)
+@given(small_models(), st.sampled_from([1, 2]))
+def test_the_cvxpy_backend_agrees_with_brute_force(model, kind):
+    expected = brute_force(model, kind)
+    result = exact.solve(Problem.build(model, kind), time_limit_s=20, backend="cvxpy")
+    assert check(model, result) == []
+    if expected is None:
+        assert result.objective is None
+    else:
+        assert result.objective == pytest.approx(expected, abs=1e-6)
+
+
+def test_exact_reports_a_time_limit_with_a_valid_bound():
+    # 10 robots cannot be proved optimal in 0.2 s; what comes back must still be feasible
+    # and its bound must not be below its own objective (Problem 1 maximises).
+    from arpz.configure.casestudy import case_study
+
+    model = case_study(10, 4, 11)
+    result = exact.solve(Problem.build(model, 1), time_limit_s=0.2)
+    assert result.status in ("time_limit", "optimal")
+    assert check(model, result) == []
+    if result.status == "time_limit" and result.bound is not None:
+        assert result.bound >= result.objective - 1e-6
+        assert result.gap is not None and result.gap >= 0
