@@ -113,3 +113,20 @@ def test_fit_reports_the_three_curves_and_the_choice(tmp_path):
     bad.write_text("cpu,performance\n19,abc\n")
     proc = run("fit", str(bad))
     assert proc.returncode == 2 and "bad.csv" in proc.stderr
+
+
+def test_the_example_runs_and_the_exact_method_is_never_beaten():
+    proc = subprocess.run(
+        [sys.executable, "examples/configure_compare.py"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    for problem in ("Problem 1", "Problem 2"):
+        block = proc.stdout.split(problem)[1].splitlines()[1:4]
+        values = {line.split()[0]: float(line.split()[2]) for line in block}
+        if problem == "Problem 1":
+            assert values["exact"] >= max(values["greedy"], values["improved"]) - 1e-6
+        else:
+            assert values["exact"] <= min(values["greedy"], values["improved"]) + 1e-6
