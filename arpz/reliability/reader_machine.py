@@ -272,7 +272,7 @@ class ReaderMachine:
         p = self.writers.get(writer)
         if p is None:
             if writer not in self._incompatible:
-                self.bad("sample from an unmatched writer", writer.hex())
+                self.bad("sample from an unmatched writer", writer.hex(), race=True)
             return []
         if (
             seq == p.expected
@@ -443,7 +443,7 @@ class ReaderMachine:
         p = self.writers.get(hb.writer)
         if p is None:
             if hb.writer not in self._incompatible:
-                self.bad("HEARTBEAT from an unmatched writer", hb.writer.hex())
+                self.bad("HEARTBEAT from an unmatched writer", hb.writer.hex(), race=True)
             return []
         now = self.clock.monotonic_s()
         actions: list[Action] = []

@@ -329,7 +329,7 @@ class WriterMachine:
             return []
         p = self.proxies.get(an.reader)
         if p is None:
-            self.bad("ACKNACK from an unmatched reader", an.reader.hex())
+            self.bad("ACKNACK from an unmatched reader", an.reader.hex(), race=True)
             return []
         p.synced = True
         base = min(an.base, self.last_seq + 1)
