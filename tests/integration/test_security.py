@@ -1,0 +1,259 @@
+"""Mutual TLS and access control, through a real CEDDP process and real robot processes.
+
+Everything is proven by what the CEDDP counted (its summary.json), by what the robots report, and
+by what clients holding real certificates can see: a client holding robot 2's certificate can
+neither publish as robot 1 nor command robot 1 nor read robot 1's traffic, a client without a
+fleet certificate cannot connect at all, and the CEDDP still sees everything from the legitimate
+robots. Each negative check has a positive control on the same link (the same client doing the
+allowed thing), so "nothing arrived" cannot pass because nothing was sent.
+"""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import msgspec
+import pytest
+
+from arpz.messages import DECODE_ERRORS, STATS_DECODER, Command, RobotStats, Sample, encode
+from arpz.transport import TransportError
+from tests.integration.fleet import robots, settle
+from tests.integration.secure_fleet import (
+    SCRIPT,
+    client_config,
+    make_fleet_tls,
+    open_client,
+    secure_ceddp,
+    write_secure_robot,
+)
+from tests.support import wait_until
+
+pytestmark = pytest.mark.integration
+ROOT = Path(__file__).resolve().parents[2]
+FLEET = "sec"
+COMMITTED = ["ceddp-router.json5", "ceddp-router-usrpwd.json5", "robot1-client.json5"]
+
+
+class Seen:
+    """Keys and payloads a subscriber got, from a Zenoh thread, read by the test thread."""
+
+    def __init__(self) -> None:
+        self.items: list[tuple[str, bytes]] = []
+        self._lock = threading.Lock()
+
+    def __call__(self, key: str, payload: bytes, _att: bytes | None) -> None:
+        with self._lock:
+            self.items.append((key, payload))
+
+    def seen_keys(self) -> list[str]:
+        with self._lock:
+            return [k for k, _ in self.items]
+
+    def payloads(self, key: str) -> list[bytes]:
+        with self._lock:
+            return [p for k, p in self.items if k == key]
+
+
+def _forge(forger_key_prefix: str) -> dict[str, bytes]:
+    """What a client holding robot 2's certificate tries to put as robot 1."""
+    return {
+        f"{forger_key_prefix}/sensor/pir": b"\xc1 garbage",
+        f"{forger_key_prefix}/sensor/forged": encode(Sample("robot1:000000forged", 1, 1, 1.0)),
+        f"{forger_key_prefix}/cmd/velocity": encode(Command("ceddp:forged", 1, 1, [9.0, 9.0])),
+        f"{forger_key_prefix}/cmd/garbage": b"\xc1 not a command",
+        f"{forger_key_prefix}/stats": b"\xc1 not stats",
+    }
+
+
+def _stats(payload: bytes) -> RobotStats | None:
+    try:
+        return STATS_DECODER.decode(payload)
+    except DECODE_ERRORS:
+        return None
+
+
+def _reconciles(summary: dict[str, object], robot: str, *, skip: tuple[str, ...] = ()) -> None:
+    record = summary["robots"][robot]  # type: ignore[index]
+    assert record["final_stats"], robot
+    for topic, t in record["topics"].items():
+        if topic == "hello" or topic in skip:
+            continue
+        assert t["produced"] == t["sent"] + t["held_back"] > 0, (robot, topic, t)
+        assert t["received"] == t["sent"] and t["lost"] == 0, (robot, topic, t)
+        assert t["decode_errors"] == 0, (robot, topic, t)
+
+
+def test_the_committed_deploy_configs_are_the_scripts_output(tmp_path: Path) -> None:
+    """deploy/zenoh/*.json5 must not drift from the generator the other tests exercise."""
+    make_args = [
+        "--fleet", "lab", "--server-ip", "192.168.1.10", "--server-name", "ceddp.local",
+        "--paths-on-hosts", "/etc/arpz/tls", "--usrpwd", "--observer", "operator",
+        "robot1", "robot2", "robot3",
+    ]  # fmt: skip
+    import subprocess
+    import sys
+
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), "--out", str(tmp_path), *make_args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 0, done.stderr
+    for name in COMMITTED:
+        made = (tmp_path / "zenoh" / name).read_text()
+        committed = (ROOT / "deploy" / "zenoh" / name).read_text()
+        assert made == committed, f"re-run make_fleet_certs.py to refresh deploy/zenoh/{name}"
+    made = (tmp_path / "zenoh" / "robot1-client-usrpwd.json5").read_text()
+    password = (tmp_path / "passwords.txt").read_text().split("robot1:")[1].split("\n")[0]
+    committed = (ROOT / "deploy" / "zenoh" / "robot1-client-usrpwd.json5").read_text()
+    assert made.replace(password, "CHANGE-ME: the robot1 line of passwords.txt") == committed
+    for key in ("ca.key", "ceddp.key", "robot1.key", "passwords.txt"):
+        assert (tmp_path / key).stat().st_mode & 0o077 == 0, f"{key} must be private"
+
+
+def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path) -> None:
+    tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"], observers=("operator",))
+    rogue = make_fleet_tls(tmp_path / "rogue", FLEET, ["robot1"])  # same CN, another CA
+    r1 = f"arpz/{FLEET}/robot/robot1"
+    r2 = f"arpz/{FLEET}/robot/robot2"
+    with secure_ceddp(tmp_path, tls, fleet=FLEET, extra='[hello]\nrelay = "robot2"\n') as (
+        server,
+        endpoint,
+    ):
+        # --- strangers: no certificate, a certificate from another CA, plain TCP -----------
+        nocert = tmp_path / "nocert.json5"  # trusts the fleet CA but has nothing to show
+        nocert.write_text(
+            json.dumps(
+                {"transport": {"link": {"tls": {"root_ca_certificate": str(tls / "ca.pem")}}}}
+            )
+        )
+        for config, where in (
+            (nocert, endpoint),
+            (client_config(rogue, "robot1"), endpoint),
+            (None, endpoint.replace("tls/", "tcp/")),
+        ):
+            with pytest.raises(TransportError):
+                open_client(where, config, timeout_s=0).close()
+
+        configs = [
+            write_secure_robot(
+                tmp_path, "robot1", endpoint, client_config(tls, "robot1"),
+                fleet=FLEET, preset="machine2", hello=True,
+            ),
+            write_secure_robot(
+                tmp_path, "robot2", endpoint, client_config(tls, "robot2"),
+                fleet=FLEET, preset="machine3",
+            ),
+        ]  # fmt: skip
+        spied, observed = Seen(), Seen()
+        with (
+            robots(tmp_path, configs) as procs,
+            open_client(endpoint, client_config(tls, "robot2")) as spy,
+            open_client(endpoint, client_config(tls, "robot2")) as forger,
+            open_client(endpoint, client_config(tls, "operator")) as observer,
+        ):
+            spy.subscribe(f"{r1}/**", spied)
+            spy.subscribe(f"arpz/{FLEET}/ceddp/stats", spied)
+            spy.subscribe(f"{r2}/cmd/**", spied)
+            observer.subscribe(f"{r1}/stats", observed)
+            wait_until(
+                lambda: (
+                    "robot robot2 joined" in server.output()
+                    and "robot robot1 joined" in server.output()
+                ),
+                what="both robots joined",
+            )
+            for key, payload in _forge(r1).items():
+                forger.put(key, payload)
+            forger.declare_token(f"arpz/{FLEET}/robot/robot9/presence")
+            # the positive control on the same link, sent last: it must arrive
+            for seq in (1, 2, 3):
+                forger.put(f"{r2}/sensor/probe", encode(Sample("robot2:0000000probe", seq, 1, 2.0)))
+            wait_until(
+                lambda: any(
+                    (stats := _stats(p)) is not None and stats.commands_received > 3
+                    for p in observed.payloads(f"{r1}/stats")
+                ),
+                timeout_s=15,
+                what="robot1 to act on the CEDDP's Hello commands",
+            )
+            wait_until(
+                lambda: (
+                    f"arpz/{FLEET}/ceddp/stats" in spied.seen_keys()
+                    and f"{r2}/cmd/hello" in spied.seen_keys()
+                ),
+                what="the spy to get what robot2 may get",
+            )
+            settle(1.0)
+            for proc in procs:
+                assert proc.interrupt() == 0, proc.output()
+            robot1_out = procs[0].output()
+        assert server.interrupt() == 0, server.output()
+
+    # robot 2's certificate reads nothing of robot 1 ...
+    assert not [k for k in spied.seen_keys() if k.startswith(r1)], spied.seen_keys()[:10]
+    # ... and robot 1 acted on no forged command (only the CEDDP's Hello hops arrived)
+    assert "undecodable command" not in robot1_out
+    # every report on robot 1's stats key is robot 1's own (the forged one never got through)
+    reports = [_stats(p) for p in observed.payloads(f"{r1}/stats")]
+    assert reports and None not in reports, "a forged report reached robot 1's stats key"
+    last = reports[-1]
+    assert last is not None
+    assert last.command_decode_errors == 0 and last.commands_received > 0
+    # the observer certificate is read-only: it cannot put either (nothing it sends is counted)
+
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    robot1 = summary["robots"]["robot1"]
+    assert "forged" not in robot1["topics"]
+    assert robot1["topics"]["pir"]["decode_errors"] == 0
+    assert "robot9" not in summary["robots"]
+    assert summary["robots"]["robot2"]["topics"]["probe"]["received"] == 3  # positive control
+    _reconciles(summary, "robot1")
+    _reconciles(summary, "robot2", skip=("probe",))
+    hello = robot1["hello"]
+    assert hello["received"] > 0 and hello["sent"] == hello["received"] + hello["lost"]
+
+
+def test_user_password_variant_keeps_strangers_out(tmp_path: Path) -> None:
+    tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"], usrpwd=True)
+    r1 = f"arpz/{FLEET}/robot/robot1"
+    with secure_ceddp(tmp_path, tls, fleet=FLEET, variant="-usrpwd") as (server, endpoint):
+        wrong = tmp_path / "wrong.json5"
+        text = client_config(tls, "robot2", "-usrpwd").read_text()
+        password = json.loads(text[text.index("{") :])["transport"]["auth"]["usrpwd"]["password"]
+        wrong.write_text(text.replace(password, "not-the-password"))
+        with pytest.raises(TransportError):
+            open_client(endpoint, wrong, timeout_s=0).close()
+        nouser = tmp_path / "nouser.json5"
+        nouser.write_text(text.replace('"user": "robot2"', '"user": "robot7"'))
+        with pytest.raises(TransportError):
+            open_client(endpoint, nouser, timeout_s=0).close()
+
+        config = write_secure_robot(
+            tmp_path, "robot1", endpoint, client_config(tls, "robot1", "-usrpwd"),
+            fleet=FLEET, preset="machine2",
+        )  # fmt: skip
+        with (
+            robots(tmp_path, [config]) as procs,
+            open_client(endpoint, client_config(tls, "robot2", "-usrpwd")) as forger,
+        ):
+            wait_until(lambda: "robot robot1 joined" in server.output(), what="robot1 joined")
+            for key, payload in _forge(r1).items():
+                forger.put(key, payload)
+            for seq in (1, 2):
+                forger.put(
+                    f"arpz/{FLEET}/robot/robot2/sensor/probe",
+                    msgspec.msgpack.encode(["robot2:0000000probe", seq, 1, 2.0]),
+                )
+            settle(1.0)
+            assert procs[0].interrupt() == 0, procs[0].output()
+            assert "undecodable command" not in procs[0].output()
+        assert server.interrupt() == 0, server.output()
+
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert "forged" not in summary["robots"]["robot1"]["topics"]
+    assert summary["robots"]["robot2"]["topics"]["probe"]["received"] == 2
+    _reconciles(summary, "robot1")
