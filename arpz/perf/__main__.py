@@ -17,7 +17,6 @@ import contextlib
 import json
 import signal
 import sys
-import threading
 import time
 from types import FrameType
 from typing import Any
@@ -25,6 +24,7 @@ from typing import Any
 import msgspec
 
 from arpz.perf.endpoints import (
+    STOP,
     TRANSPORTS,
     AdvancedPub,
     AdvancedSub,
@@ -38,6 +38,7 @@ from arpz.perf.endpoints import (
     open_session,
 )
 from arpz.perf.report import HEADER, Recorder, build_report, make_payload
+from arpz.reliability import HistoryFullError
 from arpz.reliability.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -47,8 +48,6 @@ from arpz.reliability.qos import (
     load_qos,
 )
 from arpz.transport import SessionSettings, TransportError, ZenohTransport
-
-STOP = threading.Event()
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -215,8 +214,11 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
                 break
             if duration and time.monotonic() - t0 >= duration:
                 break
+            try:
+                pub.put(make_payload(seq + 1, time.time_ns(), args.size))
+            except HistoryFullError:  # only raised once SIGINT/SIGTERM asked us to stop
+                break
             seq += 1
-            pub.put(make_payload(seq, time.time_ns(), args.size))
             if period:
                 delay = t0 + seq * period - time.monotonic()
                 if delay > 0:
@@ -290,18 +292,22 @@ def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, An
 def run_pong(args: argparse.Namespace) -> dict[str, Any]:
     """Echo every ping back, until stopped (or --duration)."""
     pub = make_pub(args, f"{args.key}/pong")
-    sub = make_sub(args, f"{args.key}/ping", pub.put)
-    echoed = 0
+    echoed = [0]
+
+    def echo(payload: bytes) -> None:
+        pub.put(payload)
+        echoed[0] += 1
+
+    sub = make_sub(args, f"{args.key}/ping", echo)
     t0 = time.monotonic()
     try:
         print("arpz.perf pong: ready", file=sys.stderr, flush=True)
         while not STOP.is_set() and not (args.duration and time.monotonic() - t0 >= args.duration):
             time.sleep(0.05)
-        echoed = len(sub.counters())
     finally:
         sub.close()
         pub.close()
-    return {"pong": True, "channel_fields": echoed}
+    return {"echoed": echoed[0]}
 
 
 def run_ping(args: argparse.Namespace) -> dict[str, Any]:

@@ -28,6 +28,10 @@ from arpz.transport import SessionSettings, ZenohTransport, build_config
 
 TRANSPORTS = ("arpz", "zenoh", "advanced")
 
+#: set by SIGINT/SIGTERM: every loop of the tool, including a KEEP_ALL write retried while no
+#: reader acknowledges, gives up at once
+STOP = threading.Event()
+
 #: (payload) -> None, called for every received sample on the receiving thread
 OnPayload = Callable[[bytes], None]
 
@@ -58,7 +62,7 @@ class ArpzPub:
 
     def wait_matched(self, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not STOP.is_set():
             if self.writer.matched_count and self.writer.wait_for_acknowledgments(0.05):
                 return True
             time.sleep(0.02)
@@ -71,6 +75,8 @@ class ArpzPub:
                 return
             except HistoryFullError:
                 self.blocked += 1  # counted, then retried: the perf tool never drops a sample
+                if STOP.is_set():
+                    raise
 
     def finish(self, linger_s: float) -> dict[str, Any]:
         acked = self.writer.wait_for_acknowledgments(linger_s)
@@ -127,7 +133,7 @@ class ZenohPub:
 
     def wait_matched(self, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
+        while time.monotonic() < deadline and not STOP.is_set():
             if self.pub.matching_status.matching:
                 return True
             time.sleep(0.02)
