@@ -14,6 +14,7 @@ from typing import Any, Literal, TypeVar
 import msgspec
 
 from arpz import keys
+from arpz.reliability import QosProfile
 
 SensorKind = Literal["lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light"]
 SENSOR_KINDS: tuple[str, ...] = ("lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light")
@@ -116,11 +117,16 @@ class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
     #: simulate the body in a 2-D world (None: a real robot, or sensors only)
     sim: SimConfig | None = None
+    #: the reliable channel's QoS for every sensor topic (arpz.reliability.QosProfile fields);
+    #: None: plain Zenoh puts, no end-to-end recovery
+    sensor_qos: QosProfile | None = None
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
     #: how long to keep trying to reach the server at start-up
     connect_timeout_s: float = 30.0
+    #: with sensor_qos: how long to wait at start-up for the CEDDP's reader to match each topic
+    match_timeout_s: float = 5.0
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 
@@ -222,6 +228,9 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
     mission: MissionConfig | None = None
+    #: receive sensor topics through the reliable channel with this QoS (it must match what the
+    #: robots offer, docs/reliability.md); None: plain Zenoh subscription
+    sensor_qos: QosProfile | None = None
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 

@@ -42,6 +42,11 @@ class DemoOptions:
     #: "hallway": run seed 001's mission (3 simulated robots) instead of the sensor demo
     mission: str | None = None
     world: str = "hallway"
+    #: the reliable channel for sensor topics: "reliable", "best_effort", or "none" (plain Zenoh)
+    reliability: str = "reliable"
+    history: str = "keep_last"
+    #: KEEP_LAST depth until the QoS optimiser assigns one
+    depth: int = 10
 
 
 def demo_spec(options: DemoOptions, endpoint: str) -> FleetSpec:
@@ -57,6 +62,14 @@ def demo_spec(options: DemoOptions, endpoint: str) -> FleetSpec:
     }
     if options.rmax_hz > 0:
         ceddp["qos"] = {"enabled": True, "rmax_hz": options.rmax_hz}
+    channel: dict[str, Any] | None = None
+    if options.reliability != "none":
+        channel = {
+            "reliability": options.reliability,
+            "history": options.history,
+            "depth": options.depth,
+        }
+        ceddp["sensor_qos"] = channel
     if mission:
         ceddp["mission"] = {"world": options.world, "time_limit_s": options.duration_s}
     fleet: dict[str, dict[str, Any]] = {}
@@ -68,6 +81,8 @@ def demo_spec(options: DemoOptions, endpoint: str) -> FleetSpec:
             "seed": index,
             "local_cache": {"enabled": options.local_cache},
         }
+        if channel is not None:
+            conf["sensor_qos"] = channel
         if mission:
             conf["sim"] = {"world": options.world, "beam_rate_hz": options.rate_hz}
         else:
@@ -118,10 +133,10 @@ def check_summary(summary: dict[str, Any], robots: int, *, hello: bool = True) -
             continue
         if not row["final_stats"]:
             problems.append(f"{name}'s final report did not reach the CEDDP")
-        if row["produced"] != row["sent"] + row["held_back"]:
+        if row["produced"] != row["sent"] + row["held_back"] + row["write_failures"]:
             problems.append(
                 f"{name}: produced {row['produced']} != sent {row['sent']} + held "
-                f"back {row['held_back']}"
+                f"back {row['held_back']} + refused by a full history {row['write_failures']}"
             )
         if row["sent"] != row["received"] + row["lost"]:
             problems.append(
@@ -231,6 +246,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-cache-control", action="store_true")
     parser.add_argument("--rmax", type=float, help="QoS balancing optimiser Rmax (Hz), eq. 4")
     parser.add_argument("--no-qos", action="store_true", help="no QoS optimiser")
+    parser.add_argument(
+        "--reliability",
+        choices=["reliable", "best_effort", "none"],
+        default="reliable",
+        help="sensor topics through arpz's reliable channel (or plain Zenoh: none)",
+    )
+    parser.add_argument("--history", choices=["keep_last", "keep_all"], default="keep_last")
+    parser.add_argument(
+        "--depth", type=int, default=10, help="KEEP_LAST depth (the QoS optimiser may change it)"
+    )
     parser.add_argument("--mission", choices=["hallway"], help="run seed 001's hallway mission")
     parser.add_argument("--world", default="hallway", help="mission map: hallway, hallway_small")
     parser.add_argument("--workdir", type=Path, help="where configs and logs go (default: temp)")
@@ -241,8 +266,8 @@ def main(argv: list[str] | None = None) -> int:
     rate = args.rate if args.rate is not None else (20.0 if mission else 50.0)
     forced = args.rate is not None and args.rmax is None
     rmax = 0.0 if (args.no_qos or forced) else (args.rmax or 500.0)
-    if args.robots < 1 or duration <= 0 or rate <= 0:
-        print("demo: --robots must be >= 1, --duration and --rate > 0", file=sys.stderr)
+    if args.robots < 1 or duration <= 0 or rate <= 0 or args.depth < 1:
+        print("demo: --robots and --depth must be >= 1, --duration and --rate > 0", file=sys.stderr)
         return 2
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="arpz-demo-"))
     options = DemoOptions(
@@ -256,6 +281,9 @@ def main(argv: list[str] | None = None) -> int:
         rmax_hz=rmax,
         mission=args.mission,
         world=args.world,
+        reliability=args.reliability,
+        history=args.history,
+        depth=args.depth,
     )
     try:
         summary = run_demo(options, workdir)

@@ -208,7 +208,8 @@ def run_fleet(
         if progress is not None:
             print(f"\r{label}: {time.monotonic() - start:5.1f} s, stopping", file=progress)
         failures = []
-        for proc in robots:
+        # in reverse start order: robots started first (e.g. a Hello relay) stop last
+        for proc in reversed(robots):
             try:
                 code = proc.stop(timeout_s=20)
             except LaunchError as exc:

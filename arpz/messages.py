@@ -86,6 +86,14 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     rate_hz: float = 0.0
     #: read from the driver per second over the last interval (the scheduled rate, in effect)
     produced_rate_hz: float = 0.0
+    #: reliable channel (zero without it): readings a full KEEP_ALL history refused (produced ==
+    #: sent + held_back + write_failures), resends, samples answered with GAP (confirmed lost),
+    #: KEEP_LAST overwrites of unacknowledged samples, offered-deadline misses
+    write_failures: int = 0
+    retransmitted: int = 0
+    gapped: int = 0
+    overwritten_unacked: int = 0
+    deadline_missed: int = 0
 
 
 class HelloStats(msgspec.Struct, frozen=True):

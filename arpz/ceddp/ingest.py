@@ -36,7 +36,8 @@ class TopicMetrics:
     lost: int = 0
     #: samples that arrived with a sequence number already passed (duplicate or reordered)
     out_of_order: int = 0
-    #: samples a writer had sent before this CEDDP first heard it (not a loss: we were not there)
+    #: samples a writer had sent before this CEDDP first heard it (not yet matched, or the CEDDP
+    #: started late): never received, so the summary counts them in ``lost``
     before_join: int = 0
     #: a new writer incarnation took over the topic (robot restarted)
     writer_changes: int = 0

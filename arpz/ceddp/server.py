@@ -46,6 +46,7 @@ from arpz.messages import (
     writer_id,
 )
 from arpz.percentiles import Distribution, percentile
+from arpz.reliability import DataInfo, MessageLostStatus, Reader, ReaderEventCallbacks
 from arpz.sim.judge import MissionResult
 from arpz.transport import PullSubscriber, Transport
 
@@ -80,6 +81,8 @@ class RobotRecord:
 @dataclass
 class ServerCounters:
     unknown_control_keys: int = 0
+    #: samples the reliable channel reported irrecoverably lost (GAP, timeout, writer gone)
+    channel_lost: int = 0
     events: list[str] = field(default_factory=list)
 
 
@@ -132,6 +135,7 @@ class CeddpServer:
         self.counters = ServerCounters()
         self._control: queue.SimpleQueue[tuple[int, str, bytes] | None] = queue.SimpleQueue()
         self._sensors: PullSubscriber | None = None
+        self._reader: Reader | None = None
         self._wake_key = keys.sensor_key(config.fleet, "ceddp-wake", "wake")
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -155,9 +159,25 @@ class CeddpServer:
         def on_presence(key: str, alive: bool) -> None:
             control.put((_PRESENCE, key, b"\x01" if alive else b""))
 
-        self._sensors = self.transport.subscribe_pull(
-            keys.all_sensors(fleet), self.config.ingest_queue_limit
-        )
+        if self.config.sensor_qos is None:
+            self._sensors = self.transport.subscribe_pull(
+                keys.all_sensors(fleet), self.config.ingest_queue_limit
+            )
+        else:
+            self._reader = Reader(
+                self.transport,
+                keys.all_sensors(fleet),
+                self.config.sensor_qos,
+                self._on_channel_data,
+                events=ReaderEventCallbacks(
+                    message_lost=self._on_channel_lost,
+                    incompatible_qos=lambda status: self._event(
+                        f"reliable channel: incompatible QoS ({status.last_policy_kind}) "
+                        f"with {status.peer}",
+                        level="ERROR",
+                    ),
+                ),
+            )
         self.transport.subscribe(f"{keys.fleet_prefix(fleet)}/robot/*/*", on_control)
         self.transport.subscribe(
             keys.ceddp_qos_request_key(fleet),
@@ -165,11 +185,10 @@ class CeddpServer:
         )
         self.transport.watch_liveliness(keys.all_presence(fleet), on_presence)
         self.transport.declare_token(keys.ceddp_presence_key(fleet))
-        for target, name in (
-            (self._work_sensors, "arpz-ingest"),
-            (self._work_control, "arpz-control"),
-            (self._tick_loop, "arpz-metrics"),
-        ):
+        workers = [(self._work_control, "arpz-control"), (self._tick_loop, "arpz-metrics")]
+        if self._sensors is not None:
+            workers.append((self._work_sensors, "arpz-ingest"))
+        for target, name in workers:
             thread = threading.Thread(target=target, name=name, daemon=True)
             thread.start()
             self._threads.append(thread)
@@ -203,8 +222,11 @@ class CeddpServer:
         for planner in self.planners:
             planner.stop()
         self._stop.set()
-        # wake the ingest worker: this sample queues behind everything already received
-        self.transport.put(self._wake_key, b"")
+        if self._sensors is not None:
+            # wake the ingest worker: this sample queues behind everything already received
+            self.transport.put(self._wake_key, b"")
+        if self._reader is not None:
+            self._reader.close()
         self._control.put(None)
         for thread in self._threads:
             thread.join(timeout=10)
@@ -246,6 +268,18 @@ class CeddpServer:
                     except Exception:  # a bad sample or a planner bug must not stop the CEDDP
                         log.exception("ingest failed on %s", key)
                 self.processed += len(batch)
+
+    def _on_channel_data(self, payload: bytes, info: DataInfo) -> None:
+        """A sample delivered by the reliable channel (in order per writer, on its worker)."""
+        with self.ingest.lock:
+            try:
+                self.ingest.handle_sensor(info.key, payload, time.time_ns())
+            except Exception:
+                log.exception("ingest failed on %s", info.key)
+            self.processed += 1
+
+    def _on_channel_lost(self, status: MessageLostStatus) -> None:
+        self.counters.channel_lost += status.total_count_change
 
     def _work_control(self) -> None:
         while (item := self._control.get()) is not None:
@@ -459,6 +493,8 @@ class CeddpServer:
                             "produced",
                             "sent",
                             "held_back",
+                            "write_failures",
+                            "retransmitted",
                             "received",
                             "cc_discarded",
                             "cc_passed",
@@ -479,6 +515,9 @@ class CeddpServer:
             "hello_relay": asdict(self.hello_relay.counters),
             "ingest": {
                 "processed": self.processed,
+                "path": "raw" if self.config.sensor_qos is None else "reliable channel",
+                "channel_lost": self.counters.channel_lost,
+                "channel": msgspec.to_builtins(self._reader.stats()) if self._reader else None,
                 "unknown_keys": self.ingest.counters.unknown_keys,
                 "unknown_control_keys": self.counters.unknown_control_keys,
             },
@@ -514,10 +553,16 @@ class CeddpServer:
             "produced": counters.produced if counters else 0,
             "sent": counters.sent if counters else 0,
             "held_back": counters.held_back if counters else 0,
+            "write_failures": counters.write_failures if counters else 0,
+            "retransmitted": counters.retransmitted if counters else 0,
+            "gapped": counters.gapped if counters else 0,
+            "overwritten_unacked": counters.overwritten_unacked if counters else 0,
             "received": m.received,
             "cc_discarded": cc.hits,
             "cc_passed": cc.misses,
-            "lost": m.lost + tail_lost,
+            # not received, whatever the cause: gaps, the tail after the last arrival, and what
+            # the writer sent before this CEDDP (or its reliable reader) was listening
+            "lost": m.lost + tail_lost + m.before_join,
             "out_of_order": m.out_of_order,
             "before_join": m.before_join,
             "decode_errors": m.decode_errors,

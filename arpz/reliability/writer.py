@@ -87,6 +87,12 @@ class Writer(Endpoint):
             actions = self._machine.assert_unchanged()
         self._channel.post(actions)
 
+    def retune(self, *, depth: int, deadline_s: float) -> None:
+        """Change the KEEP_LAST depth and the offered deadline in place (a QoS assignment)."""
+        with self._lock:
+            actions = self._machine.retune(depth=depth, deadline_s=deadline_s)
+        self._channel.post(actions)
+
     def assert_liveliness(self) -> None:
         """MANUAL_BY_TOPIC: prove the writer alive without writing."""
         with self._lock:

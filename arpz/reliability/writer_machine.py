@@ -34,6 +34,8 @@ from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
 #: resends answered per ACKNACK: bounds the work of one (possibly forged) request; the reader
 #: asks again for the rest one NACK period later
 RESEND_BUDGET = 256
+#: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
+_PURGE_EVERY = 64
 
 
 class HistoryFullError(TimeoutError):
@@ -77,6 +79,7 @@ class _ReaderProxy:
         "last_sync_s",
         "lost",
         "reliable",
+        "requested_deadline_s",
         "rx_key",
         "start",
         "synced",
@@ -91,6 +94,8 @@ class _ReaderProxy:
         self.last_sync_s = -math.inf
         self.lost = 0
         self.rx_key = rx_key
+        #: the deadline this reader checks (0: none), from its token
+        self.requested_deadline_s = 0.0
 
 
 class WriterMachine:
@@ -105,7 +110,8 @@ class WriterMachine:
         self._capacity = qos.capacity
         self._keep_all = qos.history is HistoryPolicy.KEEP_ALL
         self._manual = qos.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
-        self._ack_interval = max(1, min(64, self._capacity // (4 if self._keep_all else 2)))
+        cap = 256 if self._keep_all else 64
+        self._ack_interval = max(1, min(cap, self._capacity // (4 if self._keep_all else 2)))
         now = clock.monotonic_s()
         #: seq -> (payload, stamp_ns); holds exactly first .. last_seq
         self.history: dict[int, tuple[bytes, int]] = {}
@@ -200,9 +206,28 @@ class WriterMachine:
             now = self._mono()
             self._deadline.reset(now)
             self._lease.assert_alive(now)
-        if not self._n_reliable:
-            self._purge()
+        if not self._n_reliable and len(history) >= _PURGE_EVERY:
+            self._purge()  # nobody needs these; amortised, not on every write
         return seq, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns), actions
+
+    def retune(self, *, depth: int, deadline_s: float) -> list[Action]:
+        """Apply a new KEEP_LAST depth and offered deadline in place (the CEDDP's QoS balancing),
+        keeping the guid, the history and the matches: replacing the writer instead would make
+        readers drop what it sends until they match it again. A smaller depth overwrites the
+        oldest samples exactly as a write would, and counts them the same way. The deadline
+        changes the writer's own timer; readers already matched stay matched (arpz's fleet
+        reader requests no deadline, so no offer can become incompatible with it)."""
+        self.qos = msgspec.structs.replace(self.qos, depth=depth, deadline_s=deadline_s)
+        QosProfile.__post_init__(self.qos)  # the same validation as a profile built from TOML
+        self._capacity = self.qos.capacity
+        self._ack_interval = max(1, min(64, self._capacity // (4 if self._keep_all else 2)))
+        actions: list[Action] = []
+        while not self._keep_all and len(self.history) > self._capacity:
+            self._overwrite_front(actions)
+        now = self._mono()
+        self._deadline = DeadlineTimer(deadline_s, now)
+        self._timed = deadline_s > 0 or self._manual
+        return actions
 
     def _full_message(self) -> str:
         waiting = [p.hex for p in self.proxies.values() if p.reliable and p.acked <= self.first]
@@ -240,9 +265,13 @@ class WriterMachine:
         self.unchanged += 1
         self._deadline.reset(now)
         self._assert(now)
-        interval = (
-            self.qos.deadline_s / 2 if self.qos.deadline_s > 0 else self.qos.heartbeat_period_s
-        )
+        # a reader checks at most the deadline it requested, so UNCHANGED heartbeats go at half
+        # the shortest requested deadline; with no reader checking one, at the heartbeat period
+        # (one every held-back reading would cost more than sending the data the cache saved)
+        requested = [
+            p.requested_deadline_s for p in self.proxies.values() if p.requested_deadline_s
+        ]
+        interval = min(requested) / 2 if requested else self.qos.heartbeat_period_s
         if now - self._last_unchanged_hb_s < interval:
             return []
         self._last_unchanged_hb_s = now
@@ -309,6 +338,7 @@ class WriterMachine:
             self.first if (self.qos.transient_local and mq.transient_local) else self.last_seq + 1
         )
         p = _ReaderProxy(guid, hex_, mq.reliable, start, wire.directed_key(self.topic, hex_))
+        p.requested_deadline_s = mq.as_profile().deadline_s
         self.proxies[guid] = p
         self._n_reliable += p.reliable
         self.matched_total += 1

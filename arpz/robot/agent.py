@@ -44,11 +44,12 @@ from arpz.messages import (
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.hello import HelloTracker
 from arpz.robot.local_cache import LocalCache
+from arpz.robot.output import SensorOutput
 from arpz.robot.qos import decide
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors, value_type_of
 from arpz.robot.sensors.base import check_value
 from arpz.robot.sim_host import BeamDriver, SimActuator, SimHost
-from arpz.transport import Publisher, Transport
+from arpz.transport import Transport
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,7 @@ class _SensorChannel:
     config: SensorConfig
     driver: SensorDriver
     cache: LocalCache
-    publisher: Publisher
+    output: SensorOutput
     seq: int = 0
     bytes_sent: int = 0
     driver_errors: int = 0
@@ -116,8 +117,10 @@ class RobotAgent:
         self._hello_seq = 0
         self._hello_writer_seq = 0
         self._hello_lock = threading.Lock()
-        self._hello_pub = transport.publisher(
-            keys.sensor_key(config.fleet, config.robot_id, HELLO_TOPIC), express=True
+        self._hello_out = SensorOutput(
+            transport,
+            keys.sensor_key(config.fleet, config.robot_id, HELLO_TOPIC),
+            config.sensor_qos,
         )
         self._start_s = time.monotonic()
         self._last_cpu = (time.monotonic(), time.process_time())
@@ -141,8 +144,10 @@ class RobotAgent:
                         tolerance=sensor.tolerance,
                         max_silence_s=silence,
                     ),
-                    publisher=transport.publisher(
-                        keys.sensor_key(config.fleet, config.robot_id, sensor.name)
+                    output=SensorOutput(
+                        transport,
+                        keys.sensor_key(config.fleet, config.robot_id, sensor.name),
+                        config.sensor_qos,
                     ),
                     rate_hz=sensor.rate_hz,
                 )
@@ -174,6 +179,7 @@ class RobotAgent:
         )
         self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
         self._publish_announce(0.0)
+        self._wait_for_readers(cfg.match_timeout_s)
         self._started = True
         log.info(
             "robot %s (%s) started with %d sensors",
@@ -181,6 +187,24 @@ class RobotAgent:
             self.incarnation,
             len(self.sensors),
         )
+
+    def _wait_for_readers(self, timeout_s: float) -> None:
+        """With the reliable channel, a VOLATILE writer's samples reach only readers matched when
+        they are written: wait (bounded) until the CEDDP's reader matched every topic, so the
+        first readings are not sent into the void."""
+        outputs = [s.output for s in self.sensors] + [self._hello_out]
+        deadline = time.monotonic() + timeout_s
+        while not all(o.matched for o in outputs) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        unmatched = [o.key for o in outputs if not o.matched]
+        if unmatched:
+            log.warning(
+                "no reliable reader matched %d topic(s) within %.1f s (is the CEDDP running with "
+                "the same sensor_qos?): %s",
+                len(unmatched),
+                timeout_s,
+                ", ".join(unmatched[:3]),
+            )
 
     def run(self, stop: threading.Event) -> None:
         """Run the periodic jobs until ``stop`` is set or the configured duration has passed."""
@@ -219,6 +243,8 @@ class RobotAgent:
         self.actuator.stop()
         for sensor in self.sensors:
             sensor.driver.close()
+            sensor.output.close()
+        self._hello_out.close()
 
     # -- jobs -----------------------------------------------------------------------------------
 
@@ -274,11 +300,15 @@ class RobotAgent:
                 )
             return
         if not sensor.cache.offer(value, now_s):
+            sensor.output.unchanged()
             return
-        sensor.seq += 1
-        payload = encode(Sample(self.writer, sensor.seq, time.time_ns(), value))
-        sensor.bytes_sent += len(payload)
-        sensor.publisher.put(payload)
+        stamp_ns = time.time_ns()
+        payload = encode(Sample(self.writer, sensor.seq + 1, stamp_ns, value))
+        if sensor.output.send(payload, stamp_ns):
+            sensor.seq += 1
+            sensor.bytes_sent += len(payload)
+        else:
+            sensor.cache.forget()
 
     def _send_hello(self, now_s: float) -> None:
         with self._hello_lock:
@@ -296,7 +326,7 @@ class RobotAgent:
         stamped = msgspec.structs.replace(
             hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns()
         )
-        self._hello_pub.put(encode(stamped))
+        self._hello_out.send(encode(stamped), stamped.stamp_ns)
 
     def _send_telemetry(self, now_s: float) -> None:
         assert self.sim is not None
@@ -357,6 +387,7 @@ class RobotAgent:
                 sensor.rate_hz = decision.qos.rate_hz
                 # the scheduler picks the new period up at the sensor's next tick
                 self._sensor_jobs[sensor.config.name].period_s = 1.0 / decision.qos.rate_hz
+                sensor.output.retune(depth=decision.qos.depth, deadline_s=decision.qos.deadline_s)
             self.qos = decision.qos
             self.qos_epoch = message.epoch
             log.info(
@@ -401,12 +432,19 @@ class RobotAgent:
         out: dict[str, TopicCounters] = {}
         for sensor in self.sensors:
             c = sensor.cache.counters
+            channel = sensor.output.totals()
             out[sensor.config.name] = TopicCounters(
                 produced=c.produced,
-                sent=c.sent,
+                # a reading the cache passed but a full KEEP_ALL history refused was not sent
+                sent=c.sent - channel["write_failures"],
                 held_back=c.held_back,
                 last_seq=sensor.seq,
                 bytes_sent=sensor.bytes_sent,
+                write_failures=channel["write_failures"],
+                retransmitted=channel["retransmitted"],
+                gapped=channel["gapped"],
+                overwritten_unacked=channel["overwritten_unacked"],
+                deadline_missed=channel["deadline_missed"],
             )
         return out
 

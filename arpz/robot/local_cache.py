@@ -36,6 +36,10 @@ class LocalCache:
         self._last_sent_s = 0.0
         self._has_last = False
 
+    def forget(self) -> None:
+        """The last value offered could not be sent after all: send the next reading anyway."""
+        self._has_last = False
+
     def offer(self, value: SensorValue, now_s: float) -> bool:
         """Count one produced reading; return True if it must be sent, False if held back."""
         counters = self.counters

@@ -78,6 +78,7 @@ def write_robot(
     rate_hz: float = 50,
     hello: bool = False,
     fleet: str = "itest",
+    extra: str = "",
 ) -> Path:
     path = tmp / f"{robot}.toml"
     text = (
@@ -87,6 +88,7 @@ def write_robot(
     )
     if hello:
         text += "[hello]\nenabled = true\nrate_hz = 20\n"
+    text += extra
     path.write_text(text)
     return path
 

@@ -29,11 +29,20 @@ TABLE_1_TYPES = {
 }
 
 
-def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_path: Path) -> None:
-    with ceddp(tmp_path, relay="robot2") as (server, endpoint):
+CHANNEL = '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_last"\ndepth = 50\n'
+
+
+@pytest.mark.parametrize("path", ["plain", "reliable channel"])
+def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(
+    tmp_path: Path, path: str
+) -> None:
+    channel = CHANNEL if path == "reliable channel" else ""
+    with ceddp(tmp_path, relay="robot2", extra=channel) as (server, endpoint):
         configs = [
-            write_robot(tmp_path, "robot1", endpoint, preset="machine1", hello=True),
-            write_robot(tmp_path, "robot2", endpoint, preset="machine2", rate_hz=100),
+            write_robot(tmp_path, "robot1", endpoint, preset="machine1", hello=True, extra=channel),
+            write_robot(
+                tmp_path, "robot2", endpoint, preset="machine2", rate_hz=100, extra=channel
+            ),
         ]
         with robots(tmp_path, configs) as procs:
             raw = subprocess.run(
@@ -69,6 +78,7 @@ def test_what_arrives_is_what_was_produced_minus_what_the_caches_held_back(tmp_p
         )
 
     summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["ingest"]["path"] == ("raw" if path == "plain" else "reliable channel")
     for name in ("robot1", "robot2"):
         robot = summary["robots"][name]
         assert robot["final_stats"], name

@@ -1,0 +1,41 @@
+"""A QoS assignment changes a writer's depth and deadline in place."""
+
+import pytest
+
+from arpz.reliability import QOS_DEFAULT, FakeClock, WriterMachine
+from arpz.reliability.actions import Notify
+from arpz.reliability.events import DeadlineMissedStatus
+
+
+def machine() -> tuple[WriterMachine, FakeClock]:
+    clock = FakeClock()
+    return WriterMachine("arpz/f/robot/r1/sensor/pir", QOS_DEFAULT, b"\x01" * 8, clock), clock
+
+
+def test_a_smaller_depth_keeps_the_newest_and_the_same_guid() -> None:
+    writer, _ = machine()
+    for i in range(10):
+        writer.write(b"%d" % i)
+    guid = writer.guid
+    writer.retune(depth=4, deadline_s=0.0)
+    assert sorted(writer.history) == [7, 8, 9, 10]
+    assert writer.guid == guid and writer.qos.depth == 4
+    for i in range(3):
+        writer.write(b"x%d" % i)
+    assert sorted(writer.history) == [10, 11, 12, 13]
+
+
+def test_the_new_deadline_is_checked() -> None:
+    writer, clock = machine()
+    writer.retune(depth=10, deadline_s=0.1)
+    writer.write(b"a")
+    clock.advance(0.35)
+    missed = [a for a in writer.tick() if isinstance(a, Notify) and a.event == "deadline"]
+    assert missed and isinstance(missed[0].status, DeadlineMissedStatus)
+    assert missed[0].status.total_count == 3
+
+
+def test_an_invalid_depth_is_refused() -> None:
+    writer, _ = machine()
+    with pytest.raises(ValueError):
+        writer.retune(depth=0, deadline_s=0.0)
