@@ -46,7 +46,13 @@ from arpz.messages import (
     writer_id,
 )
 from arpz.percentiles import Distribution, percentile
-from arpz.reliability import DataInfo, MessageLostStatus, Reader, ReaderEventCallbacks
+from arpz.reliability import (
+    DataInfo,
+    MessageLostStatus,
+    Reader,
+    ReaderEventCallbacks,
+    UnchangedStatus,
+)
 from arpz.sim.judge import MissionResult
 from arpz.transport import PullSubscriber, Transport
 
@@ -171,6 +177,7 @@ class CeddpServer:
                 self._on_channel_data,
                 events=ReaderEventCallbacks(
                     message_lost=self._on_channel_lost,
+                    unchanged=self._on_channel_unchanged,
                     incompatible_qos=lambda status: self._event(
                         f"reliable channel: incompatible QoS ({status.last_policy_kind}) "
                         f"with {status.peer}",
@@ -277,6 +284,14 @@ class CeddpServer:
             except Exception:
                 log.exception("ingest failed on %s", info.key)
             self.processed += 1
+
+    def _on_channel_unchanged(self, status: UnchangedStatus) -> None:
+        """A robot's local cache held a repeat back: planners judging freshness must know."""
+        if not self._fanout.wants_unchanged:
+            return
+        parsed = keys.parse_robot_key(status.key)
+        if parsed is not None and parsed[1] == "sensor":
+            self._fanout.on_unchanged(parsed[0], parsed[2], status.stamp_ns)
 
     def _on_channel_lost(self, status: MessageLostStatus) -> None:
         self.counters.channel_lost += status.total_count_change

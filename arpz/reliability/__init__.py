@@ -15,6 +15,7 @@ from arpz.reliability.events import (
     MatchedStatus,
     MessageLostStatus,
     ReaderEventCallbacks,
+    UnchangedStatus,
     WriterEventCallbacks,
 )
 from arpz.reliability.qos import (
@@ -66,6 +67,7 @@ __all__ = [
     "ReaderStats",
     "ReliabilityPolicy",
     "SystemClock",
+    "UnchangedStatus",
     "Writer",
     "WriterEventCallbacks",
     "WriterMachine",

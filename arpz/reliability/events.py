@@ -85,6 +85,17 @@ class WriterEventCallbacks:
     message_lost: Callable[[MessageLostStatus], None] | None = None
 
 
+class UnchangedStatus(msgspec.Struct, frozen=True):
+    """A writer proved its topic alive and its last value current without resending it (the
+    robot's local cache held a repeat back): for planners that judge data by its age. arpz
+    addition, no ROS 2 equivalent."""
+
+    total_count: int
+    key: str
+    writer: str
+    stamp_ns: int
+
+
 @dataclass(frozen=True, kw_only=True)
 class ReaderEventCallbacks:
     deadline: Callable[[DeadlineMissedStatus], None] | None = None
@@ -92,3 +103,4 @@ class ReaderEventCallbacks:
     message_lost: Callable[[MessageLostStatus], None] | None = None
     incompatible_qos: Callable[[IncompatibleQosStatus], None] | None = None
     matched: Callable[[MatchedStatus], None] | None = None
+    unchanged: Callable[[UnchangedStatus], None] | None = None

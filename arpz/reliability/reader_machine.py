@@ -25,6 +25,7 @@ from arpz.reliability.events import (
     LivelinessChangedStatus,
     MatchedStatus,
     MessageLostStatus,
+    UnchangedStatus,
 )
 from arpz.reliability.qos import QosProfile, encode_match_qos, incompatible_policy, rounded
 from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
@@ -452,6 +453,12 @@ class ReaderMachine:
         if hb.flags & wire.HB_UNCHANGED:
             self.unchanged += 1
             p.deadline.reset(now)
+            actions.append(
+                Notify(
+                    "unchanged",
+                    UnchangedStatus(self.unchanged, p.topic, p.hex, self.clock.wall_ns()),
+                )
+            )
         sync = bool(hb.flags & wire.HB_SYNC)
         if not self._reliable:
             if sync:
