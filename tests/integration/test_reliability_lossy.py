@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 
 import pytest
@@ -40,26 +40,30 @@ class LossyLink:
 def lossy_link(loss_pct: float) -> Iterator[LossyLink]:
     """Both directions of the writer's link lose ``loss_pct`` % of datagrams after a clean start."""
     udp, tcp, proxy = free_udp_port(), free_port(), free_udp_port()
-    started = time.monotonic()
-    with (
-        ZenohTransport.open(
-            SessionSettings(mode="router", listen=[f"udp/127.0.0.1:{udp}", f"tcp/127.0.0.1:{tcp}"])
-        ),
-        netem_process(
-            f"udp/127.0.0.1:{proxy}",
-            f"udp/127.0.0.1:{udp}",
-            "--loss",
-            str(loss_pct),
-            "--clean-s",
-            str(CLEAN_S),
-            "--seed",
-            "11",
-        ) as netem,
-        ZenohTransport.open(SessionSettings(connect=[f"udp/127.0.0.1:{proxy}"]), timeout_s=5) as a,
-        ZenohTransport.open(SessionSettings(connect=[f"tcp/127.0.0.1:{tcp}"]), timeout_s=5) as b,
-    ):
-        # the proxy's clock starts after its process did, so allow for the spawn time
-        yield LossyLink(a, b, netem, started + CLEAN_S + 0.5)
+    with ExitStack() as stack:
+        stack.enter_context(
+            ZenohTransport.open(
+                SessionSettings(
+                    mode="router", listen=[f"udp/127.0.0.1:{udp}", f"tcp/127.0.0.1:{tcp}"]
+                )
+            )
+        )
+        netem = stack.enter_context(
+            netem_process(
+                f"udp/127.0.0.1:{proxy}",
+                f"udp/127.0.0.1:{udp}",
+                *("--loss", str(loss_pct), "--clean-s", str(CLEAN_S), "--seed", "11"),
+            )
+        )
+        # the proxy said "ready" after its clock started: loss is on from here + CLEAN_S at most
+        lossy_from = time.monotonic() + CLEAN_S
+        a = stack.enter_context(
+            ZenohTransport.open(SessionSettings(connect=[f"udp/127.0.0.1:{proxy}"]), timeout_s=5)
+        )
+        b = stack.enter_context(
+            ZenohTransport.open(SessionSettings(connect=[f"tcp/127.0.0.1:{tcp}"]), timeout_s=5)
+        )
+        yield LossyLink(a, b, netem, lossy_from)
 
 
 class Sink:
