@@ -78,6 +78,7 @@ class _WriterProxy:
         "hex",
         "highest",
         "lease",
+        "leaving_s",
         "lost",
         "manual",
         "nack_sent_s",
@@ -122,6 +123,8 @@ class _WriterProxy:
         self.detect: list[tuple[int, float]] = []
         self.an_due_s = math.inf
         self.an_count = 0
+        #: the writer's token vanished; the match ends (and losses are counted) at this time
+        self.leaving_s: float | None = None
         #: when the last NACK left, and the smoothed NACK -> resend round trip it measures
         self.nack_sent_s = 0.0
         self.srtt_s = 0.0
@@ -186,9 +189,10 @@ class ReaderMachine:
                     del self._topic_writers[topic]
                     actions.append(TokenChange(self._token(topic), False))
             self._incompatible.discard(guid)
-            p = self.writers.pop(guid, None)
-            if p is not None:
-                self._unmatch(p, now, actions)
+            p = self.writers.get(guid)
+            if p is not None and p.leaving_s is None:
+                # The token's removal can overtake the writer's last samples: let them land.
+                p.leaving_s = now + self.qos.nack_period_s
             return actions
         if guid in self._writer_topics:
             return []
@@ -197,6 +201,9 @@ class ReaderMachine:
         if self._topic_writers[topic] == 1:
             # The writer learns about us (and checks compatibility itself) from this token.
             actions.append(TokenChange(self._token(topic), True))
+        if guid in self.writers:  # the token flapped (a reconnection): the match goes on
+            self.writers[guid].leaving_s = None
+            return actions
         policy = incompatible_policy(mq.as_profile(), self._requested)
         if policy is not None:
             self._incompatible.add(guid)
@@ -579,7 +586,12 @@ class ReaderMachine:
         nothing is declared lost by time (the missing sample may be among them)."""
         now = self.clock.monotonic_s()
         actions: list[Action] = []
+        gone: list[_WriterProxy] = []
         for p in self.writers.values():
+            if p.leaving_s is not None:
+                if now >= p.leaving_s and not backlog:
+                    gone.append(p)
+                continue
             missed = p.deadline.poll(now)
             if missed:
                 self.deadline_missed += missed
@@ -598,6 +610,9 @@ class ReaderMachine:
                     self._give_up(p, now, actions)
             if self._reliable and p.an_due_s <= now:
                 actions.append(self._acknack(p, now))
+        for p in gone:
+            del self.writers[p.guid]
+            self._unmatch(p, now, actions)
         return actions
 
     def _defer_loss(self, p: _WriterProxy, below: int, now: float) -> None:
