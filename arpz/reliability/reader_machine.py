@@ -642,6 +642,7 @@ class ReaderMachine:
             p.an_due_s != math.inf
             or p.buffer
             or p.gone_below is not None
+            or p.leaving_s is not None
             or p.highest >= p.expected
             for p in self.writers.values()
         )
