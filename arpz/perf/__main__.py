@@ -255,6 +255,30 @@ def _receive(
             return
 
 
+def _report(
+    args: argparse.Namespace,
+    rec: Recorder,
+    sent: int | None,
+    lost: int,
+    counters: dict[str, int],
+    t0: float,
+) -> dict[str, Any]:
+    report = build_report(
+        rec,
+        transport=args.transport,
+        key=args.key,
+        size=args.size,
+        rate_hz=args.rate,
+        sent=sent,
+        lost=lost,
+        retransmissions=int(counters.get("retransmitted", 0)),
+        nacks=int(counters.get("nacks", 0)),
+        duration_s=time.monotonic() - t0,
+    )
+    result: dict[str, Any] = msgspec.to_builtins(report)
+    return result
+
+
 def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, Any]:
     rec = Recorder()
 
@@ -274,19 +298,7 @@ def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, An
     finally:
         sub.close()
         marker.close()
-    report = build_report(
-        rec,
-        transport=args.transport,
-        key=args.key,
-        size=args.size,
-        rate_hz=args.rate,
-        sent=marker.count,
-        lost=lost,
-        retransmissions=int(counters.get("retransmitted", 0)),
-        nacks=int(counters.get("nacks", 0)),
-        duration_s=time.monotonic() - t0,
-    )
-    return {**msgspec.to_builtins(report), "channel": counters}
+    return {**_report(args, rec, marker.count, lost, counters, t0), "channel": counters}
 
 
 def run_pong(args: argparse.Namespace) -> dict[str, Any]:
@@ -344,19 +356,7 @@ def run_ping(args: argparse.Namespace) -> dict[str, Any]:
     finally:
         pub.close()
         sub.close()
-    report = build_report(
-        rec,
-        transport=args.transport,
-        key=args.key,
-        size=args.size,
-        rate_hz=args.rate,
-        sent=seq,
-        lost=lost,
-        retransmissions=int(counters.get("retransmitted", 0)),
-        nacks=int(counters.get("nacks", 0)),
-        duration_s=time.monotonic() - t0,
-    )
-    return {**msgspec.to_builtins(report), "round_trip": True}
+    return {**_report(args, rec, seq, lost, counters, t0), "round_trip": True}
 
 
 def run_router(args: argparse.Namespace) -> dict[str, Any]:
