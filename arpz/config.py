@@ -214,6 +214,11 @@ class MissionConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_
 class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    #: other CEDDP routers to join in one Zenoh router mesh (scale-out, docs/deploy.md)
+    connect: list[str] = msgspec.field(default_factory=list)
+    #: the robots this CEDDP ingests and plans for: "*", an id, or a pattern such as "east-$*";
+    #: reports, presence and QoS stay fleet-wide
+    partition: str = "*"
     zenoh_config: str | None = None
     #: the Rerun recording written always; the parent folder is created
     rrd: str = "ceddp.rrd"
@@ -236,6 +241,7 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
 
     def __post_init__(self) -> None:
         keys.check_chunk(self.fleet, what="fleet")
+        keys.check_partition(self.partition)
         if not self.listen:
             raise ValueError("listen must list at least one endpoint, e.g. 'tcp/0.0.0.0:7447'")
         if not 0 <= self.grpc_port <= 65535:

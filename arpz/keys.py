@@ -29,6 +29,20 @@ def check_chunk(name: str, *, what: str) -> str:
     return name
 
 
+_PARTITION = re.compile(r"^(\*|[a-z0-9_\-]*(\$\*[a-z0-9_\-]*)+|[a-z0-9][a-z0-9_\-]*)$")
+
+
+def check_partition(pattern: str) -> str:
+    """A robot-id pattern for one key chunk: "*", an id, or ids with Zenoh's ``$*`` wildcard
+    ("east-$*" = every robot whose id starts with "east-")."""
+    if not _PARTITION.match(pattern):
+        raise KeyError_(
+            f"partition {pattern!r} must be '*', a robot id, or a pattern with '$*' such as "
+            "'east-$*' (lowercase letters, digits, '_' and '-')"
+        )
+    return pattern
+
+
 def fleet_prefix(fleet: str) -> str:
     return f"{ROOT}/{check_chunk(fleet, what='fleet')}"
 
@@ -93,8 +107,8 @@ def ceddp_qos_key(fleet: str) -> str:
 
 
 # Wildcards used by the CEDDP to see the whole fleet.
-def all_sensors(fleet: str) -> str:
-    return f"{fleet_prefix(fleet)}/robot/*/sensor/*"
+def all_sensors(fleet: str, partition: str = "*") -> str:
+    return f"{fleet_prefix(fleet)}/robot/{check_partition(partition)}/sensor/*"
 
 
 def all_presence(fleet: str) -> str:

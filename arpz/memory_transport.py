@@ -9,6 +9,7 @@ integration tests.
 from __future__ import annotations
 
 import queue
+import re
 import threading
 from collections.abc import Callable
 
@@ -22,8 +23,18 @@ from arpz.transport import (
 )
 
 
+def _chunk_matches(pattern: str, chunk: str) -> bool:
+    if pattern == "*" or pattern == chunk:
+        return True
+    if "$*" not in pattern:
+        return False
+    regex = ".*".join(re.escape(part) for part in pattern.split("$*"))
+    return re.fullmatch(regex, chunk) is not None
+
+
 def key_matches(key_expr: str, key: str) -> bool:
-    """Zenoh key-expression matching for ``*`` (one chunk) and ``**`` (zero or more chunks)."""
+    """Zenoh key-expression matching for ``*`` (one chunk), ``**`` (zero or more chunks) and
+    ``$*`` (any part of one chunk)."""
     pattern, chunks = key_expr.split("/"), key.split("/")
 
     def match(i: int, j: int) -> bool:
@@ -33,7 +44,7 @@ def key_matches(key_expr: str, key: str) -> bool:
             return any(match(i + 1, k) for k in range(j, len(chunks) + 1))
         if j == len(chunks):
             return False
-        return (pattern[i] == "*" or pattern[i] == chunks[j]) and match(i + 1, j + 1)
+        return _chunk_matches(pattern[i], chunks[j]) and match(i + 1, j + 1)
 
     return match(0, 0)
 

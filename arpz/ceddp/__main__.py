@@ -75,7 +75,12 @@ def serve(argv: list[str] | None) -> int:
         signal.signal(sig, lambda *_: stop.set())
     try:
         transport = ZenohTransport.open(
-            SessionSettings(mode="router", listen=config.listen, config_file=config.zenoh_config)
+            SessionSettings(
+                mode="router",
+                listen=config.listen,
+                connect=config.connect,
+                config_file=config.zenoh_config,
+            )
         )
     except TransportError as exc:
         print(f"arpz.ceddp: {exc}", file=sys.stderr)

@@ -15,7 +15,10 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import subprocess
+import sys
 import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -104,6 +107,7 @@ class Dashboard:
     ) -> None:
         self.rrd_path = Path(rrd_path)
         self.rrd_path.parent.mkdir(parents=True, exist_ok=True)
+        self.previous = preserve_previous(self.rrd_path)
         self.dropped = 0
         self.logged_rows = 0
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_limit)
@@ -203,6 +207,39 @@ class Dashboard:
         self._thread.join(timeout=30)
         self._rec.flush()
         self._rec.disconnect()
+
+
+def preserve_previous(path: Path) -> Path | None:
+    """Never overwrite an earlier run's recording: move it aside and, if its writer was killed
+    before it could write the footer (SIGKILL, power loss), repair it with ``rerun rrd optimize``
+    so it verifies and opens. Returns where it went, or None if there was none."""
+    if not path.exists():
+        return None
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.localtime(path.stat().st_mtime))
+    kept = path.with_name(f"{path.stem}.{stamp}{path.suffix}")
+    counter = 1
+    while kept.exists():
+        kept = path.with_name(f"{path.stem}.{stamp}-{counter}{path.suffix}")
+        counter += 1
+    path.rename(kept)
+    rerun_cli = [sys.executable, "-m", "rerun", "rrd"]
+    verify = subprocess.run([*rerun_cli, "verify", str(kept)], capture_output=True, timeout=120)
+    if verify.returncode != 0:
+        repaired = kept.with_name(kept.name + ".repairing")
+        fix = subprocess.run(
+            [*rerun_cli, "optimize", str(kept), "-o", str(repaired)],
+            capture_output=True,
+            timeout=600,
+        )
+        if fix.returncode == 0 and repaired.exists():
+            repaired.replace(kept)
+            log.warning("the previous recording had no footer (killed?): repaired as %s", kept)
+        else:
+            repaired.unlink(missing_ok=True)
+            log.error("the previous recording %s is damaged and could not be repaired", kept)
+    else:
+        log.info("the previous recording was kept as %s", kept)
+    return kept
 
 
 def _part(name: str) -> str:

@@ -167,12 +167,12 @@ class CeddpServer:
 
         if self.config.sensor_qos is None:
             self._sensors = self.transport.subscribe_pull(
-                keys.all_sensors(fleet), self.config.ingest_queue_limit
+                keys.all_sensors(fleet, self.config.partition), self.config.ingest_queue_limit
             )
         else:
             self._reader = Reader(
                 self.transport,
-                keys.all_sensors(fleet),
+                keys.all_sensors(fleet, self.config.partition),
                 self.config.sensor_qos,
                 self._on_channel_data,
                 events=ReaderEventCallbacks(
@@ -525,6 +525,7 @@ class CeddpServer:
                 }
         return {
             "fleet": self.config.fleet,
+            "partition": self.config.partition,
             "duration_s": round((time.time_ns() - self._started_ns) / 1e9, 3),
             "robots": robots,
             "hello_relay": asdict(self.hello_relay.counters),
@@ -579,6 +580,7 @@ class CeddpServer:
             # the writer sent before this CEDDP (or its reliable reader) was listening
             "lost": m.lost + tail_lost + m.before_join,
             "out_of_order": m.out_of_order,
+            "writer_changes": m.writer_changes,
             "before_join": m.before_join,
             "decode_errors": m.decode_errors,
             "latency_ms_p50": m.latency_ms.quantile(50),
