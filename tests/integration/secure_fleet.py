@@ -1,4 +1,5 @@
-"""Start a CEDDP and robots with mutual TLS (or TLS + user/password) and access control.
+"""Start a CEDDP and robots with mutual TLS (or TLS + user/password) and access control; measure
+what real processes use.
 
 The certificates and the Zenoh JSON5 files come from ``deploy/tls/make_fleet_certs.py`` run with
 real openssl into the test's temporary folder, so the tests exercise exactly what an operator
@@ -98,3 +99,12 @@ def open_client(endpoint: str, config_file: Path | None, *, timeout_s: float = 5
         ),
         timeout_s=timeout_s,
     )
+
+
+def rss_mb(pid: int) -> float:
+    """Resident memory of a process from /proc (Linux), in MiB: what the soak and abuse tests
+    watch for growth."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise AssertionError(f"no VmRSS for process {pid}")
