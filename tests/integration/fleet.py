@@ -95,12 +95,18 @@ def write_robot(
 
 @contextmanager
 def ceddp(
-    tmp: Path, *, fleet: str = "itest", relay: str | None = None, extra: str = ""
+    tmp: Path,
+    *,
+    fleet: str = "itest",
+    relay: str | None = None,
+    extra: str = "",
+    also_listen: tuple[str, ...] = (),
 ) -> Iterator[tuple[Process, str]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    listen = ", ".join(f'"{e}"' for e in (endpoint, *also_listen))
     config = tmp / "ceddp.toml"
     config.write_text(
-        f'fleet = "{fleet}"\nlisten = ["{endpoint}"]\nrrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
+        f'fleet = "{fleet}"\nlisten = [{listen}]\nrrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
         f'summary_json = "{(tmp / "summary.json").as_posix()}"\nmetrics_period_s = 0.2\n{extra}'
         + (f'[hello]\nrelay = "{relay}"\n' if relay else "")
     )
