@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import itertools
+import math
 import os
 import sys
 import time
@@ -430,6 +431,144 @@ def _canonical_members(problem: Problem, u: int) -> list[int]:
     return sorted(problem.units[u], key=lambda n: (problem.weight[n], problem.options[n]))
 
 
+#: a class of identical computers is modelled by its packing patterns when it has at most this
+#: many (else by per-computer counts)
+PATTERN_LIMIT = 20_000
+#: ... and when its capacity is at most this many grid steps
+PATTERN_MAX_STEPS = 5_000
+
+
+@dataclass
+class _PatternClass:
+    """Identical computers modelled by how many of them use each packing pattern. A pattern is
+    a count of units per type; its value is the best choice of settings for those units, by a
+    knapsack over integer CPU, so the computers' permutations disappear from the MILP."""
+
+    computers: list[int]
+    types: list[int]
+    patterns: list[tuple[int, ...]]
+    values: list[float]
+    scale: int
+    steps: int
+    x_vars: list[int] = field(default_factory=list)
+
+
+def _unit_items(
+    problem: Problem, u: int, scale: int, maximise: bool
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    items = []
+    for n in _canonical_members(problem, u):
+        opts = problem.options[n]
+        cpu = np.array([round(c * scale) for c, _ in opts], dtype=np.int64)
+        value = np.array([problem.weight[n] * p if maximise else 0.0 for _, p in opts])
+        items.append((cpu, value))
+    return items
+
+
+def _knap_add(table: np.ndarray, cpu: np.ndarray, value: np.ndarray) -> np.ndarray:
+    out = np.full_like(table, _NEG)
+    size = len(table)
+    for u, v in zip(cpu.tolist(), value.tolist(), strict=True):
+        if u < size:
+            np.maximum(out[u:], table[: size - u] + v, out=out[u:])
+    return out
+
+
+_NEG = -1e18
+
+
+def _grid_scale(values: list[float]) -> int | None:
+    for scale in (1, 10, 100):
+        if all(abs(v * scale - round(v * scale)) < 1e-9 for v in values):
+            return scale
+    return None
+
+
+def _pattern_class(
+    problem: Problem,
+    comps: list[int],
+    types: list[int],
+    type_units: list[list[int]],
+    free: float,
+    maximise: bool,
+) -> _PatternClass | None:
+    """Enumerate the packing patterns of a class, or None when it has too many."""
+    cpus = [
+        c for t in types for n in problem.units[type_units[t][0]] for c, _ in problem.options[n]
+    ]
+    scale = _grid_scale([*cpus, free])
+    if scale is None or free * scale > PATTERN_MAX_STEPS:
+        return None
+    steps = round(free * scale)
+    unit_items = [_unit_items(problem, type_units[t][0], scale, maximise) for t in types]
+    bounds = []
+    for t, items in zip(types, unit_items, strict=True):
+        smallest = sum(int(cpu.min()) for cpu, _ in items)
+        fit = len(type_units[t]) if smallest == 0 else steps // smallest
+        bounds.append(min(len(type_units[t]), fit))
+    if math.prod(b + 1 for b in bounds) > 50 * PATTERN_LIMIT:
+        return None  # certainly too many: do not spend time enumerating
+    patterns: list[tuple[int, ...]] = []
+    values: list[float] = []
+    counts = [0] * len(types)
+
+    def walk(i: int, table: np.ndarray) -> bool:
+        if i == len(types):
+            patterns.append(tuple(counts))
+            values.append(float(table[steps]))
+            return len(patterns) <= PATTERN_LIMIT
+        for n in range(bounds[i] + 1):
+            counts[i] = n
+            if n > 0:
+                for cpu, value in unit_items[i]:
+                    table = _knap_add(table, cpu, value)
+                if table[steps] < _NEG / 2:
+                    break
+            if not walk(i + 1, table):
+                return False
+        counts[i] = 0
+        return True
+
+    if not walk(0, np.zeros(steps + 1)):
+        return None
+    return _PatternClass(comps, types, patterns, values, scale, steps)
+
+
+def _pattern_levels(
+    problem: Problem,
+    cls: _PatternClass,
+    pattern: tuple[int, ...],
+    type_units: list[list[int]],
+    maximise: bool,
+) -> dict[int, list[list[int]]]:
+    """Best settings for one pattern: per type, per member, the list of levels of its units."""
+    items: list[tuple[int, int, np.ndarray, np.ndarray]] = []
+    for t, count in zip(cls.types, pattern, strict=True):
+        unit = _unit_items(problem, type_units[t][0], cls.scale, maximise)
+        for _ in range(count):
+            for j, (cpu, value) in enumerate(unit):
+                items.append((t, j, cpu, value))
+    tables = [np.zeros(cls.steps + 1)]
+    for _, _, cpu, value in items:
+        tables.append(_knap_add(tables[-1], cpu, value))
+    x = cls.steps
+    chosen: dict[int, list[list[int]]] = {
+        t: [[] for _ in _unit_items(problem, type_units[t][0], cls.scale, maximise)]
+        for t in cls.types
+    }
+    for i in range(len(items) - 1, -1, -1):
+        t, j, cpu, value = items[i]
+        target = tables[i + 1][x]
+        for k, (u, v) in enumerate(zip(cpu.tolist(), value.tolist(), strict=True)):
+            if u <= x and abs(tables[i][x - u] + v - target) <= 1e-9 * max(1.0, abs(target)):
+                chosen[t][j].append(k)
+                x -= u
+                break
+        else:  # pragma: no cover - the table was built from these items
+            raise AssertionError("knapsack backtrack failed")
+    return chosen
+
+
 def _aggregated(
     problem: Problem,
     time_limit_s: float,
@@ -450,34 +589,72 @@ def _aggregated(
     sig_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
     rng = np.random.default_rng(12345)
     unique_comp = [False] * n_comp
+    pinned = [False] * len(type_units)
+    type_allowed: list[tuple[int, ...]] = []
+    for t, units in enumerate(type_units):
+        members = _canonical_members(problem, units[0])
+        allowed = problem.unit_allowed[units[0]]
+        type_allowed.append(allowed)
+        multi = any(len(problem.options[n]) > 1 for n in members)
+        if len(allowed) == 1 and not multi:
+            pinned[t] = True
+            for n in members:
+                cpu, perf = problem.options[n][0]
+                fixed_load[allowed[0]] += len(units) * cpu
+                constant += len(units) * problem.weight[n] * perf if maximise else 0.0
+        elif len(allowed) == 1:
+            unique_comp[allowed[0]] = True
+    for c in range(n_comp):
+        if not problem.growable(c) and problem.capacity[c] - fixed_load[c] < -1e-9:
+            return _Answer(
+                "infeasible",
+                message=f"the nodes pinned to {problem.computers[c]} exceed its capacity",
+            )
+
+    # Classes of identical computers: same kind, capacity, pinned load and allowed types.
+    classes: dict[tuple[bool, bool, float, float, tuple[int, ...]], list[int]] = defaultdict(list)
+    for c in range(n_comp):
+        if unique_comp[c]:
+            continue
+        member_of = tuple(
+            t for t, allowed in enumerate(type_allowed) if c in allowed and not pinned[t]
+        )
+        key = (
+            problem.is_server[c],
+            problem.growable(c),
+            round(problem.capacity[c], 9) if not problem.growable(c) else 0.0,
+            round(fixed_load[c], 9),
+            member_of,
+        )
+        classes[key].append(c)
+    pattern_classes: list[_PatternClass] = []
+    for key, comps in classes.items():
+        if key[1] or not key[4]:  # growable (Problem 2 servers) or nothing to place
+            continue
+        free = problem.capacity[comps[0]] - fixed_load[comps[0]]
+        cls = _pattern_class(problem, comps, list(key[4]), type_units, free, maximise)
+        if cls is not None:
+            pattern_classes.append(cls)
+    in_pattern = {c for cls in pattern_classes for c in cls.computers}
+
     # per type: g[c] var, per member j: {c: {k: var}} (empty when the member has one setting)
     g_vars: list[dict[int, int]] = []
     z_vars: list[list[dict[int, dict[int, int]]]] = []
-    type_allowed: list[tuple[int, ...]] = []
-    for units in type_units:
-        rep = units[0]
-        members = _canonical_members(problem, rep)
-        allowed = problem.unit_allowed[rep]
-        type_allowed.append(allowed)
+    count_rows: list[dict[int, float]] = []
+    for t, units in enumerate(type_units):
+        members = _canonical_members(problem, units[0])
         count = len(units)
-        multi = any(len(problem.options[n]) > 1 for n in members)
-        if len(allowed) == 1 and not multi:
-            c = allowed[0]
+        if pinned[t]:
             g_vars.append({})
             z_vars.append([{} for _ in members])
-            for n in members:
-                cpu, perf = problem.options[n][0]
-                fixed_load[c] += count * cpu
-                constant += count * problem.weight[n] * perf if maximise else 0.0
+            count_rows.append({})
             continue
-        if len(allowed) == 1:
-            unique_comp[allowed[0]] = True
-        g = {c: lp.var(0, count, integer=True) for c in allowed}
+        g = {c: lp.var(0, count, integer=True) for c in type_allowed[t] if c not in in_pattern}
         g_vars.append(g)
+        count_rows.append({v: 1.0 for v in g.values()})
         coef_g = float(rng.uniform(1.0, 2.0))
         for c, gv in g.items():
             sig_terms[c][gv] += coef_g
-        lp.eq.append(({v: 1.0 for v in g.values()}, float(count)))
         per_member: list[dict[int, dict[int, int]]] = []
         for n in members:
             opts = problem.options[n]
@@ -504,6 +681,19 @@ def _aggregated(
                 lp.eq.append((row, 0.0))
             per_member.append(zs)
         z_vars.append(per_member)
+    for cls in pattern_classes:
+        size = len(cls.computers)
+        cls.x_vars = [
+            lp.var(0, size, integer=True, obj=value if maximise else 0.0) for value in cls.values
+        ]
+        lp.eq.append(({v: 1.0 for v in cls.x_vars}, float(size)))
+        for i, t in enumerate(cls.types):
+            for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
+                if pattern[i]:
+                    count_rows[t][xv] = count_rows[t].get(xv, 0.0) + pattern[i]
+    for t, row in enumerate(count_rows):
+        if not pinned[t]:
+            lp.eq.append((row, float(len(type_units[t]))))
 
     for c in range(n_comp):
         if problem.growable(c):
@@ -512,32 +702,14 @@ def _aggregated(
                     lp.obj[var] += coef
                 constant += fixed_load[c]
             continue
-        free = problem.capacity[c] - fixed_load[c]
-        if free < -1e-9:
-            return _Answer(
-                "infeasible",
-                message=f"the nodes pinned to {problem.computers[c]} exceed its capacity",
-            )
         if load_terms[c]:
-            lp.ub.append((dict(load_terms[c]), free))
+            lp.ub.append((dict(load_terms[c]), problem.capacity[c] - fixed_load[c]))
 
-    # Symmetry breaking: order identical computers by load.
-    classes: dict[tuple[object, ...], list[int]] = defaultdict(list)
-    for c in range(n_comp):
-        if unique_comp[c]:
-            continue
-        member_of = tuple(t for t, allowed in enumerate(type_allowed) if c in allowed and g_vars[t])
-        key = (
-            problem.is_server[c],
-            problem.growable(c),
-            round(problem.capacity[c], 9) if not problem.growable(c) else 0.0,
-            round(fixed_load[c], 9),
-            member_of,
-        )
-        classes[key].append(c)
+    # Optional explicit symmetry breaking among identical computers left outside patterns.
     order_by = load_terms if _SYMMETRY == "load" else sig_terms
     for comps in classes.values() if _SYMMETRY != "none" else []:
-        for a, b in itertools.pairwise(comps):
+        rest = [c for c in comps if c not in in_pattern]
+        for a, b in itertools.pairwise(rest):
             row = defaultdict(float)
             for var, coef in order_by[b].items():
                 row[var] += coef
@@ -553,7 +725,7 @@ def _aggregated(
         message = ""
     else:
         initial = None
-        if incumbent is not None and _SYMMETRY == "none":
+        if incumbent is not None and _SYMMETRY == "none" and not pattern_classes:
             initial = _counts_of(problem, incumbent, type_units, g_vars, z_vars, len(lp.obj))
         status, x, bound, message = lp.solve(
             maximise=maximise, time_limit_s=time_limit_s, initial=initial, backend=backend
@@ -576,6 +748,21 @@ def _aggregated(
                 by_comp[c] = pool
             member_levels.append(by_comp)
         levels.append(member_levels)
+    for cls in pattern_classes:
+        free_comps = list(cls.computers)
+        for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
+            for _ in range(round(values[xv])):
+                c = free_comps.pop(0)
+                chosen = _pattern_levels(problem, cls, pattern, type_units, maximise)
+                for i, t in enumerate(cls.types):
+                    if pattern[i]:
+                        counts[t][c] = pattern[i]
+                    for j, pool in enumerate(chosen[t]):
+                        if pool:
+                            levels[t][j][c] = pool
+    for t in range(len(type_units)):
+        if pinned[t]:
+            counts[t] = {type_allowed[t][0]: len(type_units[t])}
     computer, level = _disaggregate(problem, type_units, counts, levels)
     objective = _objective(problem, computer, level)
     if status == "optimal":
