@@ -32,18 +32,21 @@ class TopicMetrics:
     received: int = 0
     bytes: int = 0
     decode_errors: int = 0
-    #: samples missing from the sequence (gaps) of the current writer
+    #: samples missing from the sequence (gaps) of each writer
     lost: int = 0
     #: samples that arrived with a sequence number already passed (duplicate or reordered)
     out_of_order: int = 0
     #: samples a writer had sent before this CEDDP first heard it (not yet matched, or the CEDDP
     #: started late): never received, so the summary counts them in ``lost``
     before_join: int = 0
-    #: a new writer incarnation took over the topic (robot restarted)
+    #: writers seen on the topic beyond the first (a restarted robot is a new incarnation)
     writer_changes: int = 0
+    #: the sequence state of the writer of the last sample (the hot path compares only this);
+    #: other writers' states wait in ``others`` (many writers to one topic is legitimate)
     writer: str = ""
     next_seq: int = 0
     highest_seq: int = 0
+    others: dict[str, tuple[int, int]] = field(default_factory=dict)
     latency_ms: Distribution = field(default_factory=Distribution)
     cache: CacheSlot = field(default_factory=CacheSlot)
 
@@ -159,13 +162,19 @@ class Ingest:
         metrics.bytes += size
         metrics.latency_ms.add((arrival_ns - stamp_ns) / 1e6)
         if writer != metrics.writer:
-            if metrics.writer:
-                metrics.writer_changes += 1
+            previous = metrics.writer
+            if previous:
+                metrics.others[previous] = (metrics.next_seq, metrics.highest_seq)
+            known = metrics.others.pop(writer, None)
             metrics.writer = writer
-            metrics.before_join += max(seq - 1, 0)
-            metrics.next_seq = seq + 1
-            metrics.highest_seq = seq
-            return
+            if known is None:
+                if previous:
+                    metrics.writer_changes += 1
+                metrics.before_join += max(seq - 1, 0)
+                metrics.next_seq = seq + 1
+                metrics.highest_seq = seq
+                return
+            metrics.next_seq, metrics.highest_seq = known
         if seq == metrics.next_seq:
             metrics.next_seq += 1
             metrics.highest_seq = max(metrics.highest_seq, seq)
@@ -180,6 +189,13 @@ class Ingest:
         else:
             metrics.out_of_order += 1
         metrics.highest_seq = max(metrics.highest_seq, seq)
+
+    @staticmethod
+    def highest_seq(metrics: TopicMetrics, writer: str) -> int:
+        """The highest seq received from ``writer`` on this topic (0: none)."""
+        if writer == metrics.writer:
+            return metrics.highest_seq
+        return metrics.others.get(writer, (0, 0))[1]
 
     def cache_counters(self, robot: str, topic: str) -> CacheControlCounters:
         return self.cache_control.counters.get((robot, topic), CacheControlCounters())

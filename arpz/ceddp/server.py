@@ -557,14 +557,10 @@ class CeddpServer:
         cc = self.ingest.cache_counters(m.robot, m.topic)
         counters = stats.topics.get(m.topic) if stats else None
         tail_lost = 0
-        if (
-            stats is not None
-            and stats.final
-            and counters is not None
-            and m.writer.endswith(stats.incarnation)
-        ):
+        if stats is not None and stats.final and counters is not None:
             # samples sent after the last one that arrived: invisible as a gap, but lost
-            tail_lost = max(counters.last_seq - m.highest_seq, 0)
+            last = Ingest.highest_seq(m, writer_id(m.robot, stats.incarnation))
+            tail_lost = max(counters.last_seq - last, 0)
         return {
             "produced": counters.produced if counters else 0,
             "sent": counters.sent if counters else 0,

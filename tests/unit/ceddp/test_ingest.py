@@ -41,6 +41,17 @@ def test_a_new_writer_is_a_new_stream_and_a_late_join_is_not_loss() -> None:
     assert (m.lost, m.before_join, m.writer_changes, m.received) == (0, 9, 1, 5)
 
 
+def test_two_writers_on_one_topic_keep_their_own_sequences() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=False))
+    for seq in (1, 2, 3):
+        feed(ingest, KEY, [seq], writer="r1:a")
+        feed(ingest, KEY, [seq], writer="r1:b")
+    feed(ingest, KEY, [5], writer="r1:a")  # one lost from writer a
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.lost, m.before_join, m.writer_changes) == (7, 1, 0, 1)
+    assert Ingest.highest_seq(m, "r1:a") == 5 and Ingest.highest_seq(m, "r1:b") == 3
+
+
 def test_cache_control_sits_between_ingest_and_planner() -> None:
     planner = Collect()
     ingest = Ingest("f", planner, CacheControl())
