@@ -19,8 +19,8 @@ class Reader(Endpoint):
     reader's worker thread, in seq order per writer, never twice for one sample.
 
     ``inline_delivery=True`` trades that guarantee for latency: samples are processed and
-    ``on_data`` runs on the transport's thread (no thread hop: about 1.0x raw Zenoh round trip
-    instead of about 1.3-1.4x, see benchmarks/RESULTS.reliability.md). Only for callbacks that
+    ``on_data`` runs on the transport's thread (no thread hop: 1.0-1.2x raw Zenoh round trip
+    instead of 1.2-1.45x, see benchmarks/RESULTS.reliability.md). Only for callbacks that
     return quickly; timers and events still run on the worker thread."""
 
     def __init__(
