@@ -1,18 +1,20 @@
 """Exact solution of Problems 1 and 2 as mixed-integer linear programs (CVXPY + HiGHS).
 
 Robots of a fleet are interchangeable, and a MILP over "node n at setting k on computer c"
-explores every permutation of them. So the model is solved in two steps:
+explores every permutation of them. So the model is solved in steps:
 
-1. An aggregated MILP that counts, for every *type* of coresidence unit (units with the same
-   settings, weights and allowed computers), how many of them run on each computer and at which
-   setting. Messages are left out, so it is a relaxation: its optimum bounds the true one.
-   Computers that are identical for it (same kind, capacity, pinned load and allowed types) are
-   ordered by load, which removes their permutations.
+1. An aggregated MILP over *types* of coresidence units (units with the same settings, weights
+   and allowed computers). Identical computers (same kind, capacity, pinned load and allowed
+   types) are modelled by packing patterns: how many computers of the class hold each count
+   vector of unit types, worth the best settings a knapsack finds for it, so their permutations
+   disappear. Computers with too many patterns (big servers) count units per type and setting
+   instead. Messages are left out, so it is a relaxation: its optimum bounds the true one.
 2. The counts are turned back into named nodes, putting each unit where its message partners
    already are, then swapping units of one type (which changes no load and no objective) to
    relieve overloaded links. If the independent checker accepts the result it is optimal,
-   because it reaches the relaxation's bound. Otherwise a full MILP with link constraints runs
-   for the rest of the time limit, and the aggregated bound is kept to report the gap.
+   because it reaches the relaxation's bound.
+3. Otherwise the improved heuristic, and a full MILP with link constraints when it is small
+   enough, look for the best placement the links carry; the aggregated bound gives the gap.
 """
 
 from __future__ import annotations
