@@ -1,0 +1,79 @@
+"""``python -m arpz.experiment run SPEC.toml|PRESET --out DIR`` and ``report DIR``.
+
+``run`` runs every cell not yet in DIR/results.csv (a rerun resumes), then writes the report;
+``report`` rebuilds the figures and REPORT.md from results.csv alone, so results can be
+re-plotted, merged or shared without rerunning anything.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from arpz.experiment.presets import PRESETS
+from arpz.experiment.spec import ExperimentSpec, SpecError, load_spec
+
+#: exit code of a run stopped by Ctrl-C / SIGTERM (finished cells are written)
+INTERRUPTED = 130
+
+
+def resolve_spec(name: str) -> ExperimentSpec:
+    """A preset name, or a TOML file."""
+    if name in PRESETS:
+        return PRESETS[name]()
+    if not name.endswith(".toml") and not Path(name).exists():
+        raise SpecError(f"{name}: neither a preset ({', '.join(sorted(PRESETS))}) nor a spec file")
+    return load_spec(name)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m arpz.experiment", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="run a grid (resumable) and write results and figures")
+    run.add_argument("spec", help=f"a spec TOML file or a preset: {', '.join(sorted(PRESETS))}")
+    run.add_argument("--out", type=Path, required=True, help="results directory")
+    run.add_argument("--keep-logs", action="store_true", help="keep every process log")
+    run.add_argument("--list", action="store_true", help="only list the cells, run nothing")
+    rep = sub.add_parser("report", help="rebuild figures and REPORT.md from DIR/results.csv")
+    rep.add_argument("dir", type=Path)
+    rep.add_argument("--figures", type=Path, help="where the PNGs go (default: DIR/figures)")
+    args = parser.parse_args(argv)
+    from arpz.experiment.report import ReportError, write_report
+
+    if args.command == "report":
+        try:
+            paths = write_report(args.dir, figures=args.figures)
+        except ReportError as exc:
+            print(f"report: {exc}", file=sys.stderr)
+            return 2
+        for path in paths:
+            print(path)
+        return 0
+    try:
+        spec = resolve_spec(args.spec)
+    except SpecError as exc:
+        print(f"experiment: {exc}", file=sys.stderr)
+        return 2
+    if args.list:
+        for cell in spec.cells():
+            print(cell.label)
+        return 0
+    from arpz.experiment.runner import Interrupted, run_experiment
+
+    try:
+        run_experiment(spec, args.out, keep_logs=args.keep_logs)
+    except Interrupted as exc:
+        print(f"experiment: {exc}", file=sys.stderr)
+        return INTERRUPTED
+    try:
+        paths = write_report(args.out)
+    except ReportError as exc:
+        print(f"report: {exc}", file=sys.stderr)
+        return 1
+    print(f"report: {args.out / 'REPORT.md'} and {len(paths) - 1} figures", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,65 @@
+"""The built-in specs: seed 001's two studies, and a small grid for the test suite.
+
+Cell durations and repeats are chosen so a full grid finishes in well under an hour on a
+2-core machine (EXPERIMENTS.md gives the measured runtimes); raise ``duration_s`` and
+``repeats`` in a copy of the spec for tighter numbers.
+"""
+
+from __future__ import annotations
+
+from arpz.experiment.spec import ExperimentSpec, MissionSpec
+
+PAPER_RMAX = [100.0, 200.0, 500.0, 1000.0]
+PAPER_DEPTHS = [1, 5, 10, 100, 1000, 5000]
+
+
+def paper_machines() -> ExperimentSpec:
+    """Figures 10 and 11: Hello latency and loss of machines 1-3 over a bad WiFi link."""
+    return ExperimentSpec(
+        name="paper-machines",
+        description="seed 001 section 3.1, Figures 10-11: the Hello round trip and every "
+        "sensor sample of machines 1-3, RELIABLE + KEEP_LAST, over an emulated bad 2.4 GHz link",
+        rmax_hz=PAPER_RMAX,
+        depths=PAPER_DEPTHS,
+        configs=["baseline", "lc", "cc", "opt", "lc+opt", "lc+cc+opt"],
+        networks=["wifi-bad"],
+        duration_s=5.0,
+        repeats=1,
+    )
+
+
+def paper_simulation() -> ExperimentSpec:
+    """Figure 16: the hallway mission of three simulated robots, per Rmax and configuration."""
+    return ExperimentSpec(
+        name="paper-simulation",
+        description="seed 001 section 3.2, Figure 16: the hallway mission (8 LIDAR beams per "
+        "robot, planned on the CEDDP), RELIABLE + KEEP_LAST, over an emulated bad 2.4 GHz link",
+        rmax_hz=PAPER_RMAX,
+        depths=[1, 1000],
+        configs=["baseline", "lc", "opt", "lc+opt"],
+        networks=["wifi-bad"],
+        mission=MissionSpec(world="hallway_small", time_limit_s=60.0),
+        repeats=1,
+    )
+
+
+def quick() -> ExperimentSpec:
+    """A few cells that show both ends in under 3 minutes: no loss on a clean link with a deep
+    history, loss with depth 1 at a high rate over a lossy one, and OPT."""
+    return ExperimentSpec(
+        name="quick",
+        description="test-suite grid: lan vs wifi-bad, depth 1 vs 1000, baseline vs LC + OPT",
+        rmax_hz=[1000.0],
+        depths=[1, 1000],
+        configs=["baseline", "lc+opt"],
+        networks=["lan", "wifi-bad"],
+        duration_s=4.0,
+        repeats=1,
+    )
+
+
+PRESETS = {
+    "paper-machines": paper_machines,
+    "paper-simulation": paper_simulation,
+    "quick": quick,
+}

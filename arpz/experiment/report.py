@@ -1,0 +1,309 @@
+"""Figures and REPORT.md from results.csv alone (``python -m arpz.experiment report DIR``).
+
+The figures follow seed 001's bar charts: one panel per Rmax, DEPTH groups on the x axis
+(1 ... 5000, then Opt(D)), one bar per configuration. Repeats are averaged (mission success is
+the share of successful repeats). Nothing here reruns or reads anything but the CSV, so results
+can be re-plotted, merged from several machines, or checked by a reviewer.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+from matplotlib.axes import Axes
+
+from arpz.experiment.results import read_rows
+from arpz.experiment.spec import FEATURES, OPT_DEPTH, config_label
+
+Row = dict[str, str]
+
+
+class ReportError(Exception):
+    """No results to report (or an unreadable results.csv)."""
+
+
+@dataclass(frozen=True)
+class Metric:
+    key: str
+    title: str
+    unit: str
+    value: Callable[[Sequence[Row]], float | None]
+    log: bool = False
+
+
+def _floats(rows: Sequence[Row], column: str) -> list[float]:
+    return [float(r[column]) for r in rows if r.get(column) not in (None, "")]
+
+
+def _mean(column: str) -> Callable[[Sequence[Row]], float | None]:
+    def value(rows: Sequence[Row]) -> float | None:
+        values = _floats(rows, column)
+        return statistics.fmean(values) if values else None
+
+    return value
+
+
+def _success(rows: Sequence[Row]) -> float | None:
+    verdicts = [r["mission"] for r in rows if r.get("mission")]
+    if not verdicts:
+        return None
+    return 100.0 * sum(v == "success" for v in verdicts) / len(verdicts)
+
+
+METRICS: tuple[Metric, ...] = (
+    Metric("latency", "Hello round-trip latency (p50)", "ms", _mean("latency_ms_p50"), log=True),
+    Metric("loss", "Hello packet loss", "%", _mean("loss_pct")),
+    Metric(
+        "sample_latency",
+        "sensor sample latency (p50, worst robot)",
+        "ms",
+        _mean("sample_latency_ms_p50"),
+        log=True,
+    ),
+    Metric("sample_loss", "sensor sample loss", "%", _mean("sample_loss_pct")),
+    Metric("mission", "mission success", "%", _success),
+)
+
+
+def _depth_order(depth: str) -> tuple[int, int]:
+    return (1, 0) if depth == OPT_DEPTH else (0, int(depth))
+
+
+def _depth_label(depth: str) -> str:
+    return "Opt(D)" if depth == OPT_DEPTH else depth
+
+
+def _config_order(config: str) -> tuple[int, int, str]:
+    parts = config.split("+")
+    return (
+        "opt" in parts,
+        len(parts) if config != "baseline" else 0,
+        "".join(str(FEATURES.index(p)) for p in parts if p in FEATURES),
+    )
+
+
+def _rate_key(rate: str) -> float:
+    return float(rate)
+
+
+def _grouped(rows: Sequence[Row]) -> dict[tuple[str, str, str, str], list[Row]]:
+    """(network, rmax, depth, config) -> the repeats of that cell."""
+    groups: dict[tuple[str, str, str, str], list[Row]] = defaultdict(list)
+    for row in rows:
+        groups[(row["network"], row["rmax_hz"], row["depth"], row["config"])].append(row)
+    return groups
+
+
+def _bar_panel(
+    ax: Axes,
+    metric: Metric,
+    groups: dict[tuple[str, str, str, str], list[Row]],
+    network: str,
+    rmax: str,
+    configs: list[str],
+    depths: list[str],
+) -> bool:
+    """One of seed 001's panels: DEPTH groups, a bar per configuration. False if no data."""
+    colours = plt.get_cmap("tab10")
+    width = 0.8 / max(len(configs), 1)
+    drew = False
+    labels_done: set[str] = set()
+    for ci, config in enumerate(configs):
+        for di, depth in enumerate(depths):
+            cell = groups.get((network, rmax, depth, config))
+            value = metric.value(cell) if cell else None
+            if value is None:
+                continue
+            shown = max(value, 1e-3) if metric.log else value
+            ax.bar(
+                di + (ci - (len(configs) - 1) / 2) * width,
+                shown,
+                width,
+                color=colours(ci % 10),
+                label=None if config in labels_done else config_label(config),
+            )
+            labels_done.add(config)
+            drew = True
+    ax.set_xticks(range(len(depths)), [_depth_label(d) for d in depths])
+    ax.set_xlabel("DEPTH")
+    ax.set_ylabel(f"{metric.title} ({metric.unit})")
+    ax.set_title(f"Rmax = {rmax} Hz")
+    if metric.log and drew:
+        ax.set_yscale("log")
+    if metric.key == "mission" or metric.unit == "%":
+        ax.set_ylim(0, 105 if metric.key == "mission" else None)
+    ax.grid(axis="y", alpha=0.3)
+    return drew
+
+
+def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
+    """Per metric and network: one PNG per Rmax and one with every Rmax as panels (a)-(d)."""
+    figures.mkdir(parents=True, exist_ok=True)
+    groups = _grouped(rows)
+    networks = sorted({r["network"] for r in rows})
+    rates = sorted({r["rmax_hz"] for r in rows}, key=_rate_key)
+    configs = sorted({r["config"] for r in rows}, key=_config_order)
+    depths = sorted({r["depth"] for r in rows}, key=_depth_order)
+    written: list[Path] = []
+    for metric in METRICS:
+        for network in networks:
+            suffix = f"_{network}" if len(networks) > 1 else ""
+            if all(metric.value(g) is None for (n, *_), g in groups.items() if n == network):
+                continue
+            cols = min(len(rates), 2)
+            nrows = math.ceil(len(rates) / cols)
+            fig, axes = plt.subplots(nrows, cols, figsize=(6.5 * cols, 4.2 * nrows), squeeze=False)
+            for index, rmax in enumerate(rates):
+                ax = axes[index // cols][index % cols]
+                _bar_panel(ax, metric, groups, network, rmax, configs, depths)
+                ax.set_title(f"({chr(ord('a') + index)}) Rmax = {rmax} Hz")
+            for index in range(len(rates), nrows * cols):
+                axes[index // cols][index % cols].set_visible(False)
+            handles, labels = axes[0][0].get_legend_handles_labels()
+            for ax in axes.flat:
+                h, lab = ax.get_legend_handles_labels()
+                for handle, label in zip(h, lab, strict=True):
+                    if label not in labels:
+                        handles.append(handle)
+                        labels.append(label)
+            fig.legend(handles, labels, loc="upper center", ncol=min(len(labels), 7))
+            fig.suptitle(f"{metric.title}, network {network}", y=0.995)
+            fig.tight_layout(rect=(0, 0, 1, 0.93))
+            path = figures / f"experiment_{metric.key}{suffix}.png"
+            fig.savefig(path, dpi=100)
+            plt.close(fig)
+            written.append(path)
+            for rmax in rates:
+                fig, ax = plt.subplots(figsize=(7.5, 4.2))
+                if _bar_panel(ax, metric, groups, network, rmax, configs, depths):
+                    ax.legend(fontsize="small")
+                    fig.tight_layout()
+                    path = figures / f"experiment_{metric.key}_r{rmax}{suffix}.png"
+                    fig.savefig(path, dpi=90)
+                    written.append(path)
+                plt.close(fig)
+    return written
+
+
+def _fmt(value: float | None, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    return f"{value:.{digits}g}"
+
+
+def consistency(rows: Sequence[Row]) -> list[str]:
+    """Counts that must add up in every ok row: produced = sent + held back + write failures,
+    sent = received + lost, Hello sent = received + lost."""
+    problems = []
+    for row in rows:
+        if row["status"] != "ok":
+            continue
+        n = {k: int(row[k] or 0) for k in row if k.startswith(("samples_", "hello_"))}
+        where = f"Rmax {row['rmax_hz']} depth {row['depth']} {row['config']} {row['network']}"
+        if n["samples_produced"] != (
+            n["samples_sent"] + n["samples_held_back"] + n["samples_write_failures"]
+        ):
+            problems.append(f"{where}: produced != sent + held back + write failures")
+        if n["samples_sent"] != n["samples_received"] + n["samples_lost"]:
+            problems.append(f"{where}: sent != received + lost")
+        if row["hello_sent"] and n["hello_sent"] != n["hello_received"] + n["hello_lost"]:
+            problems.append(f"{where}: Hello sent != received + lost")
+    return problems
+
+
+def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
+    ok = [r for r in rows if r["status"] == "ok"]
+    errors = [r for r in rows if r["status"] != "ok"]
+    groups = _grouped(ok)
+    experiments = sorted({r["experiment"] for r in rows})
+    wall = sum(float(r["wall_s"] or 0) for r in rows)
+    lines = [
+        f"# Experiment report: {', '.join(experiments)}",
+        "",
+        f"{len(ok)} cells ok, {len(errors)} failed to run; total run time "
+        f"{wall / 60:.1f} min (sum of cell wall times). Each table cell is the mean over "
+        "repeats; latency is the Hello round trip p50 (ms), loss the Hello loss (%), "
+        "samples the sensor sample loss (%); mission is the share of successful repeats.",
+        "",
+    ]
+    has_hello = any(r["hello_sent"] for r in ok)
+    has_mission = any(r["mission"] for r in ok)
+    for network in sorted({r["network"] for r in ok}):
+        for rmax in sorted({r["rmax_hz"] for r in ok if r["network"] == network}, key=_rate_key):
+            sub = [r for r in ok if r["network"] == network and r["rmax_hz"] == rmax]
+            configs = sorted({r["config"] for r in sub}, key=_config_order)
+            depths = sorted({r["depth"] for r in sub}, key=_depth_order)
+            lines += [f"## Rmax = {rmax} Hz, network {network}", ""]
+            head = "| DEPTH | " + " | ".join(config_label(c) for c in configs) + " |"
+            lines += [head, "|---|" + "---|" * len(configs)]
+            for depth in depths:
+                cells = []
+                for config in configs:
+                    g = groups.get((network, rmax, depth, config))
+                    if not g:
+                        cells.append("")
+                        continue
+                    parts = []
+                    if has_hello:
+                        parts.append(
+                            f"{_fmt(_mean('latency_ms_p50')(g))} ms, "
+                            f"{_fmt(_mean('loss_pct')(g), 2)} %"
+                        )
+                    parts.append(f"samples {_fmt(_mean('sample_loss_pct')(g), 2)} % lost")
+                    if has_mission:
+                        parts.append(f"mission {_fmt(_success(g))} %")
+                    rate = _mean("rate_hz")(g)
+                    parts.append(f"R {_fmt(rate)} D {g[0]['qos_depth']}")
+                    cells.append("<br>".join(parts))
+                lines.append(f"| {_depth_label(depth)} | " + " | ".join(cells) + " |")
+            lines.append("")
+    problems = consistency(rows)
+    lines += [
+        "## Consistency",
+        "",
+        "Every ok row reconciles (produced = sent + held back + write failures, "
+        "sent = received + lost, Hello sent = received + lost)."
+        if not problems
+        else "\n".join(f"- {p}" for p in problems),
+        "",
+    ]
+    if errors:
+        lines += ["## Cells that failed to run", ""]
+        lines += [
+            f"- Rmax {r['rmax_hz']} depth {r['depth']} {r['config']} {r['network']} "
+            f"repeat {r['repeat']}: {r['error']}"
+            for r in errors
+        ]
+        lines.append("")
+    combined = [p for p in figures if "_r" not in p.stem.removeprefix("experiment_")]
+    if combined:
+        lines += ["## Figures", ""]
+        for path in combined:
+            rel = path.relative_to(base) if path.is_relative_to(base) else path
+            lines += [f"![{path.stem}]({rel.as_posix()})", ""]
+    return "\n".join(lines)
+
+
+def write_report(directory: Path, *, figures: Path | None = None) -> list[Path]:
+    """Rebuild DIR/REPORT.md and the figures; returns the paths written (REPORT.md first)."""
+    results = directory / "results.csv"
+    try:
+        rows = read_rows(results)
+    except (OSError, KeyError, ValueError) as exc:
+        raise ReportError(f"{results}: cannot read: {exc}") from None
+    if not rows:
+        raise ReportError(f"{results}: no results (run the experiment first)")
+    ok = [r for r in rows if r["status"] == "ok"]
+    written = write_figures(ok, figures or directory / "figures") if ok else []
+    report = directory / "REPORT.md"
+    report.write_text(markdown(rows, written, directory), encoding="utf-8")
+    return [report, *written]

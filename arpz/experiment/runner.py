@@ -1,0 +1,262 @@
+"""Run an experiment's cells: emulated links, a real fleet per cell, one results.csv row each.
+
+Per cell: one ``arpz.netem`` proxy per robot in front of the CEDDP's UDP endpoint (clean while
+the sessions open and the readers match, impaired from the moment every robot runs), then
+``arpz.launch.run_fleet`` with the cell's configs, then the row. Cells already in results.csv
+are skipped, so an interrupted run resumes where it stopped; Ctrl-C (or SIGTERM) ends the cell
+in progress without writing it, and ``run_fleet`` ends its processes.
+"""
+
+from __future__ import annotations
+
+import shutil
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from types import FrameType
+from typing import Any, TextIO
+
+import msgspec
+
+from arpz.experiment.fleet import cell_fleet
+from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
+from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile
+from arpz.launch import LaunchError, Proc, free_port, run_fleet
+from arpz.netem import GilbertElliott, Impairments, NetemProxy
+
+#: seconds a cell takes beyond its measurement (starting and stopping 4 processes), for the ETA
+#: before the first cell has been timed
+START_STOP_S = 8.0
+#: after the mission's verdict is due, how long to wait for it before stopping the fleet
+MISSION_MARGIN_S = 30.0
+
+
+def impairments(profile: NetworkProfile) -> Impairments:
+    burst = GilbertElliott(p=profile.burst_p, r=profile.burst_r) if profile.burst_p > 0 else None
+    return Impairments(
+        loss=profile.loss_pct / 100.0,
+        burst=burst,
+        delay_s=profile.delay_ms / 1000.0,
+        jitter_s=profile.jitter_ms / 1000.0,
+        rate_bps=profile.rate_kbps * 1000.0,
+    )
+
+
+@dataclass
+class Links:
+    """The robots' emulated links: clean until ``impair()``, so Zenoh sessions open and the
+    reliable channel matches before the first loss (a lost handshake fails ``zenoh.open``)."""
+
+    proxies: dict[str, NetemProxy]
+    profiles: dict[str, NetworkProfile]
+    impaired_at: float | None = None
+    #: the last time the fleet was seen running (the end of the measured window)
+    last_seen: float | None = None
+
+    @classmethod
+    def start(cls, forward: str, profiles: dict[str, NetworkProfile], seed: int) -> Links:
+        proxies: dict[str, NetemProxy] = {}
+        try:
+            for index, robot in enumerate(profiles):
+                proxies[robot] = NetemProxy(
+                    "udp/127.0.0.1:0", forward, Impairments(), seed=seed * 10 + index
+                ).start()
+        except BaseException:
+            for proxy in proxies.values():
+                proxy.stop()
+            raise
+        return cls(proxies, profiles)
+
+    def endpoint(self, robot: str) -> str:
+        return f"udp/127.0.0.1:{self.proxies[robot].listen_port}"
+
+    def impair(self) -> None:
+        # a Direction's impairments are read per datagram: swapping them is the switch
+        for robot, proxy in self.proxies.items():
+            imp = impairments(self.profiles[robot])
+            proxy.up.imp = imp
+            proxy.down.imp = imp
+        self.impaired_at = time.monotonic()
+
+    def stop(self) -> dict[str, int]:
+        totals = {"received": 0, "dropped": 0}
+        for proxy in self.proxies.values():
+            report = proxy.stop()
+            for counters in (report.up, report.down):
+                totals["received"] += counters.received
+                totals["dropped"] += counters.dropped
+        return totals
+
+
+class Interrupted(Exception):
+    """Ctrl-C or SIGTERM: the cell in progress is not written."""
+
+
+def run_cell(
+    spec: ExperimentSpec, cell: Cell, out: Path, *, keep_logs: bool = False
+) -> dict[str, Any]:
+    """Run one cell and return its results.csv row (status "error" when a part failed)."""
+    started = time.monotonic()
+    workdir = out / "runs" / cell.slug
+    if workdir.exists():
+        shutil.rmtree(workdir)
+    rrd_dir = out / "rrd"
+    rrd_dir.mkdir(parents=True, exist_ok=True)
+    rrd = rrd_dir / f"{cell.slug}.rrd"
+    udp_port, tcp_port = free_port(), free_port()
+    forward = f"udp/127.0.0.1:{udp_port}"
+    profiles = {
+        robot: spec.profile(spec.robot_networks.get(robot, cell.network))
+        for robot in spec.robot_names
+    }
+    links = Links.start(forward, profiles, spec.seed + cell.repeat)
+    link_totals: dict[str, int] = {}
+    try:
+        fleet = cell_fleet(
+            spec,
+            cell,
+            listen=[forward, f"tcp/127.0.0.1:{tcp_port}"],
+            robot_connect={r: links.endpoint(r) for r in spec.robot_names},
+            rrd=str(rrd),
+        )
+
+        def until(ceddp: Proc) -> bool:
+            # called first once every robot runs: the measured window starts here
+            if links.impaired_at is None:
+                links.impair()
+            links.last_seen = time.monotonic()
+            return spec.mission is not None and ceddp.has_line("arpz.ceddp: mission ")
+
+        duration = (
+            spec.mission.time_limit_s + MISSION_MARGIN_S
+            if spec.mission is not None
+            else spec.duration_s
+        )
+        summary = run_fleet(
+            fleet, workdir, duration_s=duration, until=until, progress=None, label=cell.slug
+        )
+    except LaunchError as exc:
+        link_totals = links.stop()
+        return error_row(
+            cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
+        )
+    finally:
+        if not link_totals:
+            link_totals = links.stop()
+    measured = (links.last_seen or started) - (links.impaired_at or started)
+    row = row_from_summary(
+        cell,
+        summary,
+        experiment=spec.name,
+        link=link_totals,
+        measured_s=measured,
+        wall_s=time.monotonic() - started,
+        rrd=str(rrd.relative_to(out)),
+    )
+    if not keep_logs:
+        # keep the summary (small) and drop the logs and configs of a successful cell
+        for path in workdir.iterdir():
+            if path.name not in ("summary.json", "ceddp.toml", "robot1.toml"):
+                path.unlink()
+    return row
+
+
+def _duration(seconds: float) -> str:
+    seconds = max(0, int(seconds))
+    if seconds >= 3600:
+        return f"{seconds // 3600}h{seconds % 3600 // 60:02d}m"
+    return f"{seconds // 60}m{seconds % 60:02d}s"
+
+
+def run_experiment(
+    spec: ExperimentSpec,
+    out: Path,
+    *,
+    progress: TextIO = sys.stderr,
+    keep_logs: bool = False,
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+) -> int:
+    """Run every cell not yet in ``out/results.csv``; returns how many cells were run.
+
+    Raises Interrupted (after writing every finished cell) on Ctrl-C or SIGTERM."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "spec.json").write_bytes(msgspec.json.format(msgspec.json.encode(spec)))
+    results = out / "results.csv"
+    done = done_keys(results)
+    cells = spec.cells()
+    todo = [c for c in cells if c.key not in done]
+    print(
+        f"{spec.name}: {len(cells)} cells, {len(cells) - len(todo)} already done, "
+        f"{len(todo)} to run; results in {results}",
+        file=progress,
+        flush=True,
+    )
+    per_cell = (
+        spec.mission.time_limit_s * 0.7 if spec.mission is not None else spec.duration_s
+    ) + START_STOP_S
+    timings: list[float] = []
+    previous = signal.getsignal(signal.SIGTERM)
+    # started in the background by a shell, SIGINT may be ignored: Ctrl-C must still work
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def on_term(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
+    begun = time.monotonic()
+    try:
+        for index, cell in enumerate(todo, start=1):
+            mean = sum(timings) / len(timings) if timings else per_cell
+            eta = mean * (len(todo) - index + 1)
+            print(
+                f"[{index}/{len(todo)}] {cell.label} (ETA {_duration(eta)})",
+                file=progress,
+                flush=True,
+            )
+            try:
+                row = run_cell(spec, cell, out, keep_logs=keep_logs)
+            except KeyboardInterrupt:
+                raise Interrupted(
+                    f"interrupted during {cell.label}: {index - 1} cells written this run; "
+                    f"rerun the same command to continue"
+                ) from None
+            append_row(results, row)
+            timings.append(float(row["wall_s"]))
+            print(f"    {_row_line(row)}", file=progress, flush=True)
+            if on_row is not None:
+                on_row(row)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print(
+        f"{spec.name}: {len(todo)} cells in {_duration(time.monotonic() - begun)}",
+        file=progress,
+        flush=True,
+    )
+    return len(todo)
+
+
+def _fmt(value: Any, unit: str = "") -> str:
+    if value is None or value == "":
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.3g}{unit}"
+    return f"{value}{unit}"
+
+
+def _row_line(row: dict[str, Any]) -> str:
+    if row["status"] != "ok":
+        return f"ERROR after {row['wall_s']:.0f} s: {row['error'][:300]}"
+    text = (
+        f"ok in {row['wall_s']:.0f} s: Hello {row['hello_received']}/{row['hello_sent']} "
+        f"rtt p50 {_fmt(row['latency_ms_p50'], ' ms')}; samples sent {row['samples_sent']} "
+        f"held {row['samples_held_back']} lost {row['samples_lost']} "
+        f"({_fmt(row['sample_loss_pct'], ' %')}), p50 {_fmt(row['sample_latency_ms_p50'], ' ms')}; "
+        f"R {_fmt(row['rate_hz'])} Hz D {row['qos_depth']}; link loss "
+        f"{_fmt(row['link_loss_pct'], ' %')}"
+    )
+    if row.get("mission"):
+        text += f"; mission {row['mission']}: {row['mission_reason']}"
+    return text
