@@ -8,6 +8,7 @@ re-plotted, merged or shared without rerunning anything.
 from __future__ import annotations
 
 import argparse
+import subprocess
 import sys
 from pathlib import Path
 
@@ -35,6 +36,9 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--out", type=Path, required=True, help="results directory")
     run.add_argument("--keep-logs", action="store_true", help="keep every process log")
     run.add_argument("--list", action="store_true", help="only list the cells, run nothing")
+    run.add_argument(
+        "--no-merge", action="store_true", help="do not merge the runs' .rrd into all_runs.rrd"
+    )
     rep = sub.add_parser("report", help="rebuild figures and REPORT.md from DIR/results.csv")
     rep.add_argument("dir", type=Path)
     rep.add_argument("--figures", type=Path, help="where the PNGs go (default: DIR/figures)")
@@ -72,6 +76,15 @@ def main(argv: list[str] | None = None) -> int:
         print(f"report: {exc}", file=sys.stderr)
         return 1
     print(f"report: {args.out / 'REPORT.md'} and {len(paths) - 1} figures", file=sys.stderr)
+    if not args.no_merge:
+        from arpz.experiment.recordings import MergeError, merge_recordings
+
+        try:
+            merged = merge_recordings(args.out)
+        except (MergeError, OSError, subprocess.TimeoutExpired) as exc:
+            print(f"recordings: not merged: {exc}", file=sys.stderr)
+            return 1
+        print(f"recordings: every run in {merged} (ids in rrd/index.csv)", file=sys.stderr)
     return 0
 
 

@@ -1,0 +1,97 @@
+"""The ``quick`` preset end to end: real CEDDP and robot processes behind real netem proxies,
+results.csv complete and consistent, the expected loss pattern, the report, and a resumed run
+that has nothing left to do."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from arpz.experiment.presets import quick
+from arpz.experiment.report import consistency
+from arpz.experiment.results import read_rows
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
+
+
+def run(*args: str, timeout_s: float) -> tuple[int, str]:
+    """``python -m arpz.experiment ...`` in its own session, so a timeout ends every process it
+    started (CEDDP, robots), not only the runner."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "arpz.experiment", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        out, _ = proc.communicate(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, _ = proc.communicate()
+        pytest.fail(f"the experiment did not finish within {timeout_s:.0f} s:\n{out[-3000:]}")
+    return proc.returncode, out
+
+
+@pytest.mark.timeout(300)
+def test_quick_preset(tmp_path: Path) -> None:
+    out = tmp_path / "quick"
+    started = time.monotonic()
+    code, text = run("run", "quick", "--out", str(out), timeout_s=240)
+    elapsed = time.monotonic() - started
+    assert code == 0, text[-3000:]
+    assert elapsed < 180, f"quick took {elapsed:.0f} s"
+    assert "ETA" in text
+
+    rows = read_rows(out / "results.csv")
+    spec = quick()
+    assert {
+        tuple(r[k] for k in ("rmax_hz", "depth", "config", "repeat", "network")) for r in rows
+    } == {c.key for c in spec.cells()}
+    assert all(r["status"] == "ok" for r in rows), [r["error"] for r in rows]
+    assert consistency(rows) == []
+    for row in rows:
+        assert int(row["samples_sent"]) > 0 and int(row["hello_sent"]) > 0
+        assert (out / row["rrd"]).stat().st_size > 0
+    by = {(r["network"], r["depth"], r["config"]): r for r in rows}
+
+    clean = by[("lan", "1000", "baseline")]
+    assert int(clean["samples_lost"]) == 0, clean
+    assert int(clean["hello_lost"]) == 0, clean
+    assert float(clean["link_loss_pct"]) == 0
+
+    lossy = by[("wifi-bad", "1", "baseline")]
+    assert float(lossy["link_loss_pct"]) > 2, lossy
+    assert float(lossy["sample_loss_pct"]) > 1, lossy
+    assert int(lossy["samples_overwritten_unacked"]) > 0, lossy
+    deep = by[("wifi-bad", "1000", "baseline")]
+    assert float(deep["sample_loss_pct"]) < float(lossy["sample_loss_pct"]), (deep, lossy)
+
+    for network in ("lan", "wifi-bad"):
+        opt = by[(network, "opt", "lc+opt")]
+        # the optimiser's R and D were assigned and applied by all three robots
+        assert float(opt["rate_hz"]) < 1000 and int(opt["qos_depth"]) > 1, opt
+        assert int(opt["qos_applied"]) == 3, opt
+        assert int(opt["samples_held_back"]) > 0, opt  # the local cache held repeats back
+
+    report = (out / "REPORT.md").read_text(encoding="utf-8")
+    assert "Every ok row reconciles" in report
+    for metric in ("latency", "loss", "sample_loss"):
+        assert (out / "figures" / f"experiment_{metric}_lan.png").stat().st_size > 1000
+
+    # one recording per cell, side by side in all_runs.rrd, indexed by cell
+    assert (out / "all_runs.rrd").stat().st_size > 0
+    index = (out / "rrd" / "index.csv").read_text(encoding="utf-8").splitlines()
+    assert len(index) == 1 + len(rows)
+
+    before = (out / "results.csv").read_bytes()
+    code, text = run("run", "quick", "--out", str(out), timeout_s=60)
+    assert code == 0, text
+    assert f"{len(rows)} already done, 0 to run" in text
+    assert (out / "results.csv").read_bytes() == before
