@@ -110,8 +110,7 @@ class WriterMachine:
         self._capacity = qos.capacity
         self._keep_all = qos.history is HistoryPolicy.KEEP_ALL
         self._manual = qos.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
-        cap = 256 if self._keep_all else 64
-        self._ack_interval = max(1, min(cap, self._capacity // (4 if self._keep_all else 2)))
+        self._ack_interval = self._ack_interval_for(self._capacity)
         now = clock.monotonic_s()
         #: seq -> (payload, stamp_ns); holds exactly first .. last_seq
         self.history: dict[int, tuple[bytes, int]] = {}
@@ -139,6 +138,13 @@ class WriterMachine:
         self.lost = self.lifespan_expired = self.unchanged = self.overwritten_unacked = 0
         self.liveliness_lost = self.incompatible = 0
         self.matched_total = 0
+
+    def _ack_interval_for(self, capacity: int) -> int:
+        """Samples between two ACK_REQUESTs: often enough that the history never fills while
+        acknowledgements are on their way, rarely enough to cost little at high rates."""
+        if self._keep_all:
+            return max(1, min(256, capacity // 4))
+        return max(1, min(64, capacity // 2))
 
     # ------------------------------------------------------------------ routing
     def subscriptions(self) -> list[tuple[str, str]]:
@@ -220,7 +226,7 @@ class WriterMachine:
         self.qos = msgspec.structs.replace(self.qos, depth=depth, deadline_s=deadline_s)
         QosProfile.__post_init__(self.qos)  # the same validation as a profile built from TOML
         self._capacity = self.qos.capacity
-        self._ack_interval = max(1, min(64, self._capacity // (4 if self._keep_all else 2)))
+        self._ack_interval = self._ack_interval_for(self._capacity)
         actions: list[Action] = []
         while not self._keep_all and len(self.history) > self._capacity:
             self._overwrite_front(actions)
@@ -260,18 +266,20 @@ class WriterMachine:
     def assert_unchanged(self) -> list[Action]:
         """The local cache held back a reading equal to the last one sent: the topic is alive and
         its value current. Resets the offered deadline here and, through a heartbeat flagged
-        UNCHANGED (at most one per half deadline), the requested deadline at every reader."""
+        UNCHANGED (at most one per third of the shortest deadline a reader requests, else one per
+        heartbeat period), the requested deadline at every reader."""
         now = self.clock.monotonic_s()
         self.unchanged += 1
         self._deadline.reset(now)
         self._assert(now)
-        # a reader checks at most the deadline it requested, so UNCHANGED heartbeats go at half
-        # the shortest requested deadline; with no reader checking one, at the heartbeat period
-        # (one every held-back reading would cost more than sending the data the cache saved)
+        # a reader checks at most the deadline it requested, so UNCHANGED heartbeats go at a third
+        # of the shortest requested deadline (a third, not a half: margin for a loaded host or a
+        # lost heartbeat); with no reader checking one, at the heartbeat period (one every
+        # held-back reading would cost more than sending the data the cache saved)
         requested = [
             p.requested_deadline_s for p in self.proxies.values() if p.requested_deadline_s
         ]
-        interval = min(requested) / 2 if requested else self.qos.heartbeat_period_s
+        interval = min(requested) / 3 if requested else self.qos.heartbeat_period_s
         if now - self._last_unchanged_hb_s < interval:
             return []
         self._last_unchanged_hb_s = now
