@@ -268,6 +268,8 @@ class ReaderMachine:
 
     # ------------------------------------------------------------------ data
     def on_data(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        if self._deep and f"/{wire.REL}/" in key:
+            return []  # control traffic seen through a ``**`` subscription
         if attachment is None or len(attachment) != wire.DATA.size:
             self.bad("sample without a DATA header", key)
             return []
@@ -275,8 +277,6 @@ class ReaderMachine:
         if version != wire.VERSION or seq < 1:
             self.bad("sample with a malformed DATA header", key)
             return []
-        if self._deep and f"/{wire.REL}/" in key:
-            return []  # control traffic seen through a ``**`` subscription
         p = self.writers.get(writer)
         if p is None:
             if writer not in self._incompatible:
@@ -362,6 +362,8 @@ class ReaderMachine:
         if not p.synced:
             if len(p.buffer) < self._cap:
                 p.buffer[seq] = (payload, h.stamp_ns, h.flags)
+            else:  # NACKed again after SYNC if it belongs to the match
+                self.bad("sample before SYNC beyond the buffer", seq, race=True)
             if seq > p.highest:
                 p.highest = seq
             return actions
@@ -522,6 +524,8 @@ class ReaderMachine:
                 self._skip_to(p, hi + 1, actions)
             elif len(p.gaps) < wire.MAX_RANGES:
                 bisect.insort(p.gaps, (lo, hi))
+            else:  # the seqs stay missing: NACKed again, GAPed again
+                self.bad("GAP range beyond the pending-range bound", (lo, hi))
         self._drain(p, actions)
         return actions
 

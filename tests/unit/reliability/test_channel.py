@@ -103,3 +103,22 @@ class _nullctx:
 
     def __exit__(self, *exc: object) -> None:
         self.t.close()
+
+
+def test_a_double_wildcard_reader_gets_data_but_never_control_traffic() -> None:
+    bus = MemoryBus()
+    got: list[tuple[bytes, str]] = []
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(b, "arpz/**", QOS_RELIABLE_ALL, lambda p, i: got.append((p, i.key))) as reader,
+        Writer(a, "arpz/f/robot/r1/sensor/x", QOS_RELIABLE_ALL) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1, what="match")
+        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+        for i in range(50):
+            writer.write(b"%d" % i)
+        wait_until(lambda: len(got) == 50, what="50 samples")
+        assert {k for _, k in got} == {"arpz/f/robot/r1/sensor/x"}
+        assert [p for p, _ in got] == [b"%d" % i for i in range(50)]
+        assert reader.stats().bad_input == 0
