@@ -78,13 +78,17 @@ def write_secure_robot(
     preset: str,
     rate_hz: float = 50,
     hello: bool = False,
+    extra: str = "",
 ) -> Path:
-    """fleet.write_robot's file, plus the Zenoh JSON5 with this robot's certificate or password."""
+    """fleet.write_robot's file, plus the Zenoh JSON5 with this robot's certificate or password;
+    ``extra`` (TOML tables) goes at the end."""
     path = write_robot(
         tmp, robot, endpoint, preset=preset, rate_hz=rate_hz, hello=hello, fleet=fleet
     )
     path.write_text(
-        f'zenoh_config = "{zenoh_config.as_posix()}"\nconnect_timeout_s = 10\n' + path.read_text()
+        f'zenoh_config = "{zenoh_config.as_posix()}"\nconnect_timeout_s = 10\n'
+        + path.read_text()
+        + extra
     )
     return path
 

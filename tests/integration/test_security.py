@@ -257,3 +257,31 @@ def test_user_password_variant_keeps_strangers_out(tmp_path: Path) -> None:
     assert "forged" not in summary["robots"]["robot1"]["topics"]
     assert summary["robots"]["robot2"]["topics"]["probe"]["received"] == 2
     _reconciles(summary, "robot1")
+
+
+CHANNEL = '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_last"\ndepth = 50\n'
+
+
+def test_the_reliable_channel_works_through_the_access_control(tmp_path: Path) -> None:
+    """Real deployments run sensor topics through the reliable channel, whose control traffic
+    (reader and writer tokens, heartbeats, ACKNACKs) lives on keys below each sensor key: the
+    access control must let exactly that through."""
+    tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"])
+    with secure_ceddp(tmp_path, tls, fleet=FLEET, extra=CHANNEL) as (server, endpoint):
+        configs = [
+            write_secure_robot(
+                tmp_path, robot, endpoint, client_config(tls, robot),
+                fleet=FLEET, preset=preset, extra=CHANNEL,
+            )
+            for robot, preset in (("robot1", "machine1"), ("robot2", "machine3"))
+        ]  # fmt: skip
+        with robots(tmp_path, configs) as procs:
+            settle(2.0)
+            for proc in procs:
+                assert proc.interrupt() == 0, proc.output()
+        assert server.interrupt() == 0, server.output()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["ingest"]["path"] == "reliable channel"
+    for robot in ("robot1", "robot2"):
+        _reconciles(summary, robot)
+        assert summary["robots"][robot]["received"] > 0
