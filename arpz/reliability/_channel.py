@@ -75,7 +75,9 @@ class Channel:
         self._closed = False
         self._worker = threading.Thread(target=self._run, name=name, daemon=True)
 
-    def start(self) -> None:
+    def start(self, token_key: str | None = None) -> None:
+        """Subscribe, then declare ``token_key`` (peers may answer at once), then start the
+        worker (whose first heartbeat must not precede the token that makes it known)."""
         try:
             for expr, handler_name in self.machine.subscriptions():
                 handler = getattr(self.machine, handler_name)
@@ -83,8 +85,12 @@ class Channel:
             self._handles.append(
                 self.transport.watch_liveliness(self.machine.watch_expr(), self._on_token)
             )
+            if token_key is not None:
+                self._tokens[token_key] = self.transport.declare_token(token_key)
         except Exception:
             self._undeclare()
+            for token in self._tokens.values():
+                token.undeclare()
             raise
         self._worker.start()
 
@@ -214,9 +220,6 @@ class Channel:
             self._tokens[change.key] = self.transport.declare_token(change.key)
         elif not change.declare and change.key in self._tokens:
             self._tokens.pop(change.key).undeclare()
-
-    def declare_token(self, key: str) -> None:
-        self._tokens[key] = self.transport.declare_token(key)
 
     def _undeclare(self) -> None:
         handles, self._handles = self._handles, []

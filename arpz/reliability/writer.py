@@ -43,8 +43,11 @@ class Writer(Endpoint):
         self._mutex = self._channel.mutex
         self._machine_write = self._machine.write
         self._put = self._publisher.put
-        self._channel.start()
-        self._channel.declare_token(self._machine.token_key)
+        try:
+            self._channel.start(self._machine.token_key)
+        except Exception:
+            self._publisher.undeclare()
+            raise
 
     def write(self, payload: bytes, *, stamp_ns: int | None = None) -> int:
         """Publish one sample and return its seq (1, 2, ...).
