@@ -21,6 +21,7 @@ from arpz.reliability import (
     HistoryFullError,
     HistoryPolicy,
     LivelinessChangedStatus,
+    LivelinessPolicy,
     QosProfile,
     Reader,
     ReaderEventCallbacks,
@@ -254,3 +255,29 @@ def test_keep_all_write_raises_after_max_blocking_time_when_the_reader_stops_ack
             block.set()
             assert w.wait_for_acknowledgments(10.0)
         reader.close()
+
+
+def test_manual_liveliness_lease_expires_and_recovers_through_the_router() -> None:
+    qos = QosProfile(liveliness=LivelinessPolicy.MANUAL_BY_TOPIC, lease_duration_s=0.3)
+    changes: list[LivelinessChangedStatus] = []
+    lost: list[int] = []
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as a,
+        client(endpoint) as b,
+        Reader(b, "t/x", qos, Sink(), events=ReaderEventCallbacks(liveliness=changes.append)),
+        Writer(
+            a, "t/x", qos, events=WriterEventCallbacks(liveliness=lambda s: lost.append(1))
+        ) as w,
+    ):
+        wait_until(lambda: synced(w), what="match")
+        for _ in range(10):  # asserted by writing, then by assert_liveliness
+            w.write(b"x")
+            time.sleep(0.05)
+            w.assert_liveliness()
+            time.sleep(0.05)
+        assert changes[-1].alive_count == 1 and lost == []
+        wait_until(lambda: changes[-1].not_alive_count == 1, timeout_s=3, what="lease expiry")
+        assert changes[-1].alive_count == 0 and lost == [1]
+        w.assert_liveliness()
+        wait_until(lambda: changes[-1].alive_count == 1, timeout_s=3, what="alive again")
