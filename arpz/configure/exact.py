@@ -737,35 +737,38 @@ def _aggregated(
         values = x
     total_bound = None if bound is None else bound + constant
 
-    counts = [{c: round(values[v]) for c, v in g.items()} for g in g_vars]
-    levels: list[list[dict[int, list[int]]]] = []
-    for per_member in z_vars:
-        member_levels: list[dict[int, list[int]]] = []
-        for zs in per_member:
-            by_comp: dict[int, list[int]] = {}
-            for c, ks in zs.items():
-                pool: list[int] = []
-                for k, v in ks.items():
-                    pool.extend([k] * round(values[v]))
-                by_comp[c] = pool
-            member_levels.append(by_comp)
-        levels.append(member_levels)
-    for cls in pattern_classes:
-        free_comps = list(cls.computers)
-        for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
-            for _ in range(round(values[xv])):
-                c = free_comps.pop(0)
-                chosen = _pattern_levels(problem, cls, pattern, type_units, maximise)
-                for i, t in enumerate(cls.types):
-                    if pattern[i]:
-                        counts[t][c] = pattern[i]
-                    for j, pool in enumerate(chosen[t]):
-                        if pool:
-                            levels[t][j][c] = pool
-    for t in range(len(type_units)):
-        if pinned[t]:
-            counts[t] = {type_allowed[t][0]: len(type_units[t])}
-    computer, level = _disaggregate(problem, type_units, counts, levels)
+    def decode(values: np.ndarray) -> tuple[list[int], list[int]]:
+        counts = [{c: round(values[v]) for c, v in g.items()} for g in g_vars]
+        levels: list[list[dict[int, list[int]]]] = []
+        for per_member in z_vars:
+            member_levels: list[dict[int, list[int]]] = []
+            for zs in per_member:
+                by_comp: dict[int, list[int]] = {}
+                for c, ks in zs.items():
+                    pool: list[int] = []
+                    for k, v in ks.items():
+                        pool.extend([k] * round(values[v]))
+                    by_comp[c] = pool
+                member_levels.append(by_comp)
+            levels.append(member_levels)
+        for cls in pattern_classes:
+            free_comps = list(cls.computers)
+            for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
+                for _ in range(round(values[xv])):
+                    c = free_comps.pop(0)
+                    chosen = _pattern_levels(problem, cls, pattern, type_units, maximise)
+                    for i, t in enumerate(cls.types):
+                        if pattern[i]:
+                            counts[t][c] = pattern[i]
+                        for j, pool in enumerate(chosen[t]):
+                            if pool:
+                                levels[t][j][c] = pool
+        for t in range(len(type_units)):
+            if pinned[t]:
+                counts[t] = {type_allowed[t][0]: len(type_units[t])}
+        return _disaggregate(problem, type_units, counts, levels)
+
+    computer, level = decode(values)
     objective = _objective(problem, computer, level)
     if status == "optimal":
         total_bound = objective if total_bound is None else total_bound
