@@ -26,11 +26,12 @@ def main() -> None:
     args = ap.parse_args()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     results: dict[tuple[int, str], list[float]] = {}
+    cpu: dict[tuple[int, str], list[float]] = {}
     with perf_router(endpoint):
         for size, count in ((24, args.count), (1024, args.count_kib)):
             for _ in range(args.rounds):
                 for transport in TRANSPORTS:
-                    _, report = pubsub(
+                    pub, report = pubsub(
                         transport=transport,
                         pub_connect=endpoint,
                         sub_connect=endpoint,
@@ -40,6 +41,9 @@ def main() -> None:
                     complete = report["received"] == count
                     rate = report["throughput_msg_s"] if complete else 0.0
                     results.setdefault((size, transport), []).append(rate)
+                    # CPU per sample, publisher + subscriber processes: stable on a shared host
+                    per_msg = pub["cpu_us_per_msg"] + report["cpu_us_per_msg"]
+                    cpu.setdefault((size, transport), []).append(per_msg)
                     print(
                         f"  {size:5d} B {transport:9s} {rate:10.0f} msg/s  "
                         f"received {report['received']}"
@@ -54,6 +58,16 @@ def main() -> None:
         print(
             f"| {size} B | {med['zenoh']:.0f} | {med['advanced']:.0f} | {med['arpz']:.0f} "
             f"| {med['arpz'] / med['zenoh']:.2f}x | {med['arpz'] / med['advanced']:.2f}x |"
+        )
+    print()
+    print("CPU per sample (publisher + subscriber processes, all their threads):")
+    print("| payload | raw Zenoh us | Advanced us | arpz us | arpz / raw | arpz / Advanced |")
+    print("|---|---|---|---|---|---|")
+    for size in (24, 1024):
+        c = {t: statistics.median(cpu[(size, t)]) for t in TRANSPORTS}
+        print(
+            f"| {size} B | {c['zenoh']:.1f} | {c['advanced']:.1f} | {c['arpz']:.1f} "
+            f"| {c['arpz'] / c['zenoh']:.2f}x | {c['arpz'] / c['advanced']:.2f}x |"
         )
 
 

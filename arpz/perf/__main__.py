@@ -208,6 +208,7 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
         STOP.wait(args.warmup)
         seq = 0
         t0 = time.monotonic()
+        cpu0 = time.process_time()
         period = 1.0 / args.rate if args.rate > 0 else 0.0
         while not STOP.is_set():
             if count and seq >= count:
@@ -224,12 +225,17 @@ def run_pub(args: argparse.Namespace) -> dict[str, Any]:
                 if delay > 0:
                     time.sleep(delay)
         elapsed = time.monotonic() - t0
+        cpu_s = time.process_time() - cpu0
         extra = pub.finish(args.linger)
         marker.announce(seq)
         return {
             "sent": seq,
             "elapsed_s": elapsed,
             "rate_msg_s": seq / elapsed if elapsed else 0.0,
+            # CPU of the whole process (all threads) while publishing: stable on a shared host,
+            # where throughput is not
+            "cpu_s": cpu_s,
+            "cpu_us_per_msg": 1e6 * cpu_s / seq if seq else 0.0,
             **extra,
         }
     finally:
@@ -290,15 +296,18 @@ def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, An
     marker.listen()
     sub = make_sub(args, key or args.key, on_payload)
     t0 = time.monotonic()
+    cpu0 = time.process_time()
     try:
         print("arpz.perf sub: ready", file=sys.stderr, flush=True)
         _receive(args, rec, sub, marker, t0)
+        cpu_s = time.process_time() - cpu0
         lost = sub.lost()
         counters = sub.counters()
     finally:
         sub.close()
         marker.close()
-    return {**_report(args, rec, marker.count, lost, counters, t0), "channel": counters}
+    cpu = {"cpu_s": cpu_s, "cpu_us_per_msg": 1e6 * cpu_s / len(rec) if len(rec) else 0.0}
+    return {**_report(args, rec, marker.count, lost, counters, t0), **cpu, "channel": counters}
 
 
 def run_pong(args: argparse.Namespace) -> dict[str, Any]:
