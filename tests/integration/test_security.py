@@ -11,6 +11,8 @@ allowed thing), so "nothing arrived" cannot pass because nothing was sent.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 import threading
 from pathlib import Path
 
@@ -92,9 +94,6 @@ def test_the_committed_deploy_configs_are_the_scripts_output(tmp_path: Path) -> 
         "--paths-on-hosts", "/etc/arpz/tls", "--usrpwd", "--observer", "operator",
         "robot1", "robot2", "robot3",
     ]  # fmt: skip
-    import subprocess
-    import sys
-
     done = subprocess.run(
         [sys.executable, str(SCRIPT), "--out", str(tmp_path), *make_args],
         capture_output=True,
@@ -112,6 +111,40 @@ def test_the_committed_deploy_configs_are_the_scripts_output(tmp_path: Path) -> 
     assert made.replace(password, "CHANGE-ME: the robot1 line of passwords.txt") == committed
     for key in ("ca.key", "ceddp.key", "robot1.key", "passwords.txt"):
         assert (tmp_path / key).stat().st_mode & 0o077 == 0, f"{key} must be private"
+
+
+def _openssl(*args: str) -> str:
+    done = subprocess.run(["openssl", *args], capture_output=True, text=True, timeout=30)
+    assert done.returncode == 0, done.stderr
+    return done.stdout + done.stderr
+
+
+def test_the_script_makes_verifiable_certificates_and_keeps_them_when_robots_are_added(
+    tmp_path: Path,
+) -> None:
+    out = make_fleet_tls(tmp_path, FLEET, ["robot1", "robot2"])
+    before = {name: (out / name).read_bytes() for name in ("ca.pem", "ceddp.pem", "robot1.pem")}
+    make_fleet_tls(tmp_path, FLEET, ["robot1", "robot2", "robot3"])  # robot3 joins later
+    for name, content in before.items():
+        assert (out / name).read_bytes() == content, f"{name} was replaced"
+    ca = str(out / "ca.pem")
+    for robot in ("robot1", "robot2", "robot3"):
+        assert ": OK" in _openssl("verify", "-CAfile", ca, str(out / f"{robot}.pem"))
+        subject = _openssl("x509", "-noout", "-subject", "-in", str(out / f"{robot}.pem"))
+        assert subject.strip().endswith(f"CN = {robot}"), subject
+        router = (out / "zenoh" / "ceddp-router.json5").read_text()
+        assert f'"cert_common_names": [\n          "{robot}"' in router
+    server = _openssl("x509", "-noout", "-ext", "subjectAltName", "-in", str(out / "ceddp.pem"))
+    assert "IP Address:127.0.0.1" in server and "DNS:localhost" in server
+    # a robot id that is not a key chunk is refused before anything is made
+    bad = subprocess.run(
+        [sys.executable, str(SCRIPT), "--out", str(tmp_path / "bad"), "Robot/1"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert bad.returncode == 2 and "not a valid arpz name" in bad.stderr
+    assert not (tmp_path / "bad" / "ca.key").exists()
 
 
 def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path) -> None:
