@@ -46,6 +46,10 @@ def main(argv: list[str] | None = None) -> int:
     from arpz.experiment.report import ReportError, write_report
 
     if args.command == "report":
+        if args.refresh:
+            from arpz.experiment.results import refresh_rows
+
+            print(f"refreshed {refresh_rows(args.dir)} rows from runs/*/summary.json")
         try:
             paths = write_report(args.dir, figures=args.figures)
         except ReportError as exc:

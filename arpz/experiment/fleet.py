@@ -22,11 +22,11 @@ SIM_BEAMS = 8
 
 
 def topic_counts(spec: ExperimentSpec) -> list[int]:
-    """T_a per robot as eq. 1 counts it: the sensor topics plus the command topic (robot 1
-    also publishes the Hello)."""
+    """T_a per robot as the robots announce it to the CEDDP (eq. 1): the sensor topics plus
+    the command topic; a simulated robot also has its telemetry topic."""
     if spec.mission is not None:
-        return [SIM_BEAMS + 1 for _ in spec.robot_names]
-    return [len(PRESETS[p]) + 1 + (1 if i == 0 else 0) for i, p in enumerate(spec.presets)]
+        return [SIM_BEAMS + 2 for _ in spec.robot_names]
+    return [len(PRESETS[p]) + 1 for p in spec.presets]
 
 
 def start_rate(spec: ExperimentSpec, cell: Cell) -> float:

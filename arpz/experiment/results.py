@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import os
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -154,16 +155,22 @@ def row_from_summary(
     qos = summary.get("qos") or {}
     assignments = qos.get("assignments") or []
     if assignments:
-        last = assignments[-1]["robots"]
-        chosen = last.get("robot1") or next(iter(last.values()))
+        # the assignment in force while the whole fleet ran: the last one for the most robots
+        # (robots leaving at shutdown cause later ones for fewer robots)
+        most = max(len(a["robots"]) for a in assignments)
+        in_force = [a for a in assignments if len(a["robots"]) == most][-1]
+        chosen = in_force["robots"].get("robot1") or next(iter(in_force["robots"].values()))
         rate_hz = float(chosen["rate_hz"])
         depth = int(chosen["depth"])
         deadline_ms = 1000.0 * float(chosen["deadline_s"])
         acks = qos.get("acks") or {}
+        # a robot's last answer is kept: one that applied this epoch or a later one applied it
         applied = sum(
             1
-            for a in acks.values()
-            if a.get("status") == "applied" and a.get("epoch") == assignments[-1]["epoch"]
+            for robot, a in acks.items()
+            if robot in in_force["robots"]
+            and a.get("status") == "applied"
+            and int(a.get("epoch") or 0) >= int(in_force["epoch"])
         )
     else:
         rate_hz = cell.rmax_hz
@@ -221,3 +228,40 @@ def error_row(cell: Cell, *, experiment: str, error: str, wall_s: float) -> dict
         "wall_s": wall_s,
         "error": " ".join(error.split())[:400],
     }
+
+
+def refresh_rows(directory: Path) -> int:
+    """Re-derive every ok row from its cell's kept ``runs/<cell>/summary.json`` (after a change
+    to how rows are computed), keeping what only the runner knew (link counters, timings);
+    results.csv is replaced atomically. Returns the number of rows refreshed."""
+    path = directory / "results.csv"
+    rows = read_rows(path)
+    refreshed = 0
+    out: list[dict[str, Any]] = []
+    for row in rows:
+        depth: int | str = int(row["depth"]) if row["depth"].isdigit() else row["depth"]
+        cell = Cell(float(row["rmax_hz"]), depth, row["config"], int(row["repeat"]), row["network"])
+        summary_path = directory / "runs" / cell.slug / "summary.json"
+        if row["status"] != "ok" or not summary_path.exists():
+            out.append(dict(row))
+            continue
+        new = row_from_summary(
+            cell,
+            json.loads(summary_path.read_text(encoding="utf-8")),
+            experiment=row["experiment"],
+            link={
+                "received": int(row["link_datagrams"] or 0),
+                "dropped": int(row["link_dropped"] or 0),
+            },
+            measured_s=float(row["measured_s"] or 0),
+            wall_s=float(row["wall_s"] or 0),
+            rrd=row["rrd"],
+        )
+        out.append(new)
+        refreshed += 1
+    tmp = path.with_suffix(".csv.tmp")
+    tmp.unlink(missing_ok=True)
+    for row in out:
+        append_row(tmp, row)
+    tmp.replace(path)
+    return refreshed

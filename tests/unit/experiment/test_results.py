@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from arpz.experiment.results import (
     done_keys,
     error_row,
     read_rows,
+    refresh_rows,
     row_from_summary,
 )
 from arpz.experiment.spec import OPT_DEPTH, Cell
@@ -50,10 +52,21 @@ def summary(*, opt: bool = False, mission: str | None = None) -> dict[str, Any]:
         "mission": None,
     }
     if opt:
-        robots = {r: {"rate_hz": 14.0, "deadline_s": 1 / 14, "depth": 699} for r in out["robots"]}
+        qos = {"rate_hz": 14.0, "deadline_s": 1 / 14, "depth": 699}
+        robots = dict.fromkeys(out["robots"], qos)
+        fewer = {"robot3": {"rate_hz": 15.7, "deadline_s": 1 / 15.7, "depth": 782}}
         out["qos"] = {
-            "assignments": [{"epoch": 1, "robots": robots}, {"epoch": 2, "robots": robots}],
-            "acks": {r: {"status": "applied", "epoch": 2} for r in out["robots"]},
+            # epoch 3: robots left at shutdown; epoch 2 was in force while all three ran
+            "assignments": [
+                {"epoch": 1, "robots": robots},
+                {"epoch": 2, "robots": robots},
+                {"epoch": 3, "robots": fewer},
+            ],
+            "acks": {
+                "robot1": {"status": "applied", "epoch": 2},
+                "robot2": {"status": "applied", "epoch": 2},
+                "robot3": {"status": "applied", "epoch": 3},
+            },
         }
     if mission:
         out["mission"] = {"result": {"mission": mission, "reason": "why", "duration_s": 33.0}}
@@ -89,7 +102,7 @@ def test_row_takes_the_qos_actually_assigned() -> None:
         cell, summary(opt=True), experiment="e", link={}, measured_s=1, wall_s=1, rrd=""
     )
     assert (row["rate_hz"], row["qos_depth"]) == (14.0, 699)
-    assert row["qos_epochs"] == 2 and row["qos_applied"] == 3
+    assert row["qos_epochs"] == 3 and row["qos_applied"] == 3
 
 
 def test_mission_without_verdict_is_a_failure() -> None:
@@ -164,3 +177,21 @@ def test_consistency_flags_counts_that_do_not_add_up(tmp_path: Path) -> None:
 def test_report_without_results(tmp_path: Path) -> None:
     with pytest.raises(ReportError, match="no results"):
         write_report(tmp_path)
+
+
+def test_refresh_rederives_rows_from_kept_summaries(tmp_path: Path) -> None:
+    path = tmp_path / "results.csv"
+    cell = Cell(100.0, OPT_DEPTH, "opt", 1, "lan")
+    data = summary(opt=True)
+    row = row_from_summary(
+        cell, data, experiment="e", link={"received": 10}, measured_s=1, wall_s=2, rrd="r"
+    )
+    row["rate_hz"] = 99.0  # as an older version computed it
+    append_row(path, row)
+    append_row(path, error_row(Cell(100.0, 1, "lc", 1, "lan"), experiment="e", error="x", wall_s=1))
+    (tmp_path / "runs" / cell.slug).mkdir(parents=True)
+    (tmp_path / "runs" / cell.slug / "summary.json").write_text(json.dumps(data), encoding="utf-8")
+    assert refresh_rows(tmp_path) == 1
+    rows = read_rows(path)
+    assert [r["status"] for r in rows] == ["ok", "error"]
+    assert rows[0]["rate_hz"] == "14" and rows[0]["link_datagrams"] == "10"

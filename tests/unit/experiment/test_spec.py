@@ -135,7 +135,9 @@ def test_cell_configs_load_as_real_configs(preset: str) -> None:
 
 def test_opt_cells_start_at_the_optimisers_rate() -> None:
     spec = PRESETS["paper-machines"]()
-    assert topic_counts(spec) == [8, 6, 6]
+    assert topic_counts(spec) == [7, 6, 6]
     opt = next(c for c in spec.cells() if c.config == "opt" and c.rmax_hz == 100)
-    # eq. 4: R = Rmax / T_avg - Rmin = 100 / (20/3) - 1
-    assert start_rate(spec, opt) == pytest.approx(14.0)
+    # eq. 4: R = Rmax / T_avg - Rmin = 100 / (19/3) - 1 (docs/qos-optimiser.md's table)
+    assert start_rate(spec, opt) == pytest.approx(281 / 19)
+    sim = PRESETS["paper-simulation"]()
+    assert topic_counts(sim) == [10, 10, 10]
