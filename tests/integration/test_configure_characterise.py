@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 
@@ -83,6 +84,31 @@ def _publish_fleet(endpoint: str, stop: threading.Event) -> None:
             stop.wait(0.1)
 
 
+def characterise(
+    endpoint: str, fleet: str, duration_s: float, out: Path | str
+) -> subprocess.CompletedProcess[str]:
+    """``python -m arpz.configure characterise`` as a user runs it."""
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "arpz.configure",
+            "characterise",
+            "--connect",
+            endpoint,
+            "--fleet",
+            fleet,
+            "--duration",
+            str(duration_s),
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+
+
 def test_characterise_builds_a_model_and_reports_eq10(tmp_path):
     out = tmp_path / "fleet.json"
     with router() as (_, endpoint):
@@ -90,25 +116,7 @@ def test_characterise_builds_a_model_and_reports_eq10(tmp_path):
         publisher = threading.Thread(target=_publish_fleet, args=(endpoint, stop))
         publisher.start()
         try:
-            proc = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "arpz.configure",
-                    "characterise",
-                    "--connect",
-                    endpoint,
-                    "--fleet",
-                    FLEET,
-                    "--duration",
-                    "1.5",
-                    "--out",
-                    str(out),
-                ],
-                capture_output=True,
-                text=True,
-                timeout=60,
-            )
+            proc = characterise(endpoint, FLEET, 1.5, str(out))
         finally:
             stop.set()
             publisher.join(timeout=10)
@@ -136,24 +144,6 @@ def test_characterise_builds_a_model_and_reports_eq10(tmp_path):
 
 def test_characterise_says_when_it_hears_nothing(tmp_path):
     with router() as (_, endpoint):
-        proc = subprocess.run(
-            [
-                sys.executable,
-                "-m",
-                "arpz.configure",
-                "characterise",
-                "--connect",
-                endpoint,
-                "--fleet",
-                "silent",
-                "--duration",
-                "0.3",
-                "--out",
-                str(tmp_path / "m.json"),
-            ],
-            capture_output=True,
-            text=True,
-            timeout=60,
-        )
+        proc = characterise(endpoint, "silent", 0.3, str(tmp_path / "m.json"))
     assert proc.returncode == 3
     assert "heard nothing" in proc.stderr

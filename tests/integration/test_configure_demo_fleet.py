@@ -3,8 +3,6 @@ processes started as ``python -m arpz demo`` starts them."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import threading
 import time
 from typing import Any
@@ -14,6 +12,7 @@ import pytest
 from arpz.configure.model import load_model
 from arpz.demo import DemoOptions, demo_spec
 from arpz.launch import free_port, run_fleet
+from tests.integration.test_configure_characterise import characterise
 
 pytestmark = pytest.mark.integration
 
@@ -45,25 +44,7 @@ def test_characterise_a_running_demo_fleet(tmp_path):
         proc = None
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline and "error" not in result:
-            proc = subprocess.run(
-                [
-                    sys.executable,
-                    "-m",
-                    "arpz.configure",
-                    "characterise",
-                    "--connect",
-                    endpoint,
-                    "--fleet",
-                    "demo",
-                    "--duration",
-                    "4",
-                    "--out",
-                    str(out),
-                ],
-                capture_output=True,
-                text=True,
-                timeout=60,
-            )
+            proc = characterise(endpoint, "demo", 4, str(out))
             if proc.returncode == 0 and "robot2_agent" in proc.stdout:
                 break
             time.sleep(0.5)

@@ -130,3 +130,24 @@ def test_the_example_runs_and_the_exact_method_is_never_beaten():
             assert values["exact"] >= max(values["greedy"], values["improved"]) - 1e-6
         else:
             assert values["exact"] <= min(values["greedy"], values["improved"]) + 1e-6
+
+
+def test_figure5_prints_a_table_and_draws_the_figure(tmp_path):
+    png = tmp_path / "figure5.png"
+    proc = run("figure5", "--instances", "2", "--time-limit", "20", "--png", str(png))
+    assert proc.returncode == 0, proc.stderr
+    rows = [
+        line
+        for line in proc.stdout.splitlines()
+        if line.startswith("| 1 ") or line.startswith("| 2 ")
+    ]
+    assert len(rows) == 4  # two instances x two problems
+    for row in rows:
+        cells = [c.strip() for c in row.strip("|").split("|")]
+        assert cells[4] == "optimal"
+        greedy_ratio, improved_ratio = float(cells[6]), float(cells[7])
+        if cells[1] == "1":
+            assert greedy_ratio <= 1 + 1e-9 and improved_ratio <= 1 + 1e-9
+        else:
+            assert greedy_ratio >= 1 - 1e-9 and improved_ratio >= 1 - 1e-9
+    assert png.stat().st_size > 10_000
