@@ -42,6 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     rep = sub.add_parser("report", help="rebuild figures and REPORT.md from DIR/results.csv")
     rep.add_argument("dir", type=Path)
     rep.add_argument("--figures", type=Path, help="where the PNGs go (default: DIR/figures)")
+    rep.add_argument(
+        "--refresh",
+        action="store_true",
+        help="first re-derive results.csv's rows from the kept runs/*/summary.json",
+    )
     args = parser.parse_args(argv)
     from arpz.experiment.report import ReportError, write_report
 

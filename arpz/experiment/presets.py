@@ -39,7 +39,7 @@ def paper_simulation() -> ExperimentSpec:
         configs=["baseline", "lc", "opt", "lc+opt"],
         networks=["wifi-bad"],
         mission=MissionSpec(world="hallway_small", time_limit_s=60.0),
-        repeats=1,
+        repeats=2,
     )
 
 

@@ -20,6 +20,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
+from matplotlib.ticker import NullFormatter, ScalarFormatter
 
 from arpz.experiment.results import read_rows
 from arpz.experiment.spec import FEATURES, OPT_DEPTH, config_label
@@ -112,37 +113,52 @@ def _bar_panel(
     configs: list[str],
     depths: list[str],
 ) -> bool:
-    """One of seed 001's panels: DEPTH groups, a bar per configuration. False if no data."""
+    """One of seed 001's panels: DEPTH groups, a bar per configuration measured at that depth
+    (a colour per configuration across panels; a zero is written, not left invisible).
+    False if there is no data."""
     colours = plt.get_cmap("tab10")
-    width = 0.8 / max(len(configs), 1)
-    drew = False
-    labels_done: set[str] = set()
-    for ci, config in enumerate(configs):
-        for di, depth in enumerate(depths):
-            cell = groups.get((network, rmax, depth, config))
-            value = metric.value(cell) if cell else None
-            if value is None:
-                continue
-            shown = max(value, 1e-3) if metric.log else value
+    present = {
+        depth: [
+            (config, value)
+            for config in configs
+            if (cell := groups.get((network, rmax, depth, config)))
+            and (value := metric.value(cell)) is not None
+        ]
+        for depth in depths
+    }
+    widest = max((len(bars) for bars in present.values()), default=0)
+    if not widest:
+        return False
+    width = 0.8 / widest
+    labelled: set[str] = set()
+    for di, depth in enumerate(depths):
+        bars = present[depth]
+        for bi, (config, value) in enumerate(bars):
+            x = di + (bi - (len(bars) - 1) / 2) * width
             ax.bar(
-                di + (ci - (len(configs) - 1) / 2) * width,
-                shown,
+                x,
+                max(value, 1.0) if metric.log else value,
                 width,
-                color=colours(ci % 10),
-                label=None if config in labels_done else config_label(config),
+                color=colours(configs.index(config) % 10),
+                label=None if config in labelled else config_label(config),
             )
-            labels_done.add(config)
-            drew = True
+            labelled.add(config)
+            if value == 0:
+                ax.text(x, 0, "0", ha="center", va="bottom", fontsize=7)
     ax.set_xticks(range(len(depths)), [_depth_label(d) for d in depths])
     ax.set_xlabel("DEPTH")
     ax.set_ylabel(f"{metric.title} ({metric.unit})")
     ax.set_title(f"Rmax = {rmax} Hz")
-    if metric.log and drew:
+    if metric.log:
+        # from 1 ms, so bar heights compare; plain numbers on the ticks, not powers of ten
         ax.set_yscale("log")
-    if metric.key == "mission" or metric.unit == "%":
-        ax.set_ylim(0, 105 if metric.key == "mission" else None)
+        ax.set_ylim(bottom=1.0)
+        ax.yaxis.set_major_formatter(ScalarFormatter())
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    if metric.key == "mission":
+        ax.set_ylim(0, 105)
     ax.grid(axis="y", alpha=0.3)
-    return drew
+    return True
 
 
 def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
@@ -175,9 +191,15 @@ def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
                     if label not in labels:
                         handles.append(handle)
                         labels.append(label)
-            fig.legend(handles, labels, loc="upper center", ncol=min(len(labels), 7))
             fig.suptitle(f"{metric.title}, network {network}", y=0.995)
-            fig.tight_layout(rect=(0, 0, 1, 0.93))
+            fig.legend(
+                handles,
+                labels,
+                loc="upper center",
+                bbox_to_anchor=(0.5, 0.97),
+                ncol=min(len(labels), 7),
+            )
+            fig.tight_layout(rect=(0, 0, 1, 0.92))
             path = figures / f"experiment_{metric.key}{suffix}.png"
             fig.savefig(path, dpi=100)
             plt.close(fig)
@@ -185,7 +207,12 @@ def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
             for rmax in rates:
                 fig, ax = plt.subplots(figsize=(7.5, 4.2))
                 if _bar_panel(ax, metric, groups, network, rmax, configs, depths):
-                    ax.legend(fontsize="small")
+                    ax.legend(
+                        fontsize="small",
+                        loc="upper center",
+                        bbox_to_anchor=(0.5, -0.2),
+                        ncol=min(len(configs), 6),
+                    )
                     fig.tight_layout()
                     path = figures / f"experiment_{metric.key}_r{rmax}{suffix}.png"
                     fig.savefig(path, dpi=90)
