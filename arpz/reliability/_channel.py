@@ -148,13 +148,24 @@ class Channel:
                     break
             stop = any(item is _STOP for item in batch)
             if batch:
+                todo: list[Action] = []
                 with self.lock:
-                    results = [self._dispatch(item) for item in batch if item is not _STOP]
+                    for item in batch:
+                        head: Any = item if item is _STOP else item[0]
+                        if head is _STOP:
+                            continue
+                        if head is _POST or head is _TOKEN:
+                            todo.extend(self._dispatch(item))
+                            continue
+                        try:  # the hot path: a sample or a control message for the machine
+                            todo.extend(head(item[1], item[2], item[3]))
+                        except Exception:
+                            self.callback_errors += 1
+                            log.exception("reliable channel worker: unexpected error")
                     if is_writer:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
                     busy = self.machine.busy()
-                for actions in results:
-                    self.perform(actions)
+                self.perform(todo)
                 if busy:
                     next_tick = min(next_tick, time.monotonic() + self._fine_s)
             if stop:
