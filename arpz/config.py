@@ -230,6 +230,9 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     metrics_period_s: float = 0.5
     #: samples waiting for the ingest worker; beyond this Zenoh applies backpressure to robots
     ingest_queue_limit: int = 100_000
+    #: bounds on per-topic state: samples from more robots or topics are dropped and counted
+    max_robots: int = 1000
+    max_topics_per_robot: int = 64
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
     mission: MissionConfig | None = None

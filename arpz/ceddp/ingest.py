@@ -55,10 +55,23 @@ class TopicMetrics:
 class IngestCounters:
     unknown_keys: int = 0
     hello_decode_errors: int = 0
+    #: samples on a topic or robot beyond the limits (invented names): dropped, not tracked
+    over_limit: int = 0
 
 
 class Ingest:
-    def __init__(self, fleet: str, planner: Planner, cache_control: CacheControl) -> None:
+    def __init__(
+        self,
+        fleet: str,
+        planner: Planner,
+        cache_control: CacheControl,
+        *,
+        max_robots: int = 1000,
+        max_topics_per_robot: int = 64,
+    ) -> None:
+        self.max_robots = max_robots
+        self.max_topics_per_robot = max_topics_per_robot
+        self._topics_per_robot: dict[str, int] = {}
         self.fleet = fleet
         self.planner = planner
         self.cache_control = cache_control
@@ -79,14 +92,49 @@ class Ingest:
             robot, _, topic = parsed
             metrics = self.topics.get((robot, topic))
             if metrics is None:
+                if not self._room_for(robot, topic):
+                    # not cached: invented names must not grow any table, even this one
+                    self.counters.over_limit += 1
+                    return None
                 metrics = TopicMetrics(robot, topic, cache=self.cache_control.slot(robot, topic))
                 self.topics[(robot, topic)] = metrics
             self._by_key[key] = metrics
         return metrics
 
+    def _room_for(self, robot: str, topic: str) -> bool:
+        """Per-topic state is created only for valid names within the limits, so a client
+        inventing robot ids or topic names cannot make the CEDDP grow without bound."""
+        try:
+            keys.check_chunk(robot, what="robot id")
+            keys.check_chunk(topic, what="topic")
+        except keys.KeyError_:
+            return False
+        count = self._topics_per_robot.get(robot)
+        if count is None:
+            if len(self._topics_per_robot) >= self.max_robots:
+                return False
+            count = 0
+        if count >= self.max_topics_per_robot:
+            return False
+        self._topics_per_robot[robot] = count + 1
+        return True
+
     def handle_sensor(self, key: str, payload: bytes, arrival_ns: int) -> None:
+        over = self.counters.over_limit
         metrics = self.metrics_for(key)
         if metrics is None:
+            if self.counters.over_limit != over:
+                if (
+                    self.counters.over_limit in (1, 10, 100)
+                    or self.counters.over_limit % 10000 == 0
+                ):
+                    log.warning(
+                        "sample on %s dropped: too many robots or topics, or an invalid "
+                        "name (%d so far)",
+                        key,
+                        self.counters.over_limit,
+                    )
+                return
             self.counters.unknown_keys += 1
             if (
                 self.counters.unknown_keys in (1, 10, 100)

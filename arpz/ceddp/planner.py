@@ -16,6 +16,7 @@ from typing import Protocol
 
 import msgspec
 
+from arpz import keys
 from arpz.messages import Hello, SensorValue, Telemetry
 
 log = logging.getLogger(__name__)
@@ -75,6 +76,8 @@ class HelloRelayCounters:
     #: Hellos that could not be forwarded because no relay robot is present
     no_relay: int = 0
     bad_stage: int = 0
+    #: Hellos naming an origin that is not a robot id (forged or corrupt): dropped
+    bad_origin: int = 0
 
 
 class HelloRelay(Planner):
@@ -98,6 +101,12 @@ class HelloRelay(Planner):
             (self._present.add if alive else self._present.discard)(robot)
 
     def on_hello(self, robot: str, hello: Hello) -> None:
+        try:
+            keys.check_chunk(hello.origin, what="Hello origin")
+        except keys.KeyError_:
+            self.counters.bad_origin += 1
+            log.warning("Hello from %s with an invalid origin %r dropped", robot, hello.origin)
+            return
         if hello.stage == 0:
             relay = self.relay or hello.origin
             with self._lock:

@@ -131,7 +131,13 @@ class CeddpServer:
             )
             self.planners.append(self.mission)
         self._fanout = _Fanout(self.planners)
-        self.ingest = Ingest(config.fleet, self._fanout, CacheControl(enabled=config.cache_control))
+        self.ingest = Ingest(
+            config.fleet,
+            self._fanout,
+            CacheControl(enabled=config.cache_control),
+            max_robots=config.max_robots,
+            max_topics_per_robot=config.max_topics_per_robot,
+        )
         self.robots: dict[str, RobotRecord] = {}
         self.qos = (
             QosController(config.qos, writer_id("ceddp", self.incarnation))
@@ -499,6 +505,7 @@ class CeddpServer:
                 ]
                 robots[robot] = {
                     "alive": record.alive,
+                    "control_decode_errors": record.control_decode_errors,
                     "joins": record.joins,
                     "leaves": record.leaves,
                     "final_stats": bool(stats and stats.final),
@@ -535,6 +542,7 @@ class CeddpServer:
                 "channel_lost": self.counters.channel_lost,
                 "channel": msgspec.to_builtins(self._reader.stats()) if self._reader else None,
                 "unknown_keys": self.ingest.counters.unknown_keys,
+                "over_limit": self.ingest.counters.over_limit,
                 "unknown_control_keys": self.counters.unknown_control_keys,
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
