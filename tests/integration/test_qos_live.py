@@ -61,68 +61,68 @@ def test_a_fourth_robot_joins_and_leaves(tmp_path: Path) -> None:
     three = {"robot1", "robot2", "robot3"}
     four = three | {"robot4"}
     watcher = Watcher()
-    with ceddp(tmp_path, extra="[qos]\nenabled = true\nrmax_hz = 100.0\n") as (_server, endpoint):
-        with client(endpoint) as raw:
-            raw.subscribe("arpz/itest/ceddp/qos", watcher.on_assignment)
-            raw.subscribe("arpz/itest/robot/*/*", watcher.on_robot)
-            configs = [
-                write_robot(tmp_path, "robot1", endpoint, preset="machine1"),
-                write_robot(tmp_path, "robot2", endpoint, preset="machine2"),
-                write_robot(tmp_path, "robot3", endpoint, preset="machine3"),
-            ]
-            with robots(tmp_path, configs):
-                wait_until(lambda: watcher.latest(three) is not None, what="QoS for 3 robots")
-                before = watcher.latest(three)
-                assert before is not None
-                # eq. 1 topic counts 7, 6, 6: R = 300/19 - 1 Hz, D = 738 (hand-computed)
-                assert before.robots["robot1"].rate_hz == pytest.approx(300 / 19 - 1)
-                assert before.robots["robot1"].depth == 738
-                wait_until(lambda: bool(watcher.acked(before.epoch, three)), what="3 acks")
-                # the robots really run at R now (they were configured at 50 Hz)
-                wait_until(
-                    lambda: (
-                        "robot1" in watcher.stats
-                        and all(
-                            abs(t.produced_rate_hz - before.robots["robot1"].rate_hz) < 4
-                            for t in watcher.stats["robot1"].topics.values()
-                        )
-                    ),
-                    timeout_s=5,
-                    what="robot1 sensing at R",
-                )
+    qos = "[qos]\nenabled = true\nrmax_hz = 100.0\n"
+    with ceddp(tmp_path, extra=qos) as (_server, endpoint), client(endpoint) as raw:
+        raw.subscribe("arpz/itest/ceddp/qos", watcher.on_assignment)
+        raw.subscribe("arpz/itest/robot/*/*", watcher.on_robot)
+        configs = [
+            write_robot(tmp_path, "robot1", endpoint, preset="machine1"),
+            write_robot(tmp_path, "robot2", endpoint, preset="machine2"),
+            write_robot(tmp_path, "robot3", endpoint, preset="machine3"),
+        ]
+        with robots(tmp_path, configs):
+            wait_until(lambda: watcher.latest(three) is not None, what="QoS for 3 robots")
+            before = watcher.latest(three)
+            assert before is not None
+            # eq. 1 topic counts 7, 6, 6: R = 300/19 - 1 Hz, D = 738 (hand-computed)
+            assert before.robots["robot1"].rate_hz == pytest.approx(300 / 19 - 1)
+            assert before.robots["robot1"].depth == 738
+            wait_until(lambda: bool(watcher.acked(before.epoch, three)), what="3 acks")
+            # the robots really run at R now (they were configured at 50 Hz)
+            wait_until(
+                lambda: (
+                    "robot1" in watcher.stats
+                    and all(
+                        abs(t.produced_rate_hz - before.robots["robot1"].rate_hz) < 4
+                        for t in watcher.stats["robot1"].topics.values()
+                    )
+                ),
+                timeout_s=5,
+                what="robot1 sensing at R",
+            )
 
-                fourth = Process(
-                    "robot4",
-                    [
-                        "-m",
-                        "arpz.robot",
-                        "--config",
-                        str(write_robot(tmp_path, "robot4", endpoint, preset="machine2")),
-                    ],
-                    tmp_path,
-                )
-                try:
-                    fourth.wait_for("running")
-                    wait_until(lambda: watcher.latest(four) is not None, what="QoS for 4")
-                    joined = watcher.latest(four)
-                    assert joined is not None
-                    # T = 7, 6, 6, 6: T_avg 6.25, R = 16 - 1 = 15 Hz, D = 749
-                    assert joined.robots["robot4"].rate_hz == pytest.approx(15.0)
-                    assert joined.robots["robot2"].depth == 749
-                    wait_until(lambda: bool(watcher.acked(joined.epoch, four)), what="4 acks")
-                    for ack in watcher.acked(joined.epoch, four).values():
-                        assert ack.rate_hz == pytest.approx(15.0) and ack.depth == 749
-                        assert (ack.stamp_ns - joined.stamp_ns) / 1e9 < 1.0, ack
-                    assert fourth.interrupt() == 0
-                finally:
-                    fourth.kill()
-                left_at = time.time_ns()
-                wait_until(
-                    lambda: (m := watcher.latest(three)) is not None and m.epoch > joined.epoch,
-                    what="QoS for 3 again",
-                )
-                after = watcher.latest(three)
-                assert after is not None and after.robots == before.robots
-                wait_until(lambda: bool(watcher.acked(after.epoch, three)), what="3 acks again")
-                for ack in watcher.acked(after.epoch, three).values():
-                    assert (ack.stamp_ns - left_at) / 1e9 < 1.0, ack
+            fourth = Process(
+                "robot4",
+                [
+                    "-m",
+                    "arpz.robot",
+                    "--config",
+                    str(write_robot(tmp_path, "robot4", endpoint, preset="machine2")),
+                ],
+                tmp_path,
+            )
+            try:
+                fourth.wait_for("running")
+                wait_until(lambda: watcher.latest(four) is not None, what="QoS for 4")
+                joined = watcher.latest(four)
+                assert joined is not None
+                # T = 7, 6, 6, 6: T_avg 6.25, R = 16 - 1 = 15 Hz, D = 749
+                assert joined.robots["robot4"].rate_hz == pytest.approx(15.0)
+                assert joined.robots["robot2"].depth == 749
+                wait_until(lambda: bool(watcher.acked(joined.epoch, four)), what="4 acks")
+                for ack in watcher.acked(joined.epoch, four).values():
+                    assert ack.rate_hz == pytest.approx(15.0) and ack.depth == 749
+                    assert (ack.stamp_ns - joined.stamp_ns) / 1e9 < 1.0, ack
+                assert fourth.interrupt() == 0
+            finally:
+                fourth.kill()
+            left_at = time.time_ns()
+            wait_until(
+                lambda: (m := watcher.latest(three)) is not None and m.epoch > joined.epoch,
+                what="QoS for 3 again",
+            )
+            after = watcher.latest(three)
+            assert after is not None and after.robots == before.robots
+            wait_until(lambda: bool(watcher.acked(after.epoch, three)), what="3 acks again")
+            for ack in watcher.acked(after.epoch, three).values():
+                assert (ack.stamp_ns - left_at) / 1e9 < 1.0, ack
