@@ -36,13 +36,17 @@ def solve(
     model: Model, *, problem: Literal[1, 2], method: Method, time_limit_s: float = 60.0
 ) -> Solution:
     """Solve Problem 1 or 2 of a model with one of the three methods."""
-    from arpz.configure import exact, greedy, improved
-
     compiled = Problem.build(model, problem)
     if method == "greedy":
+        from arpz.configure import greedy
+
         return greedy.solve(compiled)
     if method == "improved":
+        from arpz.configure import improved
+
         return improved.solve(compiled, time_budget_s=min(time_limit_s, 10.0))
+    from arpz.configure import exact  # imports CVXPY: only when asked for
+
     return exact.solve(compiled, time_limit_s=time_limit_s)
 
 

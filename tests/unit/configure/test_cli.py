@@ -39,8 +39,9 @@ def instance4(tmp_path_factory):
     return path
 
 
-@pytest.mark.parametrize("method", ["greedy", "exact", "improved"])
-@pytest.mark.parametrize("problem", ["1", "2"])
+@pytest.mark.parametrize(
+    ("method", "problem"), [("greedy", "1"), ("improved", "2"), ("exact", "1"), ("exact", "2")]
+)
 def test_solve_json_is_one_feasible_object(instance4, method, problem):
     proc = run("solve", str(instance4), "--problem", problem, "--method", method, "--json")
     assert proc.returncode == 0, proc.stderr
