@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
+from arpz.cli import configure_logging, stop_on_signals
 from arpz.config import CeddpConfig, ConfigError, from_dict, load_toml
 from arpz.transport import SessionSettings, TransportError, ZenohTransport
 
@@ -51,9 +50,7 @@ def load(args: argparse.Namespace) -> CeddpConfig:
 
 def serve(argv: list[str] | None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(
-        level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    configure_logging(args.log_level)
     try:
         config = load(args)
     except ConfigError as exc:
@@ -70,9 +67,7 @@ def serve(argv: list[str] | None) -> int:
         return 1
     from arpz.ceddp.server import CeddpServer
 
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         transport = ZenohTransport.open(
             SessionSettings(

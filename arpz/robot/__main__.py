@@ -8,12 +8,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Any
 
+from arpz.cli import configure_logging, stop_on_signals
 from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
 from arpz.robot.agent import RobotAgent
 from arpz.robot.sensors.factory import DriverError
@@ -79,17 +78,13 @@ def load(args: argparse.Namespace) -> RobotConfig:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(
-        level=args.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
+    configure_logging(args.log_level)
     try:
         config = load(args)
     except ConfigError as exc:
         print(f"arpz.robot: bad configuration: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         transport = ZenohTransport.open(
             SessionSettings(mode="client", connect=config.connect, config_file=config.zenoh_config),
