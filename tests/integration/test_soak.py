@@ -126,8 +126,10 @@ def test_counts_reconcile_robots_stay_flat_and_the_ceddp_keeps_up(soak: SoakRun)
             assert t["produced"] == t["sent"] + t["held_back"] > 0, (robot, topic, t)
             assert t["received"] == t["sent"] and t["lost"] == 0, (robot, topic, t)
             assert t["decode_errors"] == 0, (robot, topic, t)
-        # a CEDDP falling behind would show as latency growing with the backlog
-        assert record["latency_ms_p99"] < 500, (robot, record["latency_ms_p99"])
+        # a CEDDP falling behind would show as latency growing with the backlog (to seconds
+        # within a minute); the bounds leave room for a loaded CI machine's scheduling spikes
+        latency = (record["latency_ms_p50"], record["latency_ms_p99"])
+        assert latency[0] < 250 and latency[1] < 2000, (robot, latency)
         # nothing held the robots back for long (backpressure from a slow CEDDP would)
         produced = sum(t["produced"] for t in record["topics"].values())
         assert produced > 0.6 * TOPICS_PER_ROBOT * RATE_HZ * SOAK_S, (robot, produced)
