@@ -174,8 +174,13 @@ def test_invented_topic_names_cannot_grow_the_ceddp_without_bound(tmp_path: Path
             raw.put(f"{R1}/sensor/t{i}", payload)
         settle(3.0)
         growth = rss_mb(pid) - rss_before
-        server.kill()
+        assert server.interrupt() == 0, server.output()  # and it still stops in time
     assert growth < 40, f"the CEDDP grew by {growth:.0f} MB"
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    tracked = summary["robots"]["robot1"]["topics"]
+    assert 0 < len(tracked) <= 64, len(tracked)  # max_topics_per_robot's default
+    # (raw puts may be dropped on the way under load, so the sum is at most what was sent)
+    assert 0 < summary["ingest"]["over_limit"] <= 20_000 - len(tracked)
 
 
 def test_a_forged_hello_cannot_stop_the_ceddp(tmp_path: Path) -> None:
