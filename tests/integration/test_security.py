@@ -187,6 +187,8 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
             open_client(endpoint, client_config(tls, "robot2")) as spy,
             open_client(endpoint, client_config(tls, "robot2")) as forger,
             open_client(endpoint, client_config(tls, "operator")) as observer,
+            # a second session: a session's own puts reach its own subscribers without the router
+            open_client(endpoint, client_config(tls, "operator")) as observer_writes,
         ):
             spy.subscribe(f"{r1}/**", spied)
             spy.subscribe(f"arpz/{FLEET}/ceddp/stats", spied)
@@ -202,6 +204,8 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
             for key, payload in _forge(r1).items():
                 forger.put(key, payload)
             forger.declare_token(f"arpz/{FLEET}/robot/robot9/presence")
+            for key, payload in _forge(r1).items():  # the observer certificate is read-only
+                observer_writes.put(key, payload)
             # the positive control on the same link, sent last: it must arrive
             for seq in (1, 2, 3):
                 forger.put(f"{r2}/sensor/probe", encode(Sample("robot2:0000000probe", seq, 1, 2.0)))
@@ -236,7 +240,6 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
     last = reports[-1]
     assert last is not None
     assert last.command_decode_errors == 0 and last.commands_received > 0
-    # the observer certificate is read-only: it cannot put either (nothing it sends is counted)
 
     summary = json.loads((tmp_path / "summary.json").read_text())
     robot1 = summary["robots"]["robot1"]
