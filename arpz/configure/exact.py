@@ -268,9 +268,9 @@ def solve(
     best_obj: float | None = None
     best_cl: tuple[list[int], list[int]] | None = None
 
-    def heuristic(budget_s: float) -> None:
+    def heuristic(budget_s: float, seed: list[int] | None = None) -> None:
         nonlocal best_obj, best_cl
-        found = improved.solve(problem, time_budget_s=max(budget_s, 0.5))
+        found = improved.solve(problem, time_budget_s=max(budget_s, 0.5), seed=seed)
         if (
             found.objective is not None
             and not check(problem.model, found)
@@ -314,7 +314,11 @@ def solve(
     # best placement the links carry: the improved heuristic's, or the full MILP's when it is
     # small enough to try.
     bound = agg.bound
-    heuristic(deadline - time.perf_counter() - 0.5)
+    if agg.computer is not None:
+        # from the relaxation's placement, its overloaded links repaired
+        heuristic((deadline - time.perf_counter()) / 2, seed=agg.computer)
+    if best_cl is None or agg.computer is None:
+        heuristic(deadline - time.perf_counter() - 0.5)
     full_status: Status = "time_limit"
     remaining = deadline - time.perf_counter()
     if _full_size(problem) <= FULL_MILP_MAX_PAIRS and remaining > 1.0:

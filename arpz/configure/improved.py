@@ -225,6 +225,65 @@ class _Search:
                     return True
         return False
 
+    # link repair -----------------------------------------------------------------------------
+    def _over(self, link: int, load: float) -> float:
+        return max(0.0, load - self.p.link_bandwidth[link])
+
+    def overload(self) -> float:
+        return sum(self._over(k, v) for k, v in enumerate(self.state.link_load))
+
+    def repair(self, deadline: float) -> bool:
+        """Move units off overloaded links, least overload first, then least value lost.
+        True when no link is overloaded any more."""
+        p, st = self.p, self.state
+        while (current := self.overload()) > EPS:
+            if time.perf_counter() > deadline:
+                return False
+            over = {k for k, v in enumerate(st.link_load) if v > p.link_bandwidth[k] + EPS}
+            units: set[int] = set()
+            for a, b, _ in p.messages:
+                ca, cb = st.computer[a], st.computer[b]
+                if ca != cb and p.link_between(ca, cb) in over:
+                    units.update((p.unit_of[a], p.unit_of[b]))
+            moves: list[tuple[float, int, int]] = []
+            for u in sorted(units):
+                c = st.computer[p.units[u][0]]
+                leave = st.traffic(u, c) or {}
+                for d in p.unit_allowed[u]:
+                    if d == c or (st.unit_cpu(u) > st.free(d) + EPS and not p.growable(d)):
+                        continue
+                    arrive = st.traffic(u, d)
+                    if arrive is None:
+                        continue
+                    change = 0.0
+                    for k in set(leave) | set(arrive):
+                        old = st.link_load[k]
+                        new = old - leave.get(k, 0.0) + arrive.get(k, 0.0)
+                        change += self._over(k, new) - self._over(k, old)
+                    if change < -EPS:
+                        moves.append((change, u, d))
+            if not moves:
+                return False
+            moves.sort()
+            best_gain, best = float("-inf"), moves[0]
+            for change, u, d in moves[:20]:
+                if change > moves[0][0] + EPS:
+                    break
+                c = st.computer[p.units[u][0]]
+                gain = (
+                    self.value(c, [x for x in self.members[c] if x != u])
+                    + self.value(d, [*self.members[d], u])
+                    - self.value(c, self.members[c])
+                    - self.value(d, self.members[d])
+                )
+                if gain > best_gain:
+                    best_gain, best = gain, (change, u, d)
+            _, u, d = best
+            self._apply([(u, d)])
+            if self.overload() >= current - EPS:
+                return False
+        return True
+
     # final settings --------------------------------------------------------------------------
     def levels(self) -> list[int]:
         """Reconstruct the knapsack's choice of setting for every node (Problem 1)."""
@@ -251,9 +310,20 @@ class _Search:
         return level
 
 
-def solve(problem: Problem, *, time_budget_s: float = 10.0) -> Solution:
+def solve(
+    problem: Problem, *, time_budget_s: float = 10.0, seed: list[int] | None = None
+) -> Solution:
+    """``seed``: a computer per node to start from instead of the greedy's answer (the exact
+    method passes its relaxation's placement); links it overloads are repaired first, and the
+    greedy's start is used if they cannot be."""
     start = time.perf_counter()
-    state = _start(problem)
+    state = None
+    if seed is not None:
+        state = _seeded(problem, seed)
+        if state is not None and not _Search(problem, state).repair(start + time_budget_s / 2):
+            state = None
+    if state is None:
+        state = _start(problem)
     if state is None:
         return no_solution(
             problem,
@@ -279,6 +349,22 @@ def solve(problem: Problem, *, time_budget_s: float = 10.0) -> Solution:
         solve_time_s=time.perf_counter() - start,
         message=LOCAL_OPTIMUM if converged else BUDGET_HIT,
     )
+
+
+def _seeded(problem: Problem, seed: list[int]) -> State | None:
+    """A state at minimum settings on the seed's computers (links not checked yet)."""
+    state = State(problem)
+    for u, members in enumerate(problem.units):
+        c = seed[members[0]]
+        if c not in problem.unit_allowed[u] or any(seed[n] != c for n in members):
+            return None
+        state.place(u, c, state.traffic(u, c) or {})
+    for c in range(len(problem.computers)):
+        if state.load[c] > state.capacity[c] + EPS:
+            return None
+    if any(state.traffic(u, state.computer[m[0]]) is None for u, m in enumerate(problem.units)):
+        return None
+    return state
 
 
 def _start(problem: Problem) -> State | None:
