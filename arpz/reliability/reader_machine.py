@@ -293,8 +293,9 @@ class ReaderMachine:
             # The common case, in order with nothing pending: what _sample and _deliver do, inline.
             now = self._mono()
             p.lease.last_s = now
-            p.deadline.last_s = now
-            p.deadline.reported = 0
+            actions: list[Action] = []
+            if p.deadline.period_s:
+                self._deadline_met(p, now, actions)
             p.expected = seq + 1
             if seq > p.highest:
                 p.highest = seq
@@ -304,9 +305,7 @@ class ReaderMachine:
             if retransmitted:
                 self.retransmitted += 1
                 self._measure_rtt(p, now)
-            actions: list[Action] = [
-                Deliver(payload, DataInfo(p.topic, p.hex, seq, stamp, retransmitted))
-            ]
+            actions.append(Deliver(payload, DataInfo(p.topic, p.hex, seq, stamp, retransmitted)))
             if flags & wire.F_ACK_REQUEST and self._reliable:
                 actions.append(self._acknack(p, now))
             return actions
@@ -395,7 +394,7 @@ class ReaderMachine:
         now: float,
         actions: list[Action],
     ) -> None:
-        p.deadline.reset(now)
+        self._deadline_met(p, now, actions)
         if self._lifespan_ns and self.clock.wall_ns() - stamp_ns > self._lifespan_ns:
             self.lifespan_expired += 1
             return
@@ -404,6 +403,14 @@ class ReaderMachine:
         self.delivered += 1
         p.delivered += 1
         actions.append(Deliver(payload, DataInfo(p.topic, p.hex, seq, stamp_ns, retransmitted)))
+
+    def _deadline_met(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        missed = p.deadline.reset(now)
+        if missed:
+            self.deadline_missed += missed
+            actions.append(
+                Notify("deadline", DeadlineMissedStatus(self.deadline_missed, missed, p.hex))
+            )
 
     def _add_lost(self, p: _WriterProxy, n: int, actions: list[Action]) -> None:
         if n <= 0:
@@ -461,7 +468,7 @@ class ReaderMachine:
             self._alive(p, now, actions)
         if hb.flags & wire.HB_UNCHANGED:
             self.unchanged += 1
-            p.deadline.reset(now)
+            self._deadline_met(p, now, actions)
             actions.append(
                 Notify(
                     "unchanged",

@@ -50,9 +50,13 @@ class DeadlineTimer:
         self.reported = 0
         self.total = 0
 
-    def reset(self, now_s: float) -> None:
+    def reset(self, now_s: float) -> int:
+        """A sample (or proof of an unchanged value) arrived: returns the misses since the last
+        poll first, so a late timer never forgets a period that did pass without one."""
+        new = self.poll(now_s)
         self.last_s = now_s
         self.reported = 0
+        return new
 
     def poll(self, now_s: float) -> int:
         """New misses since the last poll."""

@@ -210,7 +210,7 @@ class WriterMachine:
         self._asserted_since_hb = True
         if self._timed:
             now = self._mono()
-            self._deadline.reset(now)
+            self._deadline_met(now, actions)
             self._lease.assert_alive(now)
         if not self._n_reliable and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
@@ -270,7 +270,8 @@ class WriterMachine:
         heartbeat period), the requested deadline at every reader."""
         now = self.clock.monotonic_s()
         self.unchanged += 1
-        self._deadline.reset(now)
+        actions: list[Action] = []
+        self._deadline_met(now, actions)
         self._assert(now)
         # a reader checks at most the deadline it requested, so UNCHANGED heartbeats go at a third
         # of the shortest requested deadline (a third, not a half: margin for a loaded host or a
@@ -281,9 +282,15 @@ class WriterMachine:
         ]
         interval = min(requested) / 3 if requested else self.qos.heartbeat_period_s
         if now - self._last_unchanged_hb_s < interval:
-            return []
+            return actions
         self._last_unchanged_hb_s = now
-        return [self._heartbeat(now, wire.HB_UNCHANGED)]
+        actions.append(self._heartbeat(now, wire.HB_UNCHANGED))
+        return actions
+
+    def _deadline_met(self, now: float, actions: list[Action]) -> None:
+        missed = self._deadline.reset(now)
+        if missed:
+            actions.append(Notify("deadline", DeadlineMissedStatus(self._deadline.total, missed)))
 
     def assert_liveliness(self) -> list[Action]:
         """MANUAL_BY_TOPIC: prove the writer alive without writing."""

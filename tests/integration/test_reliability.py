@@ -171,20 +171,22 @@ def test_deadline_events_count_the_missed_periods_when_the_writer_pauses() -> No
         ) as w,
     ):
         wait_until(lambda: synced(w), what="match")
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end:  # 50 Hz, then held-back readings: no miss
-            w.write(b"x")
+        longest_gap, last = 0.0, time.monotonic()
+        for call in [w.write] * 25 + [lambda _: w.assert_unchanged()] * 25:
+            call(b"x")  # 50 Hz, then held-back readings: no miss
             time.sleep(0.02)
-        end = time.monotonic() + 0.5
-        while time.monotonic() < end:
-            w.assert_unchanged()
-            time.sleep(0.02)
-        assert missed_r == [] and missed_w == []
+            longest_gap, last = max(longest_gap, time.monotonic() - last), time.monotonic()
+        if longest_gap < 0.07:  # a host starved for a whole period would miss for real
+            assert missed_r == [] and missed_w == []
+        paused_at = time.monotonic()
         time.sleep(0.55)  # a pause of 5.5 periods
+        periods = int((time.monotonic() - paused_at) / 0.1)  # 5, more on a starved host
         w.write(b"back")
+        wait_until(lambda: sum(missed_w) >= periods, timeout_s=2, what="writer misses")
+        wait_until(lambda: sum(missed_r) >= periods - 1, timeout_s=2, what="reader misses")
         time.sleep(0.05)
-        assert sum(missed_w) == 5
-        assert 4 <= sum(missed_r) <= 6  # the reader's clock starts a network hop later
+        assert periods <= sum(missed_w) <= periods + 1
+        assert periods - 1 <= sum(missed_r) <= periods + 1  # the reader is a network hop later
 
 
 _WRITER_PROCESS = textwrap.dedent(
@@ -258,7 +260,7 @@ def test_keep_all_write_raises_after_max_blocking_time_when_the_reader_stops_ack
 
 
 def test_manual_liveliness_lease_expires_and_recovers_through_the_router() -> None:
-    qos = QosProfile(liveliness=LivelinessPolicy.MANUAL_BY_TOPIC, lease_duration_s=0.3)
+    qos = QosProfile(liveliness=LivelinessPolicy.MANUAL_BY_TOPIC, lease_duration_s=1.0)
     changes: list[LivelinessChangedStatus] = []
     lost: list[int] = []
     with (
@@ -277,7 +279,7 @@ def test_manual_liveliness_lease_expires_and_recovers_through_the_router() -> No
             w.assert_liveliness()
             time.sleep(0.05)
         assert changes[-1].alive_count == 1 and lost == []
-        wait_until(lambda: changes[-1].not_alive_count == 1, timeout_s=3, what="lease expiry")
+        wait_until(lambda: changes[-1].not_alive_count == 1, timeout_s=5, what="lease expiry")
         assert changes[-1].alive_count == 0 and lost == [1]
         w.assert_liveliness()
-        wait_until(lambda: changes[-1].alive_count == 1, timeout_s=3, what="alive again")
+        wait_until(lambda: changes[-1].alive_count == 1, timeout_s=5, what="alive again")
