@@ -11,6 +11,7 @@ allowed thing), so "nothing arrived" cannot pass because nothing was sent.
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 import threading
@@ -321,3 +322,22 @@ def test_the_reliable_channel_works_through_the_access_control(tmp_path: Path) -
     for robot in ("robot1", "robot2"):
         _reconciles(summary, robot)
         assert summary["robots"][robot]["received"] > 0
+
+
+@pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="needs systemd-analyze")
+def test_the_systemd_units_verify(tmp_path: Path) -> None:
+    """What `systemctl enable` would load: syntax, directives, the robot template's instance."""
+    units = ROOT / "deploy" / "systemd"
+    made = []
+    for source, name in (
+        ("arpz-ceddp.service", "arpz-ceddp.service"),
+        ("arpz-robot@.service", "arpz-robot@robot1.service"),
+    ):
+        text = (units / source).read_text().replace("/opt/arpz/venv/bin/python", sys.executable)
+        (tmp_path / name).write_text(text)
+        made.append(str(tmp_path / name))
+    done = subprocess.run(
+        ["systemd-analyze", "verify", *made], capture_output=True, text=True, timeout=60
+    )
+    # it exits 0 even for an unknown directive or value, which it only prints
+    assert done.returncode == 0 and not (done.stdout + done.stderr).strip(), done.stderr
