@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import itertools
+import time
 
+import msgspec
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
@@ -251,3 +253,36 @@ def test_exact_reports_a_time_limit_with_a_valid_bound():
     if result.status == "time_limit" and result.bound is not None:
         assert result.bound >= result.objective - 1e-6
         assert result.gap is not None and result.gap >= 0
+
+
+def test_improved_repairs_a_seed_that_overloads_a_link():
+    model = Model(
+        computers=[
+            Computer(name="r", kind="robot", capacity=50),
+            Computer(name="s", kind="server", capacity=50),
+        ],
+        links=[Link(between=("r", "s"), bandwidth=1)],
+        nodes=[
+            Node(
+                name="a", settings=[Setting(cpu=10, performance=1), Setting(cpu=30, performance=5)]
+            ),
+            Node(
+                name="b", settings=[Setting(cpu=10, performance=1), Setting(cpu=30, performance=5)]
+            ),
+        ],
+        messages=[Message(source="a", to="b", bandwidth=2)],
+    )
+    problem = Problem.build(model, 1)
+    state = improved._seeded(problem, [0, 1])  # a on r, b on s: 2 > 1 on the link
+    assert state is not None and state.link_load == [2.0]
+    assert improved._Search(problem, state).repair(time.perf_counter() + 5)
+    assert state.link_load == [0.0] and state.computer[0] == state.computer[1]
+    apart = improved.solve(problem, seed=[0, 1])
+    assert check(model, apart) == []
+    assert apart.assignment["a"].computer == apart.assignment["b"].computer
+    # a seed outside a residence is ignored, not trusted
+    pinned = msgspec.structs.replace(
+        model, nodes=[msgspec.structs.replace(model.nodes[0], residence=["s"]), model.nodes[1]]
+    )
+    result = improved.solve(Problem.build(pinned, 1), seed=[0, 0])
+    assert check(pinned, result) == [] and result.assignment["a"].computer == "s"
