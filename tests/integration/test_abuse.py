@@ -18,6 +18,7 @@ import msgspec
 import pytest
 
 from arpz.messages import CEDDP_STATS_DECODER, Hello, Sample, encode
+from arpz.reliability import wire
 from arpz.transport import ZenohTransport
 from tests.integration.fleet import ceddp, robots, settle, write_robot
 from tests.integration.secure_fleet import rss_mb
@@ -197,3 +198,41 @@ def test_a_forged_hello_cannot_stop_the_ceddp(tmp_path: Path) -> None:
         assert server.interrupt() == 0, server.output()
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["robots"]["robot1"]["topics"]["pir"]["received"] == 100
+
+
+CHANNEL = '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_last"\ndepth = 50\n'
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the reliable channel's reader trusts a HEARTBEAT's `last`: one forged heartbeat "
+    "claiming seq 10**12 for a real writer makes the CEDDP count ~10**12 samples lost "
+    "(channel_lost) and then drop every real sample of that topic as a duplicate (seq below "
+    "the forged one), silently blackholing the topic until the robot restarts",
+)
+def test_forged_heartbeats_cannot_blackhole_a_reliable_topic(tmp_path: Path) -> None:
+    with ceddp(tmp_path, extra=CHANNEL) as (server, endpoint):
+        config = write_robot(tmp_path, "robot1", endpoint, preset="machine2")
+        config.write_text(config.read_text() + CHANNEL)
+        tokens: list[str] = []
+        with robots(tmp_path, [config]) as procs, client(endpoint) as raw:
+            # the writers announce themselves with liveliness tokens anyone may watch
+            raw.watch_liveliness(f"{R1}/sensor/*/rel/w/*/*", lambda key, alive: tokens.append(key))
+            wait_until(lambda: len(tokens) >= 5, what="robot1's writer tokens")
+            for key in list(tokens):
+                split = wire.split_control_key(key, "w", 2)
+                assert split is not None, key
+                topic, (writer_hex, _qos) = split
+                guid = bytes.fromhex(writer_hex)
+                for i in range(100):  # "I have written up to 10**12": numbers never sent
+                    raw.put(
+                        wire.heartbeat_key(topic, writer_hex),
+                        wire.encode_heartbeat(0, guid, 1, 10**12 + i, i + 1),
+                    )
+            settle(2.0)
+            assert procs[0].interrupt() == 0, procs[0].output()
+        assert server.interrupt() == 0, server.output()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    for topic, t in summary["robots"]["robot1"]["topics"].items():
+        assert t["received"] == t["sent"] and t["lost"] == 0, (topic, t)
+    assert summary["ingest"]["channel_lost"] < 1000, summary["ingest"]
