@@ -135,7 +135,7 @@ def draw(rows: list[Row], path: str) -> None:
             ax.set_ylim(0.98, max([*finite, 1.02]) + 0.02)
             ax.set_title("Problem 2: server capacity / optimum (lower is better)")
         ax.set_xlabel("instance (1-6: paper's Table II; then larger)")
-        ax.legend(loc="lower left" if kind == 1 else "upper left", fontsize=8)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
