@@ -28,8 +28,9 @@ def main() -> None:
     print("# fleets: (robots, cameras, computers) =", fleets)
     print(figure5.HEADER, flush=True)
     start = time.perf_counter()
-    rows = figure5.run(models, time_limit_s=args.time_limit,
-                       progress=lambda line: print(line, flush=True))
+    rows = figure5.run(
+        models, time_limit_s=args.time_limit, progress=lambda line: print(line, flush=True)
+    )
     figure5.draw(rows, args.png)
     for kind in (1, 2):
         sel = [r for r in rows if r.problem == kind]
