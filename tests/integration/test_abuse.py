@@ -236,3 +236,47 @@ def test_forged_heartbeats_cannot_blackhole_a_reliable_topic(tmp_path: Path) -> 
     for topic, t in summary["robots"]["robot1"]["topics"].items():
         assert t["received"] == t["sent"] and t["lost"] == 0, (topic, t)
     assert summary["ingest"]["channel_lost"] < 1000, summary["ingest"]
+
+
+def test_forged_acknacks_cost_bounded_work_and_lose_nothing(tmp_path: Path) -> None:
+    """ACKNACKs in the name of the CEDDP's real reader (its GUID is in its liveliness token)
+    asking for every number up to 2**63 and acknowledging numbers never sent, and ACKNACKs from
+    readers that do not exist: the robot's writers resend at most their budget per message, the
+    reader drops the duplicates, and every real sample arrives exactly once."""
+    with ceddp(tmp_path, extra=CHANNEL) as (server, endpoint):
+        config = write_robot(tmp_path, "robot1", endpoint, preset="machine2")
+        config.write_text(config.read_text() + CHANNEL)
+        writers: list[str] = []
+        readers: list[str] = []
+        with robots(tmp_path, [config]) as procs, client(endpoint) as raw:
+            raw.watch_liveliness(f"{R1}/sensor/*/rel/w/*/*", lambda key, _a: writers.append(key))
+            raw.watch_liveliness(f"{R1}/sensor/*/rel/r/*/*", lambda key, _a: readers.append(key))
+            wait_until(lambda: len(writers) >= 5 and len(readers) >= 5, what="channel tokens")
+            reader_of = {}
+            for key in list(readers):
+                split = wire.split_control_key(key, "r", 2)
+                assert split is not None, key
+                reader_of[split[0]] = split[1][0]
+            for key in list(writers):
+                split = wire.split_control_key(key, "w", 2)
+                assert split is not None, key
+                topic, (writer_hex, _qos) = split
+                writer = bytes.fromhex(writer_hex)
+                for reader_hex in (reader_of[topic], "00000000deadbeef"):
+                    reader = bytes.fromhex(reader_hex)
+                    everything = wire.encode_acknack(reader, writer, 1, 1, [(1, wire.MAX_SEQ)])
+                    beyond = wire.encode_acknack(reader, writer, 10**12, 2, [])
+                    for payload in (everything, beyond) * 20:
+                        raw.put(wire.acknack_key(topic, writer_hex, reader_hex), payload)
+            settle(2.0)
+            assert procs[0].popen.poll() is None, procs[0].output()
+            assert procs[0].interrupt() == 0, procs[0].output()
+        assert server.interrupt() == 0, server.output()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    robot1 = summary["robots"]["robot1"]
+    for topic, t in robot1["topics"].items():
+        assert t["produced"] == t["sent"] + t["held_back"] + t["write_failures"] > 0, (topic, t)
+        assert t["received"] == t["sent"] and t["lost"] == 0, (topic, t)
+    # the forged requests for resends were served, within the writers' budget per message
+    assert 0 < robot1["retransmitted"] <= 5 * 20 * 256
+    assert summary["ingest"]["channel"]["duplicates"] > 0
