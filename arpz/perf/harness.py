@@ -79,6 +79,10 @@ def perf_router(*listen: str) -> Iterator[None]:
         yield
 
 
+def _flags(key: str, transport: str, size: int) -> list[str]:
+    return ["--key", key, "--transport", transport, "--size", str(size)]
+
+
 def pubsub(
     *,
     transport: str,
@@ -92,17 +96,7 @@ def pubsub(
     key: str = "perf/topic",
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """One publisher process and one subscriber process; returns (pub result, sub report)."""
-    common = [
-        "--key",
-        key,
-        "--transport",
-        transport,
-        "--size",
-        str(size),
-        "--rate",
-        str(rate_hz),
-        *extra,
-    ]
+    common = [*_flags(key, transport, size), "--rate", str(rate_hz), *extra]
     with ExitStack() as stack:
         sub = stack.enter_context(
             child(
@@ -129,17 +123,7 @@ def pingpong(
     timeout_s: float = 120.0,
     key: str = "perf/rtt",
 ) -> dict[str, Any]:
-    common = [
-        "--connect",
-        connect,
-        "--key",
-        key,
-        "--transport",
-        transport,
-        "--size",
-        str(size),
-        *extra,
-    ]
+    common = ["--connect", connect, *_flags(key, transport, size), *extra]
     ping_args = _perf("ping", *common, "--count", str(count), "--rate", str(rate_hz))
     with child(_perf("pong", *common), ready="ready"), child(ping_args) as ping:
         return last_json(ping, timeout_s)
