@@ -73,3 +73,36 @@ def test_eq10_scales_the_running_settings_performance_by_the_frequency_ratio():
     assert row.p_measured == pytest.approx(60.0)
     (plain,) = eq10(obs)
     assert plain.p_measured == pytest.approx(75.0)
+
+
+def test_eq10_counts_readings_the_local_cache_held_back():
+    def report(t_s: float, held: int) -> RobotStats:
+        return RobotStats(
+            robot="r1",
+            incarnation="i",
+            stamp_ns=int(t_s * 1e9),
+            final=False,
+            topics={"pir": TopicCounters(held_back=held, rate_hz=1.0)},
+        )
+
+    obs = Observations(
+        robot_stats={"r1": [report(0, 0), report(2, 38)]},  # 19 readings/s held back
+        announce={
+            "r1": Announce(
+                robot="r1",
+                incarnation="i",
+                commands=[],
+                sensors=[TopicInfo(topic="pir", kind="pir", rate_hz=20.0, value_type="str")],
+            )
+        },
+        ceddp=[
+            CeddpStats(
+                stamp_ns=1,
+                cpu_percent=5.0,
+                topics=[TopicRate(robot="r1", topic="pir", rate_hz=1.0, bytes_per_s=10.0)],
+            )
+        ],
+    )
+    (row,) = eq10(obs)
+    assert row.f_arrived_hz == pytest.approx(1.0) and row.f_held_back_hz == pytest.approx(19.0)
+    assert row.p_measured == pytest.approx(100.0)
