@@ -33,5 +33,6 @@ def test_public_names_are_exported():
         "solution",
         "state",
         "annotations",
+        "Literal",
     }
     assert public - modules - set(configure.__all__) == set()
