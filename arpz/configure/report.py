@@ -6,7 +6,26 @@ from typing import Any
 
 from arpz.configure.check import check, loads
 from arpz.configure.model import Model
+from arpz.configure.regression import fit
 from arpz.configure.solution import Solution
+
+
+def curves(model: Model) -> dict[str, dict[str, Any]]:
+    """The fitted curve of every node with a continuum: kind, R^2, equation, CPU range."""
+    out: dict[str, dict[str, Any]] = {}
+    for node in model.nodes:
+        if node.continuum is None:
+            continue
+        cpu = [s.cpu for s in node.settings]
+        curve = fit(cpu, [s.performance for s in node.settings], node.continuum.fit)
+        out[node.name] = {
+            "fit": curve.kind,
+            "r2": round(curve.r2, 6),
+            "equation": curve.equation(),
+            "cpu": [min(cpu), max(cpu)],
+            "step": node.continuum.step,
+        }
+    return out
 
 
 def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
@@ -40,6 +59,7 @@ def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
         if solution.assignment
         else {},
         "server_capacity": solution.server_capacity,
+        "curves": curves(model),
         "violations": check(model, solution),
     }
 
@@ -74,6 +94,11 @@ def as_text(model: Model, solution: Solution) -> str:
         lines.append(f"{'link':<24} {'load':>8} {'bandwidth':>10}")
         for name, lk in data["links"].items():
             lines.append(f"{name:<24} {lk['load']:>8g} {lk['bandwidth']:>10g}")
+    if data["curves"]:
+        lines.append("")
+        lines.append(f"{'curve of':<{width}}  {'fit':<6} {'R^2':>8}  equation (x = cpu / 100)")
+        for name, c in data["curves"].items():
+            lines.append(f"{name:<{width}}  {c['fit']:<6} {c['r2']:>8.5f}  {c['equation']}")
     if data["violations"]:
         lines.append("")
         lines.append("VIOLATIONS (a solver bug):")

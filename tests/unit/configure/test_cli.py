@@ -60,6 +60,9 @@ def test_solve_json_is_one_feasible_object(instance4, method, problem):
     )
     assert check(model, solution) == []
     assert data["violations"] == []
+    # the paper's AMCL curve (Figure 4), fitted from Table I's three settings
+    assert data["curves"]["amcl1"]["fit"] == "poly2"
+    assert data["curves"]["amcl1"]["equation"].startswith("P = 135.4 x^2 + 55.126 x")
 
 
 def test_solve_text_has_nodes_computers_and_links(instance4):
