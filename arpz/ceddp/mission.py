@@ -141,7 +141,7 @@ class MissionRunner(Planner):
     def _run(self) -> None:
         period_s = 1.0 / self.config.tick_hz
         next_s = time.monotonic()
-        views_every = max(1, round(self.config.tick_hz / 5))
+        views_every = max(1, round(self.config.tick_hz / 2))  # 2 Hz: a world view is heavy
         ticks = 0
         while not self._stop.is_set():
             now_s = time.time()

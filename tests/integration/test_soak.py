@@ -147,12 +147,6 @@ def test_counts_reconcile_robots_stay_flat_and_the_ceddp_keeps_up(soak: SoakRun)
     assert late > 0.85 * early and late > 0.5 * offered, (offered, early, late)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the CEDDP's RSS grows ~0.3-0.5 MB/s with 3 robots x 6 topics at 100 Hz (~1.4 GB/h) "
-    "and its .rrd ~0.8 MB/s: the growth comes with the Rerun dashboard (one rr.log per scalar); "
-    "the same server without a dashboard grows ~0.04 MB/s (latency reservoirs)",
-)
 def test_the_ceddp_memory_stays_flat_after_warmup(soak: SoakRun) -> None:
     times, values = soak.after_warmup(soak.ceddp_mb)
     assert len(times) >= 10, soak.times
@@ -163,11 +157,6 @@ def test_the_ceddp_memory_stays_flat_after_warmup(soak: SoakRun) -> None:
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the .rrd grows ~0.8 MB/s with 18 topics (about 1 KB per logged scalar, ~70 GB a "
-    "day): the dashboard logs each metric of each topic with its own rr.log call every tick",
-)
 def test_the_recording_grows_by_kilobytes_per_topic_not_megabytes(soak: SoakRun) -> None:
     """A week-long run must fit on the server's disk: the dashboard's few metrics per topic
     every metrics period should cost tens of bytes each, not a kilobyte."""
