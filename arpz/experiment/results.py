@@ -46,6 +46,8 @@ COLUMNS: tuple[str, ...] = (
     "samples_discarded",
     "samples_retransmitted",
     "samples_overwritten_unacked",
+    # robots whose final counters reached the CEDDP (without them sent/lost are not final)
+    "final_reports",
     # the QoS actually used (OPT: the CEDDP's last assignment; otherwise the fixed one)
     "rate_hz",
     "qos_depth",
@@ -201,6 +203,7 @@ def row_from_summary(
         "samples_discarded": _sum(rows, "cc_discarded"),
         "samples_retransmitted": _sum(rows, "retransmitted"),
         "samples_overwritten_unacked": _sum(topics, "overwritten_unacked"),
+        "final_reports": sum(1 for r in rows if r.get("final_stats")),
         "rate_hz": rate_hz,
         "qos_depth": depth,
         "deadline_ms": deadline_ms,

@@ -81,6 +81,13 @@ class Links:
             proxy.down.imp = imp
         self.impaired_at = time.monotonic()
 
+    def clear(self) -> None:
+        """Back to a clean link for the shutdown: the robots' final reports (plain puts) and
+        the channel's last acknowledgements must not be lost, or the counts cannot reconcile."""
+        for proxy in self.proxies.values():
+            proxy.up.imp = Impairments()
+            proxy.down.imp = Impairments()
+
     def stop(self) -> dict[str, int]:
         totals = {"received": 0, "dropped": 0}
         for proxy in self.proxies.values():
@@ -124,19 +131,29 @@ def run_cell(
         )
 
         def until(ceddp: Proc) -> bool:
-            # called first once every robot runs: the measured window starts here
+            # called first once every robot runs: the measured window starts there, and ends
+            # after duration_s (or at the mission's verdict) with the links made clean again
+            now = time.monotonic()
             if links.impaired_at is None:
                 links.impair()
-            links.last_seen = time.monotonic()
-            return spec.mission is not None and ceddp.has_line("arpz.ceddp: mission ")
+            links.last_seen = now
+            if spec.mission is not None:
+                over = ceddp.has_line("arpz.ceddp: mission ")
+            else:
+                over = now - links.impaired_at >= spec.duration_s
+            if over:
+                links.clear()
+            return over
 
-        duration = (
+        # a backstop only: until() ends the window (a mission ends with its verdict, the time
+        # limit being the judge's)
+        backstop = (
             spec.mission.time_limit_s + MISSION_MARGIN_S
             if spec.mission is not None
-            else spec.duration_s
+            else spec.duration_s + MISSION_MARGIN_S
         )
         summary = run_fleet(
-            fleet, workdir, duration_s=duration, until=until, progress=None, label=cell.slug
+            fleet, workdir, duration_s=backstop, until=until, progress=None, label=cell.slug
         )
     except LaunchError as exc:
         link_totals = links.stop()

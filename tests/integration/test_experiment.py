@@ -55,9 +55,10 @@ def test_quick_preset(tmp_path: Path) -> None:
         tuple(r[k] for k in ("rmax_hz", "depth", "config", "repeat", "network")) for r in rows
     } == {c.key for c in spec.cells()}
     assert all(r["status"] == "ok" for r in rows), [r["error"] for r in rows]
-    assert consistency(rows) == []
+    assert consistency(rows) == [], rows
     for row in rows:
         assert int(row["samples_sent"]) > 0 and int(row["hello_sent"]) > 0
+        assert int(row["final_reports"]) == 3, row  # the shutdown runs over clean links
         assert (out / row["rrd"]).stat().st_size > 0
     by = {(r["network"], r["depth"], r["config"]): r for r in rows}
 

@@ -36,6 +36,7 @@ def _robot(produced: int, held: int, lost: int, **extra: Any) -> dict[str, Any]:
         "latency_ms_p50": 5.0,
         "latency_ms_p99": 9.0,
         "topics": {"imu": {"overwritten_unacked": 2}},
+        "final_stats": True,
         **extra,
     }
 
@@ -92,7 +93,7 @@ def test_row_from_summary_sums_and_percentages() -> None:
     assert row["samples_discarded"] == 9 and row["samples_overwritten_unacked"] == 6
     assert (row["rate_hz"], row["qos_depth"], row["deadline_ms"]) == (100.0, 10, 10.0)
     assert row["link_loss_pct"] == pytest.approx(8.0)
-    assert row["mission"] is None
+    assert row["mission"] is None and row["final_reports"] == 3
     assert set(row) <= set(COLUMNS)
 
 
