@@ -136,11 +136,12 @@ def run_cell(
             now = time.monotonic()
             if links.impaired_at is None:
                 links.impair()
+            started_at = links.impaired_at or now
             links.last_seen = now
             if spec.mission is not None:
                 over = ceddp.has_line("arpz.ceddp: mission ")
             else:
-                over = now - links.impaired_at >= spec.duration_s
+                over = now - started_at >= spec.duration_s
             if over:
                 links.clear()
             return over
