@@ -68,6 +68,7 @@ class _WriterProxy:
         "an_due_s",
         "an_key",
         "buffer",
+        "confirmed_high",
         "deadline",
         "delivered",
         "detect",
@@ -113,6 +114,10 @@ class _WriterProxy:
         self.expected = 1
         #: highest seq known to exist (from data or heartbeats)
         self.highest = 0
+        #: highest seq the writer proved it sent: received as data, or answered by a GAP. A
+        #: heartbeat alone can be forged (its key is public), so only this bounds how far time
+        #: or a writer's departure may declare samples lost
+        self.confirmed_high = 0
         #: out-of-order samples: seq -> (payload, stamp_ns, flags)
         self.buffer: dict[int, tuple[bytes, int, int]] = {}
         #: (seq, when): a heartbeat said nothing below seq is held any more; settle at ``when``
@@ -236,8 +241,9 @@ class ReaderMachine:
 
     def _unmatch(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
         """The writer is gone: what it had sent but we still miss can never come."""
-        if p.synced and (p.buffer or p.highest >= p.expected):
-            self._skip_to(p, p.highest + 1, actions)
+        end = min(p.highest, p.confirmed_high) + 1
+        if p.synced and end > p.expected:
+            self._skip_to(p, end, actions)
         if p.lease.alive:
             self.alive_count -= 1
             actions.append(self._liveliness(-1, 0, p.hex))
@@ -299,6 +305,8 @@ class ReaderMachine:
             p.expected = seq + 1
             if seq > p.highest:
                 p.highest = seq
+            if seq > p.confirmed_high:
+                p.confirmed_high = seq
             self.delivered += 1
             p.delivered += 1
             retransmitted = bool(flags & wire.F_RETRANSMIT)
@@ -339,6 +347,8 @@ class ReaderMachine:
             self._measure_rtt(p, now)
         self._alive(p, now, actions)
         seq = h.seq
+        if seq > p.confirmed_high and seq <= p.expected + MAX_JUMP:
+            p.confirmed_high = seq
         if not self._reliable:
             if not p.synced:
                 p.synced = True
@@ -523,7 +533,10 @@ class ReaderMachine:
         if not p.synced:
             return actions
         for lo, hi in ranges:
-            hi = min(hi, p.highest)
+            # a GAP may be forged too: it skips at most one window past what is proven
+            hi = min(hi, p.highest, max(p.confirmed_high, p.expected) + self._cap)
+            if hi > p.confirmed_high:
+                p.confirmed_high = hi
             self.gaps += max(0, hi - max(lo, p.expected) + 1)
             if hi < p.expected:
                 continue
@@ -639,6 +652,11 @@ class ReaderMachine:
         if p.gone_below is None or now < p.gone_below[1]:
             return
         below, p.gone_below = p.gone_below[0], None
+        if self._reliable:
+            # beyond what the writer proved it sent, NACKs (answered by resends or GAPs) decide
+            below = min(below, p.confirmed_high + 1)
+        else:  # no NACKs: trust a heartbeat up to one window past the data, no further
+            below = min(below, p.confirmed_high + 1 + self._cap)
         if below <= p.expected:
             return
         if self._reliable:
@@ -664,7 +682,10 @@ class ReaderMachine:
         while p.highest >= p.expected and p.detect and p.detect[0][1] <= limit:
             run_end = p.detect[0][0]
             nxt = min(p.buffer) if p.buffer else p.highest + 1
-            self._skip_to(p, min(nxt, run_end + 1), actions)
+            target = min(nxt, run_end + 1, p.confirmed_high + 1)
+            if target <= p.expected:
+                break  # nothing later is proven to exist: no head-of-line to unblock
+            self._skip_to(p, target, actions)
             if p.detect and p.detect[0][0] < p.expected:
                 p.detect.pop(0)
 

@@ -163,8 +163,12 @@ class WriterMachine:
         return acked
 
     def _purge(self) -> None:
-        """Drop what no reader can need any more: acknowledged samples of a VOLATILE writer."""
-        if self.qos.transient_local:
+        """KEEP_ALL VOLATILE: drop what every reliable reader acknowledged, to make room.
+
+        KEEP_LAST keeps its last ``depth`` samples whatever the acknowledgements say (as DDS
+        does): they cost nothing more than the bound already allows, a reader whose ACKNACK was
+        optimistic (or forged) can still get them again, and no purge runs per ACKNACK."""
+        if self.qos.transient_local or not self._keep_all:
             return
         limit = self._min_acked()
         if limit > self.last_seq:
