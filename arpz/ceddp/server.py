@@ -26,10 +26,11 @@ import msgspec
 
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
-from arpz.ceddp.ingest import Ingest, TopicMetrics
+from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.mission import MissionRunner, WorldView
 from arpz.ceddp.planner import HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
+from arpz.ceddp.summary import RobotReport, qos_summary, robot_summary
 from arpz.config import CeddpConfig
 from arpz.messages import (
     ANNOUNCE_DECODER,
@@ -45,7 +46,7 @@ from arpz.messages import (
     new_incarnation,
     writer_id,
 )
-from arpz.percentiles import Distribution, percentile
+from arpz.percentiles import percentile
 from arpz.reliability import (
     DataInfo,
     MessageLostStatus,
@@ -82,6 +83,15 @@ class RobotRecord:
     topic_count: int | None = None
     #: a report that could not be decoded
     control_decode_errors: int = 0
+
+    def as_report(self) -> RobotReport:
+        return RobotReport(
+            alive=self.alive,
+            joins=self.joins,
+            leaves=self.leaves,
+            control_decode_errors=self.control_decode_errors,
+            stats=self.stats,
+        )
 
 
 @dataclass
@@ -365,6 +375,9 @@ class CeddpServer:
             if record.topic_count is not None:
                 record.topic_count = None
                 self._reassign_qos(f"robot {robot} left")
+        elif record.topic_count is not None:
+            # its announcement came first (reports and presence travel separately)
+            self._reassign_qos(f"robot {robot} joined with {record.topic_count} topics")
         for planner in self.planners:
             planner.on_robot(robot, alive)
 
@@ -487,49 +500,14 @@ class CeddpServer:
 
     def summary(self) -> dict[str, Any]:
         """Per robot and topic: what the robot says it did and what arrived here, reconciled."""
-        robots: dict[str, dict[str, Any]] = {}
         with self.ingest.lock:
             names = sorted({r for r, _ in self.ingest.topics} | set(self.robots))
-            for robot in names:
-                record = self.robots.get(robot, RobotRecord())
-                stats = record.stats
-                topics: dict[str, dict[str, Any]] = {}
-                for (r, topic), m in sorted(self.ingest.topics.items()):
-                    if r == robot:
-                        topics[topic] = self._topic_summary(m, stats)
-                sensor_rows = [t for name, t in topics.items() if name != "hello"]
-                latencies = [
-                    m.latency_ms
-                    for (r, t), m in self.ingest.topics.items()
-                    if r == robot and t != "hello"
-                ]
-                robots[robot] = {
-                    "alive": record.alive,
-                    "control_decode_errors": record.control_decode_errors,
-                    "joins": record.joins,
-                    "leaves": record.leaves,
-                    "final_stats": bool(stats and stats.final),
-                    **{
-                        k: sum(t[k] for t in sensor_rows)
-                        for k in (
-                            "produced",
-                            "sent",
-                            "held_back",
-                            "write_failures",
-                            "retransmitted",
-                            "received",
-                            "cc_discarded",
-                            "cc_passed",
-                            "lost",
-                            "decode_errors",
-                        )
-                    },
-                    "latency_ms_p50": _merged_quantile(latencies, 50),
-                    "latency_ms_p99": _merged_quantile(latencies, 99),
-                    "cpu_percent": stats.cpu_percent if stats else None,
-                    "hello": msgspec.to_builtins(stats.hello) if stats and stats.hello else None,
-                    "topics": topics,
-                }
+            robots = {
+                robot: robot_summary(
+                    self.ingest, robot, self.robots.get(robot, RobotRecord()).as_report()
+                )
+                for robot in names
+            }
         return {
             "fleet": self.config.fleet,
             "partition": self.config.partition,
@@ -546,57 +524,10 @@ class CeddpServer:
                 "unknown_control_keys": self.counters.unknown_control_keys,
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
-            "qos": self._qos_summary(),
+            "qos": qos_summary(self.qos) if self.qos is not None else None,
             "mission": self.mission.summary() if self.mission is not None else None,
             "events": self.counters.events,
         }
-
-    def _qos_summary(self) -> dict[str, Any] | None:
-        if self.qos is None:
-            return None
-        return {
-            "assignments": [msgspec.to_builtins(m) for m in self.qos.history],
-            "acks": {robot: msgspec.to_builtins(a) for robot, a in self.qos.acks.items()},
-            "refusals": [msgspec.to_builtins(a) for a in self.qos.refusals],
-            "errors": list(self.qos.errors),
-        }
-
-    def _topic_summary(self, m: TopicMetrics, stats: RobotStats | None) -> dict[str, Any]:
-        cc = self.ingest.cache_counters(m.robot, m.topic)
-        counters = stats.topics.get(m.topic) if stats else None
-        tail_lost = 0
-        if stats is not None and stats.final and counters is not None:
-            # samples sent after the last one that arrived: invisible as a gap, but lost
-            last = Ingest.highest_seq(m, writer_id(m.robot, stats.incarnation))
-            tail_lost = max(counters.last_seq - last, 0)
-        return {
-            "produced": counters.produced if counters else 0,
-            "sent": counters.sent if counters else 0,
-            "held_back": counters.held_back if counters else 0,
-            "write_failures": counters.write_failures if counters else 0,
-            "retransmitted": counters.retransmitted if counters else 0,
-            "gapped": counters.gapped if counters else 0,
-            "overwritten_unacked": counters.overwritten_unacked if counters else 0,
-            "received": m.received,
-            "cc_discarded": cc.hits,
-            "cc_passed": cc.misses,
-            # not received, whatever the cause: gaps, the tail after the last arrival, and what
-            # the writer sent before this CEDDP (or its reliable reader) was listening
-            "lost": m.lost + tail_lost + m.before_join,
-            "out_of_order": m.out_of_order,
-            "writer_changes": m.writer_changes,
-            "before_join": m.before_join,
-            "decode_errors": m.decode_errors,
-            "latency_ms_p50": m.latency_ms.quantile(50),
-            "latency_ms_p99": m.latency_ms.quantile(99),
-        }
-
-
-def _merged_quantile(distributions: list[Distribution], q: float) -> float | None:
-    values: list[float] = []
-    for dist in distributions:
-        values.extend(dist.sample())
-    return percentile(values, q)
 
 
 class _Fanout(Planner):

@@ -66,3 +66,32 @@ def test_counts_reconcile_and_hello_round_trips() -> None:
     # presence and samples are handled by different workers: a Hello processed before the
     # robot's presence cannot be relayed, and is counted as such
     assert hello["lost"] == summary["hello_relay"]["no_relay"]
+
+
+def test_qos_is_assigned_whether_the_announcement_or_the_presence_comes_first() -> None:
+    from arpz.config import QosControlConfig
+    from arpz.messages import QOS_ASSIGNMENT_DECODER, Announce, TopicInfo, encode
+
+    bus = MemoryBus()
+    server = CeddpServer(
+        CeddpConfig(fleet="f", rrd="unused.rrd", qos=QosControlConfig(enabled=True)),
+        MemoryTransport(bus),
+    )
+    server.start()
+    robot = MemoryTransport(bus)
+    seen: list[set[str]] = []
+    robot.subscribe(
+        "arpz/f/ceddp/qos",
+        lambda k, p, a: seen.append(set(QOS_ASSIGNMENT_DECODER.decode(p).robots)),
+    )
+    announce = Announce(
+        robot="r1",
+        incarnation="i",
+        commands=["hello"],
+        sensors=[TopicInfo(topic="pir", kind="pir", rate_hz=10, value_type="str")],
+    )
+    robot.put("arpz/f/robot/r1/announce", encode(announce))  # before its presence
+    time.sleep(0.2)
+    robot.declare_token("arpz/f/robot/r1/presence")
+    wait_until(lambda: {"r1"} in seen, what="an assignment for r1")
+    server.shutdown()
