@@ -228,12 +228,17 @@ def _fmt(value: float | None, digits: int = 3) -> str:
 
 
 def consistency(rows: Sequence[Row]) -> list[str]:
-    """Counts that must add up in every ok row: produced = sent + held back + write failures,
-    sent = received + lost, Hello sent = received + lost."""
+    """Counts that must add up in every ok row: every robot's final counters arrived,
+    produced = sent + held back + write failures, sent = received + lost, Hello sent =
+    received + lost."""
     problems = []
+    fleet = max((int(r["final_reports"] or 0) for r in rows if r["status"] == "ok"), default=0)
     for row in rows:
         if row["status"] != "ok":
             continue
+        if int(row["final_reports"] or 0) < fleet:
+            where = f"Rmax {row['rmax_hz']} depth {row['depth']} {row['config']} {row['network']}"
+            problems.append(f"{where}: a robot's final counters never reached the CEDDP")
         n = {k: int(row[k] or 0) for k in row if k.startswith(("samples_", "hello_"))}
         where = f"Rmax {row['rmax_hz']} depth {row['depth']} {row['config']} {row['network']}"
         if n["samples_produced"] != (
@@ -297,8 +302,8 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
     lines += [
         "## Consistency",
         "",
-        "Every ok row reconciles (produced = sent + held back + write failures, "
-        "sent = received + lost, Hello sent = received + lost)."
+        "Every ok row reconciles (every robot's final counters arrived, produced = sent + "
+        "held back + write failures, sent = received + lost, Hello sent = received + lost)."
         if not problems
         else "\n".join(f"- {p}" for p in problems),
         "",

@@ -173,6 +173,10 @@ def test_consistency_flags_counts_that_do_not_add_up(tmp_path: Path) -> None:
     assert consistency(rows) == []
     rows[0]["samples_lost"] = "11"
     assert any("sent != received + lost" in p for p in consistency(rows))
+    _write(path, [Cell(200.0, 1, "baseline", 1, "lan")])
+    rows = read_rows(path)
+    rows[1]["final_reports"] = "2"
+    assert any("final counters never reached" in p for p in consistency(rows))
 
 
 def test_report_without_results(tmp_path: Path) -> None:
