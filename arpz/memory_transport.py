@@ -80,6 +80,12 @@ class _Publisher:
     def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
         self._transport.put(self._key, payload, attachment=attachment)
 
+    @property
+    def matching(self) -> bool:
+        bus = self._transport.bus
+        with bus.lock:
+            return any(key_matches(expr, self._key) for expr, _ in bus.subscribers)
+
     def undeclare(self) -> None:
         pass
 

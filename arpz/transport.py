@@ -35,6 +35,11 @@ class Publisher(Protocol):
     def put(self, payload: bytes, *, attachment: bytes | None = None) -> None: ...
     def undeclare(self) -> None: ...
 
+    @property
+    def matching(self) -> bool:
+        """Some subscriber (anywhere in the router mesh) matches this key right now."""
+        ...
+
 
 class Handle(Protocol):
     """Something declared that must be undeclared (subscriber, token, liveliness subscriber)."""
@@ -136,6 +141,16 @@ class _ZenohPublisher:
             self._inner.put(payload)
         else:
             self._inner.put(payload, attachment=attachment)
+
+    @property
+    def matching(self) -> bool:
+        try:
+            status = self._inner.matching_status
+        except zenoh.ZError as exc:  # closed session
+            log.debug("matching status after close: %s", exc)
+            return False
+        # the stubs say bool; zenoh-python 1.x returns a MatchingStatus with ``.matching``
+        return bool(getattr(status, "matching", status))
 
     def undeclare(self) -> None:
         try:

@@ -189,9 +189,10 @@ class RobotAgent:
         )
 
     def _wait_for_readers(self, timeout_s: float) -> None:
-        """With the reliable channel, a VOLATILE writer's samples reach only readers matched when
-        they are written: wait (bounded) until the CEDDP's reader matched every topic, so the
-        first readings are not sent into the void."""
+        """A VOLATILE writer's samples (reliable channel or plain put) reach only readers matched
+        when they are written: wait (bounded) until a reader matched every topic, so the first
+        readings are not sent into the void. Through a router mesh, a subscriber's declaration
+        takes a moment to reach the robot's router; this is that moment."""
         outputs = [s.output for s in self.sensors] + [self._hello_out]
         deadline = time.monotonic() + timeout_s
         while not all(o.matched for o in outputs) and time.monotonic() < deadline:
@@ -199,8 +200,8 @@ class RobotAgent:
         unmatched = [o.key for o in outputs if not o.matched]
         if unmatched:
             log.warning(
-                "no reliable reader matched %d topic(s) within %.1f s (is the CEDDP running with "
-                "the same sensor_qos?): %s",
+                "no reader matched %d topic(s) within %.1f s (is the CEDDP running, for this "
+                "robot's partition, with the same sensor_qos?): %s",
                 len(unmatched),
                 timeout_s,
                 ", ".join(unmatched[:3]),

@@ -66,8 +66,13 @@ class SensorOutput:
 
     @property
     def matched(self) -> bool:
-        """A reader is listening (always true for a plain publisher: there is no way to know)."""
-        return self.writer is None or self.writer.matched_count > 0
+        """A reader is listening: a matched reliable reader, or for a plain publisher any Zenoh
+        subscriber whose declaration has reached this robot's router (so the first readings are
+        not put before the route through a router mesh exists)."""
+        if self.writer is not None:
+            return self.writer.matched_count > 0
+        assert self.publisher is not None
+        return self.publisher.matching
 
     def close(self) -> None:
         if self.writer is not None:

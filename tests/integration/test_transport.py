@@ -1,6 +1,7 @@
 import pytest
 
-from tests.support import client, router, wait_until
+from arpz.transport import SessionSettings, ZenohTransport
+from tests.support import client, free_port, router, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -18,3 +19,22 @@ def test_put_subscribe_and_liveliness_through_a_real_router() -> None:
         assert got[0] == ("t/x", b"1", b"h")
         token.undeclare()
         wait_until(lambda: ("p/a", False) in alive, what="token gone")
+
+
+def test_a_publisher_sees_a_subscriber_on_another_router_of_the_mesh() -> None:
+    """What the robot agent waits for before its first reading: the route through the mesh."""
+    with router() as (east, east_endpoint):
+        west_endpoint = f"tcp/127.0.0.1:{free_port()}"
+        west = ZenohTransport.open(
+            SessionSettings(mode="router", listen=[west_endpoint], connect=[east_endpoint])
+        )
+        try:
+            with client(west_endpoint) as robot:
+                publisher = robot.publisher("arpz/mesh/robot/e2/sensor/pir")
+                assert not publisher.matching
+                handle = east.subscribe("arpz/mesh/robot/e$*/sensor/*", lambda k, p, a: None)
+                wait_until(lambda: publisher.matching, what="east's subscriber seen from west")
+                handle.undeclare()
+                wait_until(lambda: not publisher.matching, what="east's subscriber gone")
+        finally:
+            west.close()

@@ -24,3 +24,19 @@ def test_put_reaches_matching_subscribers_and_liveliness_is_reported() -> None:
     assert alive == [("p/a", True), ("p/a", False)]
     a.close()
     b.close()
+
+
+def test_a_publisher_matches_only_while_a_subscriber_covers_its_key() -> None:
+    bus = MemoryBus()
+    robot, server = MemoryTransport(bus), MemoryTransport(bus)
+    publisher = robot.publisher("arpz/f/robot/e2/sensor/pir")
+    assert not publisher.matching
+    other = server.subscribe("arpz/f/robot/w$*/sensor/*", lambda k, p, att: None)
+    assert not publisher.matching  # another partition's subscriber does not count
+    mine = server.subscribe("arpz/f/robot/e$*/sensor/*", lambda k, p, att: None)
+    assert publisher.matching
+    mine.undeclare()
+    other.undeclare()
+    assert not publisher.matching
+    robot.close()
+    server.close()
