@@ -5,6 +5,10 @@ Each measurement is one publisher process and one subscriber process through one
 hits all transports alike, and the median round is reported. Targets (issue 3): arpz >= 0.6x raw
 Zenoh and >= 1.0x Advanced.
 
+arpz is measured twice: with the default profile (every sample its own Zenoh message) and with
+write batching (``batch_max_samples``, as Cyclone DDS's WriteBatch), which amortises the
+per-message cost of Python and Zenoh when a topic is written faster than ``batch_max_delay_s``.
+
     python benchmarks/reliability_throughput.py --rounds 3
 """
 
@@ -15,7 +19,17 @@ import statistics
 
 from arpz.perf.harness import free_port, perf_router, pubsub
 
-TRANSPORTS = ("zenoh", "advanced", "arpz")
+#: (label, --transport, extra perf flags)
+RUNS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
+    ("zenoh", "zenoh", ()),
+    ("advanced", "advanced", ()),
+    ("arpz", "arpz", ()),
+    ("arpz batched", "arpz", ("--batch", "128")),
+)
+
+
+def ratios(values: dict[str, float], label: str) -> str:
+    return f"{values[label] / values['zenoh']:.2f}x | {values[label] / values['advanced']:.2f}x"
 
 
 def main() -> None:
@@ -29,45 +43,52 @@ def main() -> None:
     cpu: dict[tuple[int, str], list[float]] = {}
     with perf_router(endpoint):
         for size, count in ((24, args.count), (1024, args.count_kib)):
-            for _ in range(args.rounds):
-                for transport in TRANSPORTS:
+            for round_ in range(args.rounds):
+                for label, transport, extra in RUNS:
                     pub, report = pubsub(
                         transport=transport,
                         pub_connect=endpoint,
                         sub_connect=endpoint,
                         count=count,
                         size=size,
+                        extra=extra,
                     )
                     complete = report["received"] == count
                     rate = report["throughput_msg_s"] if complete else 0.0
-                    results.setdefault((size, transport), []).append(rate)
+                    results.setdefault((size, label), []).append(rate)
                     # CPU per sample, publisher + subscriber processes: stable on a shared host
                     per_msg = pub["cpu_us_per_msg"] + report["cpu_us_per_msg"]
-                    cpu.setdefault((size, transport), []).append(per_msg)
+                    cpu.setdefault((size, label), []).append(per_msg)
                     print(
-                        f"  {size:5d} B {transport:9s} {rate:10.0f} msg/s  "
-                        f"received {report['received']}"
+                        f"  round {round_ + 1}/{args.rounds} {size:5d} B {label:13s} "
+                        f"{rate:10.0f} msg/s  received {report['received']}",
+                        flush=True,
                     )
+    labels = [label for label, _, _ in RUNS]
     print()
     print(
-        "| payload | raw Zenoh msg/s | Advanced msg/s | arpz msg/s | arpz / raw | arpz / Advanced |"
+        "| payload | raw Zenoh msg/s | Advanced msg/s | arpz msg/s | arpz batched msg/s "
+        "| arpz / raw | arpz / Advanced | batched / raw | batched / Advanced |"
     )
-    print("|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|")
     for size in (24, 1024):
-        med = {t: statistics.median(results[(size, t)]) for t in TRANSPORTS}
+        med = {label: statistics.median(results[(size, label)]) for label in labels}
         print(
             f"| {size} B | {med['zenoh']:.0f} | {med['advanced']:.0f} | {med['arpz']:.0f} "
-            f"| {med['arpz'] / med['zenoh']:.2f}x | {med['arpz'] / med['advanced']:.2f}x |"
+            f"| {med['arpz batched']:.0f} | {ratios(med, 'arpz')} | {ratios(med, 'arpz batched')} |"
         )
     print()
-    print("CPU per sample (publisher + subscriber processes, all their threads):")
-    print("| payload | raw Zenoh us | Advanced us | arpz us | arpz / raw | arpz / Advanced |")
-    print("|---|---|---|---|---|---|")
+    print("CPU per sample (publisher + subscriber processes, all their threads), us:")
+    print(
+        "| payload | raw Zenoh | Advanced | arpz | arpz batched "
+        "| arpz / raw | arpz / Advanced | batched / raw | batched / Advanced |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
     for size in (24, 1024):
-        c = {t: statistics.median(cpu[(size, t)]) for t in TRANSPORTS}
+        c = {label: statistics.median(cpu[(size, label)]) for label in labels}
         print(
             f"| {size} B | {c['zenoh']:.1f} | {c['advanced']:.1f} | {c['arpz']:.1f} "
-            f"| {c['arpz'] / c['zenoh']:.2f}x | {c['arpz'] / c['advanced']:.2f}x |"
+            f"| {c['arpz batched']:.1f} | {ratios(c, 'arpz')} | {ratios(c, 'arpz batched')} |"
         )
 
 

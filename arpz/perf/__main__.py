@@ -73,6 +73,8 @@ def add_qos_flags(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--heartbeat-ms", type=float)
     g.add_argument("--nack-delay-ms", type=float)
     g.add_argument("--reorder-timeout-ms", type=float)
+    g.add_argument("--batch", type=int, help="batch_max_samples: samples per message (1 = off)")
+    g.add_argument("--batch-delay-us", type=float, help="batch_max_delay_s in microseconds")
     g.add_argument("--cache", type=int, default=10000, help="advanced: publisher cache size")
 
 
@@ -92,6 +94,8 @@ def qos_from_args(args: argparse.Namespace) -> QosProfile:
         ("heartbeat_ms", "heartbeat_period_s", lambda v: v / 1000),
         ("nack_delay_ms", "nack_delay_s", lambda v: v / 1000),
         ("reorder_timeout_ms", "reorder_timeout_s", lambda v: v / 1000),
+        ("batch", "batch_max_samples", int),
+        ("batch_delay_us", "batch_max_delay_s", lambda v: v / 1e6),
     ):
         value = getattr(args, flag)
         if value is not None:

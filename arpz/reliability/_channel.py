@@ -44,6 +44,8 @@ def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, flo
     for value in (qos.deadline_s, qos.lease_duration_s):
         if value > 0:
             periods.append(value / 10)
+    if qos.batching:  # an open batch must go out within about its delay
+        fine = min(fine, qos.batch_max_delay_s)
     return fine, max(fine, min(periods))
 
 
@@ -57,9 +59,16 @@ class Channel:
         name: str,
         *,
         inline: bool = False,
+        before_tick: Callable[[], None] | None = None,
     ) -> None:
         self.transport = transport
         self.inline = inline
+        #: runs on the worker with the lock held before each ``machine.tick`` (the writer sends
+        #: a due batch there, so that it goes out in order with the writes)
+        self.before_tick = before_tick
+        #: when the worker will next tick (monotonic s), set with the lock held: a writer that
+        #: opens a batch wakes the worker only if that is too late for the batch's delay
+        self.next_tick_s = 0.0
         self.machine = machine
         self.events = events
         self.on_data = on_data
@@ -125,6 +134,10 @@ class Channel:
     def _on_token(self, key: str, alive: bool) -> None:
         self._queue.put((_TOKEN, key, alive, None))
 
+    def wake(self) -> None:
+        """Make the worker look at the machine now (it may have become busy)."""
+        self._queue.put((_POST, [], None, None))
+
     def post(self, actions: list[Action]) -> None:
         """Run actions on the worker thread (event callbacks never run on the caller's thread)."""
         if actions:
@@ -164,18 +177,20 @@ class Channel:
                             log.exception("reliable channel worker: unexpected error")
                     if is_writer:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
-                    busy = self.machine.busy()
+                    if self.machine.busy():
+                        next_tick = min(next_tick, time.monotonic() + self._fine_s)
+                    self.next_tick_s = next_tick
                 self.perform(todo)
-                if busy:
-                    next_tick = min(next_tick, time.monotonic() + self._fine_s)
             if stop:
                 return
             now = time.monotonic()
             if now >= next_tick:
                 with self.lock:
+                    if self.before_tick is not None:
+                        self._call(self.before_tick)
                     actions = self.machine.tick(q.qsize())
-                    busy = self.machine.busy()
-                next_tick = now + (self._fine_s if busy else self._idle_s)
+                    next_tick = now + (self._fine_s if self.machine.busy() else self._idle_s)
+                    self.next_tick_s = next_tick
                 self.perform(actions)
 
     def _dispatch(self, item: tuple[Any, Any, Any, Any]) -> list[Action]:

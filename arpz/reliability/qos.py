@@ -15,6 +15,8 @@ from typing import Final
 
 import msgspec
 
+from arpz.reliability.wire import MAX_BATCH
+
 
 class ReliabilityPolicy(enum.Enum):
     BEST_EFFORT = "best_effort"
@@ -78,6 +80,13 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     nack_period_s: float = 0.02
     #: longest time a missing sample holds later ones back before it is declared lost
     reorder_timeout_s: float = 0.5
+    #: write batching (as Cyclone DDS's WriteBatch): up to this many samples share one Zenoh
+    #: message, which amortises the per-message cost of Python and Zenoh at high rates. 1 = off
+    #: (the default: every sample is its own message, decodable by a plain Zenoh subscriber)
+    batch_max_samples: int = 1
+    #: with batching, the longest a written sample waits for its batch to fill; a sample written
+    #: after a pause at least this long goes out at once, so a slow topic gains no latency
+    batch_max_delay_s: float = 0.0005
 
     def __post_init__(self) -> None:
         if self.depth < 1:
@@ -98,7 +107,16 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0:
                 raise ValueError(f"{name} must be a finite number of seconds >= 0, got {value}")
-        for name in ("heartbeat_period_s", "nack_period_s", "reorder_timeout_s"):
+        if not 1 <= self.batch_max_samples <= MAX_BATCH:
+            raise ValueError(
+                f"batch_max_samples must be 1 (off) .. {MAX_BATCH}, got {self.batch_max_samples}"
+            )
+        for name in (
+            "heartbeat_period_s",
+            "nack_period_s",
+            "reorder_timeout_s",
+            "batch_max_delay_s",
+        ):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"{name} must be a finite number of seconds > 0, got {value}")
@@ -107,6 +125,10 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     def capacity(self) -> int:
         """How many samples the writer history and the reader window may hold."""
         return self.depth if self.history is HistoryPolicy.KEEP_LAST else self.max_samples
+
+    @property
+    def batching(self) -> bool:
+        return self.batch_max_samples > 1
 
     @property
     def reliable(self) -> bool:

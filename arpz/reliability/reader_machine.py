@@ -276,9 +276,11 @@ class ReaderMachine:
     def on_data(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
         if self._deep and f"/{wire.REL}/" in key:
             return []  # control traffic seen through a ``**`` subscription
-        if attachment is None or len(attachment) != wire.DATA.size:
+        if attachment is None:
             self.bad("sample without a DATA header", key)
             return []
+        if len(attachment) != wire.DATA.size:
+            return self._on_batch(key, payload, attachment)
         version, flags, writer, seq, stamp = self._unpack(attachment)
         if version != wire.VERSION or seq < 1:
             self.bad("sample with a malformed DATA header", key)
@@ -288,6 +290,37 @@ class ReaderMachine:
             if writer not in self._incompatible:
                 self.bad("sample from an unmatched writer", writer.hex(), race=True)
             return []
+        return self._one(p, flags, writer, seq, stamp, payload)
+
+    def _on_batch(self, key: str, payload: bytes, attachment: bytes) -> list[Action]:
+        """Consecutive samples in one message (the writer's batching): each is handled exactly
+        as if it had come alone; only the last carries the batch's ACK_REQUEST."""
+        batch = wire.decode_batch(payload, attachment)
+        if batch is None:
+            self.bad("sample with a malformed DATA header or batch", key)
+            return []
+        p = self._known_writer(batch.writer, "sample")
+        if p is None:
+            return []
+        flags = batch.flags & ~(wire.F_BATCH | wire.F_ACK_REQUEST)
+        last = len(batch.samples) - 1
+        actions: list[Action] = []
+        for i, (stamp, data) in enumerate(batch.samples):
+            f = batch.flags & ~wire.F_BATCH if i == last else flags
+            actions.extend(self._one(p, f, batch.writer, batch.first + i, stamp, data))
+        return actions
+
+    def _known_writer(self, guid: bytes, what: str) -> _WriterProxy | None:
+        """The matched writer ``guid``, or None (counted unless it is a known incompatible one:
+        a message may overtake the token that matches its writer)."""
+        p = self.writers.get(guid)
+        if p is None and guid not in self._incompatible:
+            self.bad(f"{what} from an unmatched writer", guid.hex(), race=True)
+        return p
+
+    def _one(
+        self, p: _WriterProxy, flags: int, writer: bytes, seq: int, stamp: int, payload: bytes
+    ) -> list[Action]:
         if (
             seq == p.expected
             and p.synced
@@ -467,10 +500,8 @@ class ReaderMachine:
         if hb is None:
             self.bad("malformed HEARTBEAT", key)
             return []
-        p = self.writers.get(hb.writer)
+        p = self._known_writer(hb.writer, "HEARTBEAT")
         if p is None:
-            if hb.writer not in self._incompatible:
-                self.bad("HEARTBEAT from an unmatched writer", hb.writer.hex(), race=True)
             return []
         now = self.clock.monotonic_s()
         actions: list[Action] = []

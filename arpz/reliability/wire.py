@@ -18,6 +18,15 @@ VERSION: Final = 1
 DATA: Final = struct.Struct("!BB8sQq")
 F_RETRANSMIT: Final = 0x01
 F_ACK_REQUEST: Final = 0x02
+F_BATCH: Final = 0x04
+
+# DATA batch header, in the attachment of a message carrying consecutive samples (first .. first
+# + n - 1) whose payloads are concatenated: version, flags (F_BATCH set), writer, first seq, n;
+# then n entries (source stamp, payload length). Never 26 bytes long, so never taken for DATA.
+BATCH: Final = struct.Struct("!BB8sQH")
+BATCH_ENTRY: Final = struct.Struct("!qI")
+#: samples per batch at most: bounds the work one (possibly forged) message can cause
+MAX_BATCH: Final = 1024
 
 KIND_HEARTBEAT: Final = 1
 KIND_ACKNACK: Final = 2
@@ -83,6 +92,51 @@ def decode_data(attachment: bytes | None) -> DataHeader | None:
     if version != VERSION or seq < 1 or seq > MAX_SEQ:
         return None
     return DataHeader(flags, writer, seq, stamp)
+
+
+class Batch(NamedTuple):
+    flags: int
+    writer: bytes
+    first: int
+    #: (source stamp, payload) per sample, seq first, first + 1, ...
+    samples: list[tuple[int, bytes]]
+
+
+def encode_batch(
+    flags: int, writer: bytes, first: int, samples: list[tuple[bytes, int]]
+) -> tuple[bytes, bytes]:
+    """(payload, attachment) of one message carrying ``samples`` ((payload, stamp) each)."""
+    head = BATCH.pack(VERSION, flags | F_BATCH, writer, first, len(samples))
+    entries = b"".join([BATCH_ENTRY.pack(stamp, len(data)) for data, stamp in samples])
+    return b"".join([data for data, _ in samples]), head + entries
+
+
+def decode_batch(payload: bytes, attachment: bytes) -> Batch | None:
+    """None unless every length adds up exactly and every seq is valid."""
+    if len(attachment) < BATCH.size:
+        return None
+    version, flags, writer, first, n = BATCH.unpack_from(attachment)
+    if (
+        version != VERSION
+        or not flags & F_BATCH
+        or not 1 <= n <= MAX_BATCH
+        or len(attachment) != BATCH.size + n * BATCH_ENTRY.size
+        or first < 1
+        or first + n - 1 > MAX_SEQ
+    ):
+        return None
+    samples: list[tuple[int, bytes]] = []
+    offset = 0
+    view = memoryview(payload)
+    for stamp, length in BATCH_ENTRY.iter_unpack(memoryview(attachment)[BATCH.size :]):
+        end = offset + length
+        if end > len(payload):
+            return None
+        samples.append((stamp, bytes(view[offset:end])))
+        offset = end
+    if offset != len(payload):
+        return None
+    return Batch(flags, writer, first, samples)
 
 
 def encode_heartbeat(flags: int, writer: bytes, first: int, last: int, count: int) -> bytes:

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from typing import TypeVar
 
 from arpz.reliability._channel import Channel, Endpoint
 from arpz.reliability._common import new_guid
-from arpz.reliability.actions import Action
 from arpz.reliability.events import WriterEventCallbacks
 from arpz.reliability.qos import QosProfile
 from arpz.reliability.timers import Clock, SystemClock
 from arpz.reliability.writer_machine import HistoryFullError, WriterMachine, WriterStats
 from arpz.transport import Transport
+
+_W = TypeVar("_W")
 
 
 class Writer(Endpoint):
@@ -35,13 +38,20 @@ class Writer(Endpoint):
         self.qos = qos
         self._machine = WriterMachine(key, qos, new_guid(), clock or SystemClock())
         self.guid = self._machine.hex
+        self._batching = qos.batching
         self._channel = Channel(
-            transport, self._machine, events or WriterEventCallbacks(), None, f"arpz-writer-{key}"
+            transport,
+            self._machine,
+            events or WriterEventCallbacks(),
+            None,
+            f"arpz-writer-{key}",
+            before_tick=self._send_due_batch if self._batching else None,
         )
         self._publisher = transport.publisher(key, express=express, block=True)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
         self._machine_write = self._machine.write
+        self._machine_write_batched = self._machine.write_batched
         self._put = self._publisher.put
         try:
             self._channel.start(self._machine.token_key)
@@ -58,28 +68,60 @@ class Writer(Endpoint):
         """
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
+        if self._batching:
+            return self._write_batched(payload, stamp_ns)
         with self._mutex:
             try:
                 seq, attachment, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
-                seq, attachment, actions = self._wait_for_room(payload, stamp_ns)
+                seq, attachment, actions = self._wait_for_room(
+                    lambda: self._machine_write(payload, stamp_ns)
+                )
             self._put(payload, attachment=attachment)
         if actions:
             self._channel.post(actions)
         return seq
 
-    def _wait_for_room(
-        self, payload: bytes, stamp_ns: int | None
-    ) -> tuple[int, bytes, list[Action]]:
+    def _write_batched(self, payload: bytes, stamp_ns: int | None) -> int:
+        with self._mutex:
+            try:
+                seq, ready, actions = self._machine_write_batched(payload, stamp_ns)
+            except HistoryFullError:
+                self._send_due_batch(force=True)  # readers cannot acknowledge what is unsent
+                seq, ready, actions = self._wait_for_room(
+                    lambda: self._machine_write_batched(payload, stamp_ns)
+                )
+            if ready is not None:
+                self._put(ready[0], attachment=ready[1])
+            elif len(self._machine.batch) == 1 and self._channel.next_tick_s > (
+                self._machine.batch_due_s
+            ):
+                self._channel.wake()  # a batch opened: the worker sends it if it is not filled
+        if actions:
+            self._channel.post(actions)
+        return seq
+
+    def _send_due_batch(self, force: bool = False) -> None:
+        """Publish the open batch if it is due (or ``force``); call with the lock held."""
+        ready = self._machine.flush_batch(force)
+        if ready is not None:
+            self._put(ready[0], attachment=ready[1])
+
+    def flush(self) -> None:
+        """Publish the open batch now (batching only; otherwise every write is already out)."""
+        with self._mutex:
+            self._send_due_batch(force=True)
+
+    def _wait_for_room(self, write: Callable[[], _W]) -> _W:
         """KEEP_ALL is full: wait (the lock is held and released by ``wait``) for ACKNACKs."""
         give_up = time.monotonic() + self.qos.max_blocking_time_s
         while True:
             now = time.monotonic()
             if now >= give_up:
-                return self._machine_write(payload, stamp_ns)  # raises HistoryFullError again
+                return write()  # raises HistoryFullError again
             self._lock.wait(give_up - now)
             try:
-                return self._machine_write(payload, stamp_ns)
+                return write()
             except HistoryFullError:
                 continue
 
@@ -106,6 +148,7 @@ class Writer(Endpoint):
         """True once every matched reliable reader acknowledged everything written."""
         deadline = time.monotonic() + timeout_s
         with self._lock:
+            self._send_due_batch(force=True)
             while not self._machine.all_acknowledged():
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
@@ -122,6 +165,12 @@ class Writer(Endpoint):
         with self._lock:
             stats = self._machine.stats()
         return self._with_counters(stats)
+
+    def close(self) -> None:
+        """Send the open batch, then stop (as ``Endpoint.close``)."""
+        if not self._closed and self._batching:
+            self.flush()
+        super().close()
 
     def _on_close(self) -> None:
         self._publisher.undeclare()

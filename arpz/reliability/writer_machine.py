@@ -36,6 +36,8 @@ from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
 RESEND_BUDGET = 256
 #: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
 _PURGE_EVERY = 64
+#: a batch goes out once its payloads reach this size, whatever ``batch_max_samples`` says
+BATCH_MAX_BYTES = 64 * 1024
 
 
 class HistoryFullError(TimeoutError):
@@ -133,6 +135,15 @@ class WriterMachine:
         #: deadline or manual liveliness: only then does a write need the time
         self._timed = qos.deadline_s > 0 or self._manual
         self._n_reliable = 0
+        #: write batching: samples written but not yet sent, (payload, stamp_ns), seq from
+        #: ``last_seq - len(batch) + 1``; kept apart from the history, which may overwrite them
+        self.batch: list[tuple[bytes, int]] = []
+        self._batch_max = qos.batch_max_samples
+        self._batch_delay_s = qos.batch_max_delay_s
+        self._batch_flags = 0
+        self._batch_bytes = 0
+        self._batch_opened_s = 0.0
+        self._last_put_s = -math.inf
         self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
         self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
         self.lost = self.lifespan_expired = self.unchanged = self.overwritten_unacked = 0
@@ -194,6 +205,71 @@ class WriterMachine:
 
         This is the hot path of a publisher: everything that can be decided once is decided in
         ``__init__`` or on (un)matching, not here."""
+        seq, stamp_ns, flags, actions = self._admit(payload, stamp_ns)
+        return seq, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns), actions
+
+    def write_batched(
+        self, payload: bytes, stamp_ns: int | None = None
+    ) -> tuple[int, tuple[bytes, bytes] | None, list[Action]]:
+        """``write`` with batching: returns (seq, (payload, attachment) to publish now or None,
+        actions). A sample written after a pause of ``batch_max_delay_s`` goes out at once and
+        alone; otherwise it joins the open batch, which goes out when full or when its oldest
+        sample has waited ``batch_max_delay_s`` (here or from ``tick``)."""
+        seq, stamp_ns, flags, actions = self._admit(payload, stamp_ns)
+        now = self._mono()
+        batch = self.batch
+        if not batch:
+            if now - self._last_put_s >= self._batch_delay_s:
+                self._last_put_s = now
+                return (
+                    seq,
+                    (payload, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)),
+                    actions,
+                )
+            self._batch_opened_s = now
+        batch.append((payload, stamp_ns))
+        self._batch_flags |= flags
+        self._batch_bytes += len(payload)
+        if (
+            len(batch) >= self._batch_max
+            or self._batch_bytes >= BATCH_MAX_BYTES
+            or now - self._batch_opened_s >= self._batch_delay_s
+        ):
+            return seq, self._take_batch(now), actions
+        return seq, None, actions
+
+    def flush_batch(self, force: bool) -> tuple[bytes, bytes] | None:
+        """The open batch as (payload, attachment) if it is due (or ``force``), else None."""
+        if not self.batch:
+            return None
+        now = self._mono()
+        if not force and now - self._batch_opened_s < self._batch_delay_s:
+            return None
+        return self._take_batch(now)
+
+    def _take_batch(self, now: float) -> tuple[bytes, bytes]:
+        batch, flags = self.batch, self._batch_flags
+        first = self.last_seq - len(batch) + 1
+        self.batch = []
+        self._batch_flags = self._batch_bytes = 0
+        self._last_put_s = now
+        if len(batch) == 1:
+            data, stamp = batch[0]
+            return data, self._pack(wire.VERSION, flags, self.guid, first, stamp)
+        return wire.encode_batch(flags, self.guid, first, batch)
+
+    @property
+    def batch_due_s(self) -> float:
+        """When the open batch must go out (monotonic s)."""
+        return self._batch_opened_s + self._batch_delay_s
+
+    @property
+    def _last_sent(self) -> int:
+        """The last seq put on the wire (written samples still in the open batch are not)."""
+        return self.last_seq - len(self.batch)
+
+    def _admit(self, payload: bytes, stamp_ns: int | None) -> tuple[int, int, int, list[Action]]:
+        """Make room, assign the seq, keep the sample: (seq, stamp_ns, DATA flags, actions)."""
         actions: list[Action] = []
         history = self.history
         if len(history) >= self._capacity:
@@ -218,7 +294,7 @@ class WriterMachine:
             self._lease.assert_alive(now)
         if not self._n_reliable and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
-        return seq, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns), actions
+        return seq, stamp_ns, flags, actions
 
     def retune(self, *, depth: int, deadline_s: float) -> list[Action]:
         """Apply a new KEEP_LAST depth and offered deadline in place (the CEDDP's QoS balancing),
@@ -315,7 +391,9 @@ class WriterMachine:
             flags |= wire.HB_FINAL
         self._hb_count += 1
         self.heartbeats += 1
-        payload = wire.encode_heartbeat(flags, self.guid, self.first, self.last_seq, self._hb_count)
+        payload = wire.encode_heartbeat(
+            flags, self.guid, self.first, self._last_sent, self._hb_count
+        )
         return Send(self._hb_key, payload)
 
     def _sync(self, p: _ReaderProxy, now: float) -> Send:
@@ -323,7 +401,7 @@ class WriterMachine:
         oldest held), repeated until the reader's first ACKNACK proves it knows."""
         p.last_sync_s = now
         payload = wire.encode_heartbeat(
-            wire.HB_SYNC | wire.HB_LIVELINESS, self.guid, p.start, self.last_seq, self._hb_count
+            wire.HB_SYNC | wire.HB_LIVELINESS, self.guid, p.start, self._last_sent, self._hb_count
         )
         return Send(p.rx_key, payload)
 
@@ -416,6 +494,10 @@ class WriterMachine:
     def tick(self, backlog: int = 0) -> list[Action]:
         now = self.clock.monotonic_s()
         actions: list[Action] = []
+        if self.batch:
+            due = self.flush_batch(force=False)
+            if due is not None:
+                actions.append(Send(self.topic, due[0], due[1]))
         if self.qos.lifespan_s > 0:
             self._expire(self.clock.wall_ns())
         if now >= self._next_hb_s:
@@ -433,8 +515,9 @@ class WriterMachine:
         return actions
 
     def busy(self) -> bool:
-        """A reader has not yet confirmed where its match starts (SYNC is being repeated)."""
-        return any(not p.synced for p in self.proxies.values())
+        """A batch waits to go out, or a reader has not yet confirmed where its match starts
+        (SYNC is being repeated): the driver ticks at its fine period."""
+        return bool(self.batch) or any(not p.synced for p in self.proxies.values())
 
     def _expire(self, wall_ns: int) -> None:
         limit_ns = wall_ns - int(self.qos.lifespan_s * 1e9)

@@ -16,8 +16,11 @@ from arpz.perf.harness import child, free_port, perf_router, pingpong, pubsub
 pytestmark = pytest.mark.integration
 
 
-@pytest.mark.parametrize("transport", ["arpz", "zenoh", "advanced"])
-def test_pub_sub_report_counts_every_sample(transport: str) -> None:
+@pytest.mark.parametrize(
+    ("transport", "extra"),
+    [("arpz", ()), ("arpz", ("--batch", "16")), ("zenoh", ()), ("advanced", ())],
+)
+def test_pub_sub_report_counts_every_sample(transport: str, extra: tuple[str, ...]) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with perf_router(endpoint):
         pub, report = pubsub(
@@ -26,6 +29,7 @@ def test_pub_sub_report_counts_every_sample(transport: str) -> None:
             sub_connect=endpoint,
             count=2000,
             rate_hz=4000,
+            extra=extra,
         )
     assert pub["sent"] == 2000
     assert (report["sent"], report["received"], report["lost"], report["unaccounted"]) == (

@@ -139,6 +139,17 @@ def test_reliable_channel_wire_decoders_return_none_for_bad_input(payload: bytes
     wire.control_kind(payload)
 
 
+@FUZZ
+@given(payload=st.binary(max_size=300), attachment=st.binary(max_size=200))
+def test_the_batch_decoder_accepts_only_batches_whose_lengths_add_up(
+    payload: bytes, attachment: bytes
+) -> None:
+    batch = wire.decode_batch(payload, attachment)
+    if batch is not None:
+        assert b"".join(data for _, data in batch.samples) == payload
+        assert 1 <= len(batch.samples) <= wire.MAX_BATCH and batch.first >= 1
+
+
 class _KeySink:
     """Builds the command key as the server's sink does, so a bad name fails as it would."""
 

@@ -67,6 +67,8 @@ qos_choices = st.sampled_from(
         QosProfile(depth=5, reorder_timeout_s=0.05),
         QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5),
         QosProfile(durability=DurabilityPolicy.TRANSIENT_LOCAL, depth=20),
+        QosProfile(depth=5, batch_max_samples=8, batch_max_delay_s=0.003),
+        QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=40, batch_max_samples=16),
     ]
 )
 
@@ -96,9 +98,19 @@ def test_delivered_plus_lost_equals_sent_without_duplicates(
 
 
 @FAST
-@given(seed=st.integers(0, 2**32), link=links, n=st.integers(1, 200))
-def test_keep_all_delivers_everything_in_order(seed: int, link: Link, n: int) -> None:
-    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=30, reorder_timeout_s=60.0)
+@given(
+    seed=st.integers(0, 2**32),
+    link=links,
+    n=st.integers(1, 200),
+    batch=st.sampled_from([1, 4, 32]),
+)
+def test_keep_all_delivers_everything_in_order(seed: int, link: Link, n: int, batch: int) -> None:
+    qos = QosProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        max_samples=30,
+        reorder_timeout_s=60.0,
+        batch_max_samples=batch,
+    )
     bus, _ = world(seed, link)
     writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
     reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))

@@ -1,0 +1,135 @@
+"""Write batching: many samples in one Zenoh message, each handled as if it came alone."""
+
+from __future__ import annotations
+
+import random
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from arpz.reliability import wire
+from arpz.reliability._common import new_guid
+from arpz.reliability.actions import Send
+from arpz.reliability.qos import HistoryPolicy, QosProfile
+from arpz.reliability.reader_machine import ReaderMachine
+from arpz.reliability.timers import FakeClock
+from arpz.reliability.writer_machine import WriterMachine
+from tests.unit.reliability.lossy_bus import Link, LossyBus
+
+G = b"\x07" * 8
+BATCHED = QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_samples=4, batch_max_delay_s=0.002)
+
+
+def record_sends(bus: LossyBus) -> list[Send]:
+    """Every message the machines put on the bus, before the bus loses any."""
+    sent: list[Send] = []
+    original = bus.send
+    bus.send = lambda msg: (sent.append(msg), original(msg))[1]  # type: ignore[method-assign]
+    return sent
+
+
+def test_a_batch_roundtrips_and_is_never_taken_for_a_single_sample() -> None:
+    samples = [(b"a", 10), (b"", 11), (b"ccc", -12)]
+    payload, attachment = wire.encode_batch(wire.F_ACK_REQUEST, G, 7, samples)
+    assert payload == b"accc" and len(attachment) != wire.DATA.size
+    assert wire.decode_data(attachment) is None
+    batch = wire.decode_batch(payload, attachment)
+    assert batch == wire.Batch(
+        wire.F_ACK_REQUEST | wire.F_BATCH, G, 7, [(10, b"a"), (11, b""), (-12, b"ccc")]
+    )
+
+
+@given(
+    samples=st.lists(
+        st.tuples(st.binary(max_size=8), st.integers(-(2**63), 2**63 - 1)), min_size=1, max_size=5
+    ),
+    cut=st.integers(0, 200),
+    flip=st.integers(0, 200),
+    xor=st.integers(1, 255),
+    extra=st.binary(max_size=3),
+)
+def test_a_damaged_batch_is_refused_whole(
+    samples: list[tuple[bytes, int]], cut: int, flip: int, xor: int, extra: bytes
+) -> None:
+    payload, attachment = wire.encode_batch(0, G, 1, samples)
+    damaged = bytearray(attachment)
+    damaged[flip % len(damaged)] ^= xor
+    for att, data in (
+        (bytes(damaged), payload),
+        (attachment[: cut % len(attachment)], payload),
+        (attachment, payload + extra + b"x"),
+        (attachment, payload[:-1] if payload else b"x"),
+    ):
+        batch = wire.decode_batch(data, att)
+        if batch is not None:  # a flip may land in a stamp or the guid: still consistent
+            assert b"".join(d for _, d in batch.samples) == data
+            assert len(att) == wire.BATCH.size + len(batch.samples) * wire.BATCH_ENTRY.size
+
+
+def test_the_writer_sends_alone_after_a_pause_and_batches_a_burst() -> None:
+    clock = FakeClock()
+    w = WriterMachine("t/a", BATCHED, new_guid(), clock)
+    _, ready, _ = w.write_batched(b"0")
+    assert ready is not None and len(ready[1]) == wire.DATA.size  # first after a pause: at once
+    outs = [w.write_batched(b"%d" % i)[1] for i in range(1, 5)]
+    assert outs[:3] == [None, None, None] and outs[3] is not None  # full at 4
+    batch = wire.decode_batch(*outs[3])
+    assert (
+        batch is not None
+        and batch.first == 2
+        and [d for _, d in batch.samples]
+        == [
+            b"1",
+            b"2",
+            b"3",
+            b"4",
+        ]
+    )
+    assert w.write_batched(b"5")[1] is None  # 0 s since the last put: joins a new batch
+    assert w.flush_batch(force=False) is None  # not yet due
+    hb = [a for a in w.tick() if isinstance(a, Send) and "/hb/" in a.key]
+    assert wire.decode_heartbeat(hb[0].payload).last == 5  # type: ignore[union-attr]
+    clock.advance(0.0025)
+    sends = [a for a in w.tick() if isinstance(a, Send)]
+    assert sends and sends[0].key == "t/a" and wire.decode_data(sends[0].attachment) is not None
+    assert not w.batch and not w.busy()
+
+
+def test_a_batch_reaches_the_reader_as_single_samples_in_order() -> None:
+    bus = LossyBus(random.Random(1), Link(), FakeClock())
+    writer = bus.add(WriterMachine("t/a", BATCHED, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/*", BATCHED, new_guid(), bus.clock))
+    sent = record_sends(bus)
+    bus.run_for(0.3)
+    for i in range(5):  # one alone (after a pause), then one full batch of 4
+        bus.write(writer, b"%d" % i)
+    bus.run_for(0.1)
+    data = [m for m in sent if m.key == "t/a"]
+    assert [len(m.attachment or b"") == wire.DATA.size for m in data] == [True, False]
+    assert [info.seq for _, info in reader.delivered] == [1, 2, 3, 4, 5]
+    assert [p for p, _ in reader.delivered] == [b"0", b"1", b"2", b"3", b"4"]
+    r = reader.machine
+    assert isinstance(r, ReaderMachine) and r.lost == 0 and r.duplicates == 0
+
+
+def test_over_a_lossy_bus_batches_form_and_keep_all_still_delivers_everything() -> None:
+    bus = LossyBus(random.Random(3), Link(loss=0.2, jitter_s=0.002), FakeClock())
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=200, batch_max_samples=16)
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    sent = record_sends(bus)
+    bus.run_for(0.3)
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    for i in range(300):
+        while not w.has_room():  # as the blocking write waits
+            bus.step()
+        bus.write(writer, b"%d" % i)
+        if i % 50 == 49:
+            bus.run_for(0.01)
+    bus.run_for(3.0)
+    data = [m for m in sent if m.key == "t/a"]
+    assert len(data) < 300 / 4, f"{len(data)} messages for 300 samples: batches did not form"
+    seqs = [info.seq for _, info in reader.delivered]
+    assert seqs == list(range(1, 301))
+    assert [p for p, _ in reader.delivered] == [b"%d" % i for i in range(300)]
