@@ -20,7 +20,7 @@ class Reader(Endpoint):
 
     ``inline_delivery=True`` trades that guarantee for latency: samples are processed and
     ``on_data`` runs on the transport's thread (no thread hop: 1.0-1.2x raw Zenoh round trip
-    instead of 1.2-1.45x, see benchmarks/RESULTS.reliability.md). Only for callbacks that
+    instead of 1.2-1.45x, see benchmarks/RESULTS.md). Only for callbacks that
     return quickly; timers and events still run on the worker thread."""
 
     def __init__(

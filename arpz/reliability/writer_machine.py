@@ -111,6 +111,8 @@ class WriterMachine:
         self._offered = rounded(qos)
         self._capacity = qos.capacity
         self._keep_all = qos.history is HistoryPolicy.KEEP_ALL
+        #: only KEEP_ALL VOLATILE drops acknowledged samples (see ``_purge``)
+        self._purges = self._keep_all and not qos.transient_local
         self._manual = qos.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
         self._ack_interval = self._ack_interval_for(self._capacity)
         now = clock.monotonic_s()
@@ -292,7 +294,7 @@ class WriterMachine:
             now = self._mono()
             self._deadline_met(now, actions)
             self._lease.assert_alive(now)
-        if not self._n_reliable and len(history) >= _PURGE_EVERY:
+        if self._purges and not self._n_reliable and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
         return seq, stamp_ns, flags, actions
 
