@@ -36,8 +36,10 @@ from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
 RESEND_BUDGET = 256
 #: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
 _PURGE_EVERY = 64
-#: a batch goes out once its payloads reach this size, whatever ``batch_max_samples`` says
-BATCH_MAX_BYTES = 64 * 1024
+#: a batch goes out once its payloads reach this size, whatever ``batch_max_samples`` says: with
+#: its attachment (at most 20 + 12 x 1024 bytes) it stays within one Zenoh transport batch
+#: (65 535 bytes), so Zenoh never has to fragment it
+BATCH_MAX_BYTES = 48 * 1024
 
 
 class HistoryFullError(TimeoutError):
