@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 
 #: the command topics every agent listens on, beyond what its actuator declares
 HELLO_TOPIC = "hello"
+#: how long the robot waits after its last report before closing its Zenoh session
+_FINAL_REPORT_LINGER_S = 0.1
 
 
 def effective_sensors(config: RobotConfig) -> list[SensorConfig]:
@@ -246,6 +248,11 @@ class RobotAgent:
             sensor.driver.close()
             sensor.output.close()
         self._hello_out.close()
+        # The final report is a plain put (no recovery) and the CEDDP's reconciliation needs it:
+        # send it again, with the channel's last counters, and give it time to leave before the
+        # session closes. The CEDDP keeps the latest final report, so a repeat costs nothing.
+        self._publish_stats(final=True)
+        time.sleep(_FINAL_REPORT_LINGER_S)
 
     # -- jobs -----------------------------------------------------------------------------------
 
