@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import logging
 import signal
 import threading
@@ -19,4 +20,7 @@ def stop_on_signals() -> threading.Event:
     stop = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    # SIGUSR1 prints every thread's Python stack to stderr, even while the main thread is stuck
+    # in native code (where the handlers above cannot run): `kill -USR1 PID` on a hung process
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     return stop

@@ -115,6 +115,9 @@ class Proc:
         try:
             return self.popen.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
+            # every thread's stack into the log (arpz.cli registers SIGUSR1), then kill
+            self.popen.send_signal(signal.SIGUSR1)
+            time.sleep(0.5)
             self.kill()
             raise LaunchError(
                 f"{self.name} did not stop within {timeout_s:.0f} s of SIGINT and was killed; "

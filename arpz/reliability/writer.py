@@ -22,6 +22,13 @@ class Writer(Endpoint):
 
     The payload goes unchanged on ``key`` and the DATA header in the Zenoh attachment, so a plain
     Zenoh subscriber still decodes the samples; control traffic stays on keys below ``key``.
+
+    ``block``: Zenoh congestion control of the data. True (BLOCK) gives backpressure: ``write``
+    waits while Zenoh's queue towards the router is full, which suits bulk transfer. False (DROP)
+    keeps ``write`` from ever waiting on Zenoh (RTPS semantics: KEEP_LAST never blocks, KEEP_ALL
+    only on its own full history): a sample Zenoh drops is recovered by NACK like one the link
+    lost, or reported lost. Robots use False, so a stalled server never stalls their sensing
+    (Zenoh blocks a BLOCK put up to 5 s and then closes the link).
     """
 
     def __init__(
@@ -32,6 +39,7 @@ class Writer(Endpoint):
         *,
         events: WriterEventCallbacks | None = None,
         express: bool = False,
+        block: bool = True,
         clock: Clock | None = None,
     ) -> None:
         self.key = key
@@ -47,7 +55,7 @@ class Writer(Endpoint):
             f"arpz-writer-{key}",
             before_tick=self._send_due_batch if self._batching else None,
         )
-        self._publisher = transport.publisher(key, express=express, block=True)
+        self._publisher = transport.publisher(key, express=express, block=block)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
         self._machine_write = self._machine.write

@@ -25,7 +25,11 @@ class SensorOutput:
         self.transport = transport
         self.key = key
         self.qos = qos
-        self.writer: Writer | None = Writer(transport, key, qos) if qos is not None else None
+        # block=False: a stalled server must never stall the sensing loop; the channel
+        # recovers or reports what Zenoh drops under congestion
+        self.writer: Writer | None = (
+            Writer(transport, key, qos, block=False) if qos is not None else None
+        )
         self.publisher: Publisher | None = None if qos is not None else transport.publisher(key)
         #: writes KEEP_ALL refused after max_blocking_time (history full of unacknowledged data)
         self.write_failures = 0
