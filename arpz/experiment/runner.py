@@ -74,19 +74,15 @@ class Links:
         return f"udp/127.0.0.1:{self.proxies[robot].listen_port}"
 
     def impair(self) -> None:
-        # a Direction's impairments are read per datagram: swapping them is the switch
         for robot, proxy in self.proxies.items():
-            imp = impairments(self.profiles[robot])
-            proxy.up.imp = imp
-            proxy.down.imp = imp
+            proxy.set_impairments(impairments(self.profiles[robot]))
         self.impaired_at = time.monotonic()
 
     def clear(self) -> None:
         """Back to a clean link for the shutdown: the robots' final reports (plain puts) and
         the channel's last acknowledgements must not be lost, or the counts cannot reconcile."""
         for proxy in self.proxies.values():
-            proxy.up.imp = Impairments()
-            proxy.down.imp = Impairments()
+            proxy.set_impairments(Impairments())
 
     def stop(self) -> dict[str, int]:
         totals = {"received": 0, "dropped": 0}

@@ -88,6 +88,17 @@ class NetemProxy:
     def listen_port(self) -> int:
         return int(self._listen.getsockname()[1])
 
+    @property
+    def elapsed_s(self) -> float:
+        """Seconds since the proxy was made: the clock of ``clean_s`` and ``Outage.start_s``."""
+        return time.monotonic() - self._t0
+
+    def set_impairments(self, up: Impairments, down: Impairments | None = None) -> None:
+        """Change the link while it runs (read per datagram: takes effect at once); e.g. an
+        outage from now: ``Impairments(clean_s=proxy.elapsed_s, outages=(Outage(0, 5),))``."""
+        self.up.imp = up
+        self.down.imp = down if down is not None else up
+
     def start(self) -> NetemProxy:
         self._thread = threading.Thread(target=self.run, name="arpz-netem", daemon=True)
         self._thread.start()

@@ -125,11 +125,7 @@ def test_a_5_s_link_outage(tmp_path: Path, max_samples: int) -> None:
         '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_all"\n'
         f"max_samples = {max_samples}\n"
     )
-    proxy = NetemProxy(
-        f"udp/127.0.0.1:{proxy_port}",
-        udp,
-        Impairments(clean_s=1.0, outages=(Outage(start_s=1.0, duration_s=5.0),)),
-    )
+    proxy = NetemProxy(f"udp/127.0.0.1:{proxy_port}", udp, Impairments())
     with ceddp(tmp_path, extra=qos, also_listen=(udp,)) as (server, _endpoint):
         proxy.start()
         try:
@@ -147,7 +143,14 @@ def test_a_5_s_link_outage(tmp_path: Path, max_samples: int) -> None:
             robot = Process("robot1", ["-m", "arpz.robot", "--config", str(config)], tmp_path)
             try:
                 robot.wait_for("running")
-                settle(9.0)  # 1 s clean, 5 s down, 3 s to recover
+                settle(1.0)  # matched and flowing
+                # the outage starts now, however long the robot took to start
+                proxy.set_impairments(
+                    Impairments(
+                        clean_s=proxy.elapsed_s, outages=(Outage(start_s=0.0, duration_s=5.0),)
+                    )
+                )
+                settle(8.0)  # 5 s down, 3 s to recover
                 assert robot.interrupt(timeout_s=30) == 0, robot.output()
             finally:
                 robot.kill()
