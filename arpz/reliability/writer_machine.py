@@ -395,8 +395,10 @@ class WriterMachine:
             flags |= wire.HB_FINAL
         self._hb_count += 1
         self.heartbeats += 1
+        last = self._last_sent
+        # with a batch open, KEEP_LAST may hold nothing already sent: announce an empty range
         payload = wire.encode_heartbeat(
-            flags, self.guid, self.first, self._last_sent, self._hb_count
+            flags, self.guid, min(self.first, last + 1), last, self._hb_count
         )
         return Send(self._hb_key, payload)
 
@@ -405,7 +407,11 @@ class WriterMachine:
         oldest held), repeated until the reader's first ACKNACK proves it knows."""
         p.last_sync_s = now
         payload = wire.encode_heartbeat(
-            wire.HB_SYNC | wire.HB_LIVELINESS, self.guid, p.start, self._last_sent, self._hb_count
+            wire.HB_SYNC | wire.HB_LIVELINESS,
+            self.guid,
+            p.start,
+            max(self._last_sent, p.start - 1),  # matched while a batch was open: empty so far
+            self._hb_count,
         )
         return Send(p.rx_key, payload)
 

@@ -133,3 +133,21 @@ def test_over_a_lossy_bus_batches_form_and_keep_all_still_delivers_everything() 
     seqs = [info.seq for _, info in reader.delivered]
     assert seqs == list(range(1, 301))
     assert [p for p, _ in reader.delivered] == [b"%d" % i for i in range(300)]
+
+
+def test_heartbeats_stay_well_formed_when_the_history_holds_only_unsent_samples() -> None:
+    """KEEP_LAST depth 1 with a batch open: the history's only sample is not yet sent."""
+    clock = FakeClock()
+    qos = QosProfile(depth=1, batch_max_samples=8, batch_max_delay_s=0.01)
+    w = WriterMachine("t/a", qos, new_guid(), clock)
+    reader = new_guid()
+    w.write_batched(b"0")  # alone, at once
+    w.write_batched(b"1")  # opens a batch
+    w.write_batched(b"2")  # overwrites seq 2 in the history of depth 1
+    sync = [a for a in w.on_reader_token(wire.reader_token("t/a", reader.hex(), "RVA_0_0"), True)]
+    hb = [a for a in w.tick() if isinstance(a, Send) and "/hb/" in a.key]
+    syncs = [wire.decode_heartbeat(a.payload) for a in sync if isinstance(a, Send)]
+    beats = [wire.decode_heartbeat(a.payload) for a in hb]
+    assert syncs and beats and None not in syncs + beats
+    assert [(h.first, h.last) for h in syncs if h] == [(4, 3)]  # match starts at 4: nothing yet
+    assert [h.last for h in beats if h] == [1]  # only seq 1 went out
