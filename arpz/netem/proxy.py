@@ -95,7 +95,8 @@ class NetemProxy:
 
     def set_impairments(self, up: Impairments, down: Impairments | None = None) -> None:
         """Change the link while it runs (read per datagram: takes effect at once); e.g. an
-        outage from now: ``Impairments(clean_s=proxy.elapsed_s, outages=(Outage(0, 5),))``."""
+        outage from now: ``Impairments(clean_s=proxy.elapsed_s, outages=(Outage(start_s=0,
+        duration_s=5),))``."""
         self.up.imp = up
         self.down.imp = down if down is not None else up
 
