@@ -290,7 +290,7 @@ class ReaderMachine:
             if writer not in self._incompatible:
                 self.bad("sample from an unmatched writer", writer.hex(), race=True)
             return []
-        return self._one(p, flags, writer, seq, stamp, payload)
+        return self._one(p, flags, seq, stamp, payload)
 
     def _on_batch(self, key: str, payload: bytes, attachment: bytes) -> list[Action]:
         """Consecutive samples in one message (the writer's batching): each is handled exactly
@@ -307,7 +307,7 @@ class ReaderMachine:
         actions: list[Action] = []
         for i, (stamp, data) in enumerate(batch.samples):
             f = batch.flags & ~wire.F_BATCH if i == last else flags
-            actions.extend(self._one(p, f, batch.writer, batch.first + i, stamp, data))
+            actions.extend(self._one(p, f, batch.first + i, stamp, data))
         return actions
 
     def _known_writer(self, guid: bytes, what: str) -> _WriterProxy | None:
@@ -319,7 +319,7 @@ class ReaderMachine:
         return p
 
     def _one(
-        self, p: _WriterProxy, flags: int, writer: bytes, seq: int, stamp: int, payload: bytes
+        self, p: _WriterProxy, flags: int, seq: int, stamp: int, payload: bytes
     ) -> list[Action]:
         if (
             seq == p.expected
@@ -350,7 +350,7 @@ class ReaderMachine:
             if flags & wire.F_ACK_REQUEST and self._reliable:
                 actions.append(self._acknack(p, now))
             return actions
-        return self._sample(p, wire.DataHeader(flags, writer, seq, stamp), payload)
+        return self._sample(p, wire.DataHeader(flags, p.guid, seq, stamp), payload)
 
     def on_directed(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
         if attachment is not None:

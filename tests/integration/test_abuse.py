@@ -148,7 +148,7 @@ def test_bad_input_is_counted_and_the_fleet_keeps_flowing(tmp_path: Path) -> Non
         assert t["received"] == t["sent"] and t["lost"] == 0, (topic, t)
     # each round pushes 20 MB of oversized payloads and 20 000 flood messages through the CEDDP:
     # kept, they would add 20 MB a round (60 MB over the last three); the peak of the last three
-    # rounds may exceed that of the first three only by noise (measured: up to about 15 MB)
+    # rounds may exceed that of the first three only by noise (payloads in flight, allocator)
     half = ROUNDS // 2
     early, late = max(rss[1 : half + 1]), max(rss[half + 1 : ROUNDS + 1])
     assert late - early < 30, f"RSS (MB) before, after each round, at the end: {rss}"

@@ -141,3 +141,17 @@ class LossyBus:
         self.run(node, actions)
         self.send(Send(w.topic, payload, attachment))
         return seq
+
+
+def publish(bus: LossyBus, writer: Node, n: int, period_s: float) -> None:
+    """Write n samples, waiting (as the blocking write does) while KEEP_ALL has no room."""
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    for i in range(n):
+        waited = 0
+        while not w.has_room():
+            bus.step()
+            waited += 1
+            assert waited < 100_000, "KEEP_ALL writer never got room"
+        bus.write(writer, b"%d" % i)
+        bus.run_for(period_s)

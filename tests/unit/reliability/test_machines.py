@@ -12,7 +12,7 @@ from arpz.reliability.qos import DurabilityPolicy, HistoryPolicy, QosProfile, Re
 from arpz.reliability.reader_machine import ReaderMachine
 from arpz.reliability.timers import FakeClock
 from arpz.reliability.writer_machine import WriterMachine
-from tests.unit.reliability.lossy_bus import Link, LossyBus, Node
+from tests.unit.reliability.lossy_bus import Link, LossyBus, Node, publish
 
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -28,20 +28,6 @@ links = st.builds(
 def world(seed: int, link: Link) -> tuple[LossyBus, FakeClock]:
     clock = FakeClock()
     return LossyBus(random.Random(seed), link, clock), clock
-
-
-def publish(bus: LossyBus, writer: Node, n: int, period_s: float) -> None:
-    """Write n samples, waiting (as the blocking write does) while KEEP_ALL has no room."""
-    w = writer.machine
-    assert isinstance(w, WriterMachine)
-    for i in range(n):
-        waited = 0
-        while not w.has_room():
-            bus.step()
-            waited += 1
-            assert waited < 100_000, "KEEP_ALL writer never got room"
-        bus.write(writer, b"%d" % i)
-        bus.run_for(period_s)
 
 
 def check_invariant(reader: Node, writer: Node) -> list[int]:

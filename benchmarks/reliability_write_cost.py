@@ -1,0 +1,87 @@
+"""CPU cost of one publish on the publishing thread: a plain Zenoh put vs arpz ``Writer.write``
+(default, and with write batching), in one run.
+
+A router process and a subscriber process (``python -m arpz.perf``: plain Zenoh for the bare put,
+an arpz reader for the Writer, so acknowledgements flow) run on loopback; this process publishes
+24 B samples as fast as it can and reads its main thread's CPU time (``time.thread_time``), which
+counts the Python and Zenoh work of the call itself and not the other threads, and wall time.
+This is the per-sample cost that bounds the publisher in benchmarks/reliability_throughput.py.
+
+    python benchmarks/reliability_write_cost.py [--count 200000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections.abc import Callable
+
+from arpz.perf.harness import _perf, child, free_port, perf_router
+from arpz.reliability import HistoryPolicy, QosProfile, Writer
+from arpz.transport import SessionSettings, ZenohTransport
+
+KEY = "bench/write"
+
+
+def measure(put: Callable[[bytes], object], count: int) -> tuple[float, float]:
+    """(main-thread CPU us, wall us) per call."""
+    payload = b"x" * 24
+    wall0, cpu0 = time.perf_counter(), time.thread_time()
+    for _ in range(count):
+        put(payload)
+    return (
+        (time.thread_time() - cpu0) / count * 1e6,
+        (time.perf_counter() - wall0) / count * 1e6,
+    )
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--count", type=int, default=200_000)
+    args = ap.parse_args()
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    rows: list[tuple[str, float, float]] = []
+    with perf_router(endpoint):
+        transport = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]))
+        try:
+            cases: list[tuple[str, str, QosProfile | None]] = [
+                ("plain Zenoh publisher put", "zenoh", None),
+                ("arpz Writer KEEP_ALL", "arpz", QosProfile(history=HistoryPolicy.KEEP_ALL)),
+                (
+                    "arpz Writer KEEP_ALL, batch 128",
+                    "arpz",
+                    QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_samples=128),
+                ),
+            ]
+            for label, kind, qos in cases:
+                sub = _perf(
+                    "sub", "--connect", endpoint, "--key", KEY, "--transport", kind,
+                    "--count", str(args.count), "--history", "keep_all",
+                )  # fmt: skip
+                with child(sub, ready="ready"):
+                    if qos is None:
+                        publisher = transport.publisher(KEY)  # congestion control BLOCK
+                        time.sleep(0.5)
+                        cpu, wall = measure(publisher.put, args.count)
+                        publisher.undeclare()
+                    else:
+                        with Writer(transport, KEY, qos) as writer:
+                            while not writer.matched_count:
+                                time.sleep(0.01)
+                            writer.wait_for_acknowledgments(2.0)
+                            cpu, wall = measure(writer.write, args.count)
+                            writer.wait_for_acknowledgments(10.0)
+                rows.append((label, cpu, wall))
+                print(f"  {label:34s} {cpu:6.2f} us CPU  {wall:6.2f} us wall", flush=True)
+        finally:
+            transport.close()
+    base = rows[0][1]
+    print()
+    print("| publish call (24 B) | main-thread CPU us | wall us | CPU / bare put |")
+    print("|---|---|---|---|")
+    for label, cpu, wall in rows:
+        print(f"| {label} | {cpu:.2f} | {wall:.2f} | {cpu / base:.2f}x |")
+
+
+if __name__ == "__main__":
+    main()
