@@ -58,6 +58,14 @@ class Process:
             self.popen.send_signal(sig)
         try:
             code = self.popen.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            # every thread's stack into the output (arpz.cli registers SIGUSR1), then fail
+            self.popen.send_signal(signal.SIGUSR1)
+            time.sleep(0.5)
+            self.kill()
+            raise AssertionError(
+                f"{self.name} did not stop within {timeout_s} s of {sig!r}:\n{self.output()}"
+            ) from None
         finally:
             self.kill()
         return code
