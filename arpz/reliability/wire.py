@@ -8,6 +8,8 @@ count and ignore it.
 
 from __future__ import annotations
 
+import functools
+import itertools
 import struct
 from typing import Final, NamedTuple
 
@@ -22,9 +24,12 @@ F_BATCH: Final = 0x04
 
 # DATA batch header, in the attachment of a message carrying consecutive samples (first .. first
 # + n - 1) whose payloads are concatenated: version, flags (F_BATCH set), writer, first seq, n;
-# then n entries (source stamp, payload length). Never 26 bytes long, so never taken for DATA.
+# then the n source stamps (i64 each), then the n payload lengths (u32 each). Never 26 bytes long,
+# so never taken for DATA. Stamps and lengths are two arrays, not n pairs, so that one ``struct``
+# call packs or unpacks them all.
 BATCH: Final = struct.Struct("!BB8sQH")
-BATCH_ENTRY: Final = struct.Struct("!qI")
+#: bytes per sample after the batch header: a stamp and a length
+BATCH_ENTRY_SIZE: Final = 12
 #: samples per batch at most: bounds the work one (possibly forged) message can cause
 MAX_BATCH: Final = 1024
 
@@ -98,17 +103,23 @@ class Batch(NamedTuple):
     flags: int
     writer: bytes
     first: int
-    #: (source stamp, payload) per sample, seq first, first + 1, ...
-    samples: list[tuple[int, bytes]]
+    #: source stamp and payload of each sample, seq first, first + 1, ...
+    stamps: tuple[int, ...]
+    payloads: list[bytes]
+
+
+@functools.cache
+def _batch_entries(n: int) -> struct.Struct:
+    return struct.Struct(f"!{n}q{n}I")
 
 
 def encode_batch(
-    flags: int, writer: bytes, first: int, samples: list[tuple[bytes, int]]
+    flags: int, writer: bytes, first: int, payloads: list[bytes], stamps: list[int]
 ) -> tuple[bytes, bytes]:
-    """(payload, attachment) of one message carrying ``samples`` ((payload, stamp) each)."""
-    head = BATCH.pack(VERSION, flags | F_BATCH, writer, first, len(samples))
-    entries = b"".join([BATCH_ENTRY.pack(stamp, len(data)) for data, stamp in samples])
-    return b"".join([data for data, _ in samples]), head + entries
+    """(payload, attachment) of one message carrying ``payloads`` stamped ``stamps``."""
+    n = len(payloads)
+    head = BATCH.pack(VERSION, flags | F_BATCH, writer, first, n)
+    return b"".join(payloads), head + _batch_entries(n).pack(*stamps, *map(len, payloads))
 
 
 def decode_batch(payload: bytes, attachment: bytes) -> Batch | None:
@@ -120,23 +131,19 @@ def decode_batch(payload: bytes, attachment: bytes) -> Batch | None:
         version != VERSION
         or not flags & F_BATCH
         or not 1 <= n <= MAX_BATCH
-        or len(attachment) != BATCH.size + n * BATCH_ENTRY.size
+        or len(attachment) != BATCH.size + n * BATCH_ENTRY_SIZE
         or first < 1
         or first + n - 1 > MAX_SEQ
     ):
         return None
-    samples: list[tuple[int, bytes]] = []
-    offset = 0
-    view = memoryview(payload)
-    for stamp, length in BATCH_ENTRY.iter_unpack(memoryview(attachment)[BATCH.size :]):
-        end = offset + length
-        if end > len(payload):
-            return None
-        samples.append((stamp, bytes(view[offset:end])))
-        offset = end
-    if offset != len(payload):
+    fields = _batch_entries(n).unpack_from(attachment, BATCH.size)
+    ends = list(itertools.accumulate(fields[n:]))
+    # lengths are unsigned, so if they add up to the payload no slice runs past its end
+    if ends[-1] != len(payload):
         return None
-    return Batch(flags, writer, first, samples)
+    # the slices are cut in C (map over slice objects), not in a Python loop per sample
+    payloads = list(map(payload.__getitem__, map(slice, [0, *ends[:-1]], ends)))
+    return Batch(flags, writer, first, fields[:n], payloads)
 
 
 def encode_heartbeat(flags: int, writer: bytes, first: int, last: int, count: int) -> bytes:

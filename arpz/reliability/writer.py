@@ -46,20 +46,18 @@ class Writer(Endpoint):
         self.qos = qos
         self._machine = WriterMachine(key, qos, new_guid(), clock or SystemClock())
         self.guid = self._machine.hex
-        self._batching = qos.batching
         self._channel = Channel(
             transport,
             self._machine,
             events or WriterEventCallbacks(),
             None,
             f"arpz-writer-{key}",
-            before_tick=self._send_due_batch if self._batching else None,
+            before_tick=self._send_due_batch if qos.batching else None,
         )
         self._publisher = transport.publisher(key, express=express, block=block)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
         self._machine_write = self._machine.write
-        self._machine_write_batched = self._machine.write_batched
         self._put = self._publisher.put
         try:
             self._channel.start(self._machine.token_key)
@@ -76,28 +74,13 @@ class Writer(Endpoint):
         """
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
-        if self._batching:
-            return self._write_batched(payload, stamp_ns)
         with self._mutex:
             try:
-                seq, attachment, actions = self._machine_write(payload, stamp_ns)
-            except HistoryFullError:
-                seq, attachment, actions = self._wait_for_room(
-                    lambda: self._machine_write(payload, stamp_ns)
-                )
-            self._put(payload, attachment=attachment)
-        if actions:
-            self._channel.post(actions)
-        return seq
-
-    def _write_batched(self, payload: bytes, stamp_ns: int | None) -> int:
-        with self._mutex:
-            try:
-                seq, ready, actions = self._machine_write_batched(payload, stamp_ns)
+                seq, ready, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
                 self._send_due_batch(force=True)  # readers cannot acknowledge what is unsent
                 seq, ready, actions = self._wait_for_room(
-                    lambda: self._machine_write_batched(payload, stamp_ns)
+                    lambda: self._machine_write(payload, stamp_ns)
                 )
             if ready is not None:
                 self._put(ready[0], attachment=ready[1])
@@ -176,7 +159,7 @@ class Writer(Endpoint):
 
     def close(self) -> None:
         """Send the open batch, then stop (as ``Endpoint.close``)."""
-        if not self._closed and self._batching:
+        if not self._closed:
             self.flush()
         super().close()
 

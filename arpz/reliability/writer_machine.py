@@ -139,9 +139,10 @@ class WriterMachine:
         #: deadline or manual liveliness: only then does a write need the time
         self._timed = qos.deadline_s > 0 or self._manual
         self._n_reliable = 0
-        #: write batching: samples written but not yet sent, (payload, stamp_ns), seq from
-        #: ``last_seq - len(batch) + 1``; kept apart from the history, which may overwrite them
-        self.batch: list[tuple[bytes, int]] = []
+        #: write batching: payloads written but not yet sent (seq from ``last_seq - len(batch) +
+        #: 1``) and their stamps; kept apart from the history, which may overwrite them
+        self.batch: list[bytes] = []
+        self._batch_stamps: list[int] = []
         self._batch_max = qos.batch_max_samples
         self._batch_delay_s = qos.batch_max_delay_s
         self._batch_flags = 0
@@ -202,78 +203,20 @@ class WriterMachine:
             return True
         return self.first < self._min_acked()
 
-    def write(self, payload: bytes, stamp_ns: int | None = None) -> tuple[int, bytes, list[Action]]:
-        """Assign the next seq and return (seq, DATA attachment, actions); the driver publishes
-        the payload with the attachment on the topic key. Raises HistoryFullError if KEEP_ALL has
-        no room (the driver waits for acknowledgements and retries up to max_blocking_time).
+    def write(
+        self, payload: bytes, stamp_ns: int | None = None
+    ) -> tuple[int, tuple[bytes, bytes] | None, list[Action]]:
+        """Assign the next seq, keep the sample, and return (seq, (payload, attachment) to
+        publish on the topic key now or None, actions). Raises HistoryFullError if KEEP_ALL has no
+        room (the driver waits for acknowledgements and retries up to max_blocking_time).
+
+        Without batching every sample is published at once. With batching, a sample written
+        ``batch_max_delay_s`` or more after the last message went out is published at once and
+        alone; otherwise it joins the open batch, which is returned when full or when its oldest
+        sample has waited ``batch_max_delay_s`` (here or from ``tick``), else None.
 
         This is the hot path of a publisher: everything that can be decided once is decided in
         ``__init__`` or on (un)matching, not here."""
-        seq, stamp_ns, flags, actions = self._admit(payload, stamp_ns)
-        return seq, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns), actions
-
-    def write_batched(
-        self, payload: bytes, stamp_ns: int | None = None
-    ) -> tuple[int, tuple[bytes, bytes] | None, list[Action]]:
-        """``write`` with batching: returns (seq, (payload, attachment) to publish now or None,
-        actions). A sample written after a pause of ``batch_max_delay_s`` goes out at once and
-        alone; otherwise it joins the open batch, which goes out when full or when its oldest
-        sample has waited ``batch_max_delay_s`` (here or from ``tick``)."""
-        seq, stamp_ns, flags, actions = self._admit(payload, stamp_ns)
-        now = self._mono()
-        batch = self.batch
-        if not batch:
-            if now - self._last_put_s >= self._batch_delay_s:
-                self._last_put_s = now
-                return (
-                    seq,
-                    (payload, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)),
-                    actions,
-                )
-            self._batch_opened_s = now
-        batch.append((payload, stamp_ns))
-        self._batch_flags |= flags
-        self._batch_bytes += len(payload)
-        if (
-            len(batch) >= self._batch_max
-            or self._batch_bytes >= BATCH_MAX_BYTES
-            or now - self._batch_opened_s >= self._batch_delay_s
-        ):
-            return seq, self._take_batch(now), actions
-        return seq, None, actions
-
-    def flush_batch(self, force: bool) -> tuple[bytes, bytes] | None:
-        """The open batch as (payload, attachment) if it is due (or ``force``), else None."""
-        if not self.batch:
-            return None
-        now = self._mono()
-        if not force and now - self._batch_opened_s < self._batch_delay_s:
-            return None
-        return self._take_batch(now)
-
-    def _take_batch(self, now: float) -> tuple[bytes, bytes]:
-        batch, flags = self.batch, self._batch_flags
-        first = self.last_seq - len(batch) + 1
-        self.batch = []
-        self._batch_flags = self._batch_bytes = 0
-        self._last_put_s = now
-        if len(batch) == 1:
-            data, stamp = batch[0]
-            return data, self._pack(wire.VERSION, flags, self.guid, first, stamp)
-        return wire.encode_batch(flags, self.guid, first, batch)
-
-    @property
-    def batch_due_s(self) -> float:
-        """When the open batch must go out (monotonic s)."""
-        return self._batch_opened_s + self._batch_delay_s
-
-    @property
-    def _last_sent(self) -> int:
-        """The last seq put on the wire (written samples still in the open batch are not)."""
-        return self.last_seq - len(self.batch)
-
-    def _admit(self, payload: bytes, stamp_ns: int | None) -> tuple[int, int, int, list[Action]]:
-        """Make room, assign the seq, keep the sample: (seq, stamp_ns, DATA flags, actions)."""
         actions: list[Action] = []
         history = self.history
         if len(history) >= self._capacity:
@@ -298,7 +241,60 @@ class WriterMachine:
             self._lease.assert_alive(now)
         if self._purges and not self._n_reliable and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
-        return seq, stamp_ns, flags, actions
+        if self._batch_max == 1:
+            return (
+                seq,
+                (payload, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)),
+                actions,
+            )
+        now = self._mono()
+        batch = self.batch
+        if not batch:
+            if now - self._last_put_s >= self._batch_delay_s:
+                self._last_put_s = now
+                attachment = self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)
+                return seq, (payload, attachment), actions
+            self._batch_opened_s = now
+        batch.append(payload)
+        self._batch_stamps.append(stamp_ns)
+        self._batch_flags |= flags
+        self._batch_bytes += len(payload)
+        if (
+            len(batch) >= self._batch_max
+            or self._batch_bytes >= BATCH_MAX_BYTES
+            or now - self._batch_opened_s >= self._batch_delay_s
+        ):
+            return seq, self._take_batch(now), actions
+        return seq, None, actions
+
+    def flush_batch(self, force: bool) -> tuple[bytes, bytes] | None:
+        """The open batch as (payload, attachment) if it is due (or ``force``), else None."""
+        if not self.batch:
+            return None
+        now = self._mono()
+        if not force and now - self._batch_opened_s < self._batch_delay_s:
+            return None
+        return self._take_batch(now)
+
+    def _take_batch(self, now: float) -> tuple[bytes, bytes]:
+        batch, stamps, flags = self.batch, self._batch_stamps, self._batch_flags
+        first = self.last_seq - len(batch) + 1
+        self.batch, self._batch_stamps = [], []
+        self._batch_flags = self._batch_bytes = 0
+        self._last_put_s = now
+        if len(batch) == 1:
+            return batch[0], self._pack(wire.VERSION, flags, self.guid, first, stamps[0])
+        return wire.encode_batch(flags, self.guid, first, batch, stamps)
+
+    @property
+    def batch_due_s(self) -> float:
+        """When the open batch must go out (monotonic s)."""
+        return self._batch_opened_s + self._batch_delay_s
+
+    @property
+    def _last_sent(self) -> int:
+        """The last seq put on the wire (written samples still in the open batch are not)."""
+        return self.last_seq - len(self.batch)
 
     def retune(self, *, depth: int, deadline_s: float) -> list[Action]:
         """Apply a new KEEP_LAST depth and offered deadline in place (the CEDDP's QoS balancing),

@@ -131,15 +131,10 @@ class LossyBus:
     def write(self, node: Node, payload: bytes) -> int:
         w = node.machine
         assert isinstance(w, WriterMachine)
-        if w.qos.batching:
-            seq, ready, actions = w.write_batched(payload)
-            self.run(node, actions)
-            if ready is not None:  # else the batch goes out from a later write or tick
-                self.send(Send(w.topic, ready[0], ready[1]))
-            return seq
-        seq, attachment, actions = w.write(payload)
+        seq, ready, actions = w.write(payload)
         self.run(node, actions)
-        self.send(Send(w.topic, payload, attachment))
+        if ready is not None:  # else the batch goes out from a later write or tick
+            self.send(Send(w.topic, ready[0], ready[1]))
         return seq
 
 

@@ -29,13 +29,14 @@ def record_sends(bus: LossyBus) -> list[Send]:
 
 
 def test_a_batch_roundtrips_and_is_never_taken_for_a_single_sample() -> None:
-    samples = [(b"a", 10), (b"", 11), (b"ccc", -12)]
-    payload, attachment = wire.encode_batch(wire.F_ACK_REQUEST, G, 7, samples)
+    payload, attachment = wire.encode_batch(
+        wire.F_ACK_REQUEST, G, 7, [b"a", b"", b"ccc"], [10, 11, -12]
+    )
     assert payload == b"accc" and len(attachment) != wire.DATA.size
     assert wire.decode_data(attachment) is None
     batch = wire.decode_batch(payload, attachment)
     assert batch == wire.Batch(
-        wire.F_ACK_REQUEST | wire.F_BATCH, G, 7, [(10, b"a"), (11, b""), (-12, b"ccc")]
+        wire.F_ACK_REQUEST | wire.F_BATCH, G, 7, (10, 11, -12), [b"a", b"", b"ccc"]
     )
 
 
@@ -51,7 +52,8 @@ def test_a_batch_roundtrips_and_is_never_taken_for_a_single_sample() -> None:
 def test_a_damaged_batch_is_refused_whole(
     samples: list[tuple[bytes, int]], cut: int, flip: int, xor: int, extra: bytes
 ) -> None:
-    payload, attachment = wire.encode_batch(0, G, 1, samples)
+    payloads, stamps = [d for d, _ in samples], [s for _, s in samples]
+    payload, attachment = wire.encode_batch(0, G, 1, payloads, stamps)
     damaged = bytearray(attachment)
     damaged[flip % len(damaged)] ^= xor
     # lengths that cannot add up are always refused
@@ -61,30 +63,21 @@ def test_a_damaged_batch_is_refused_whole(
     # a flipped byte may land in a stamp or the guid: then it still decodes, consistently
     batch = wire.decode_batch(payload, bytes(damaged))
     if batch is not None:
-        assert b"".join(d for _, d in batch.samples) == payload
-        assert len(damaged) == wire.BATCH.size + len(batch.samples) * wire.BATCH_ENTRY.size
+        assert b"".join(batch.payloads) == payload and len(batch.stamps) == len(samples)
+        assert len(damaged) == wire.BATCH.size + len(batch.payloads) * wire.BATCH_ENTRY_SIZE
 
 
 def test_the_writer_sends_alone_after_a_pause_and_batches_a_burst() -> None:
     clock = FakeClock()
     w = WriterMachine("t/a", BATCHED, new_guid(), clock)
-    _, ready, _ = w.write_batched(b"0")
+    _, ready, _ = w.write(b"0")
     assert ready is not None and len(ready[1]) == wire.DATA.size  # first after a pause: at once
-    outs = [w.write_batched(b"%d" % i)[1] for i in range(1, 5)]
+    outs = [w.write(b"%d" % i)[1] for i in range(1, 5)]
     assert outs[:3] == [None, None, None] and outs[3] is not None  # full at 4
     batch = wire.decode_batch(*outs[3])
-    assert (
-        batch is not None
-        and batch.first == 2
-        and [d for _, d in batch.samples]
-        == [
-            b"1",
-            b"2",
-            b"3",
-            b"4",
-        ]
-    )
-    assert w.write_batched(b"5")[1] is None  # 0 s since the last put: joins a new batch
+    assert batch is not None and batch.first == 2
+    assert batch.payloads == [b"1", b"2", b"3", b"4"]
+    assert w.write(b"5")[1] is None  # 0 s since the last put: joins a new batch
     assert w.flush_batch(force=False) is None  # not yet due
     hb = [a for a in w.tick() if isinstance(a, Send) and "/hb/" in a.key]
     assert wire.decode_heartbeat(hb[0].payload).last == 5  # type: ignore[union-attr]
@@ -133,9 +126,9 @@ def test_heartbeats_stay_well_formed_when_the_history_holds_only_unsent_samples(
     qos = QosProfile(depth=1, batch_max_samples=8, batch_max_delay_s=0.01)
     w = WriterMachine("t/a", qos, new_guid(), clock)
     reader = new_guid()
-    w.write_batched(b"0")  # alone, at once
-    w.write_batched(b"1")  # opens a batch
-    w.write_batched(b"2")  # overwrites seq 2 in the history of depth 1
+    w.write(b"0")  # alone, at once
+    w.write(b"1")  # opens a batch
+    w.write(b"2")  # overwrites seq 2 in the history of depth 1
     sync = [a for a in w.on_reader_token(wire.reader_token("t/a", reader.hex(), "RVA_0_0"), True)]
     hb = [a for a in w.tick() if isinstance(a, Send) and "/hb/" in a.key]
     syncs = [wire.decode_heartbeat(a.payload) for a in sync if isinstance(a, Send)]
