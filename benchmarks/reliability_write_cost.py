@@ -1,5 +1,5 @@
 """CPU cost of one publish on the publishing thread: a plain Zenoh put vs arpz ``Writer.write``
-(default, and with write batching), in one run.
+(default, which batches writes, and unbatched), in one run.
 
 A router process and a subscriber process (``python -m arpz.perf``: plain Zenoh for the bare put,
 an arpz reader for the Writer, so acknowledgements flow) run on loopback; this process publishes
@@ -48,9 +48,9 @@ def main() -> None:
                 ("plain Zenoh publisher put", "zenoh", None),
                 ("arpz Writer KEEP_ALL", "arpz", QosProfile(history=HistoryPolicy.KEEP_ALL)),
                 (
-                    "arpz Writer KEEP_ALL, batch 128",
+                    "arpz Writer KEEP_ALL, unbatched",
                     "arpz",
-                    QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_samples=128),
+                    QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_samples=1),
                 ),
             ]
             for label, kind, qos in cases:

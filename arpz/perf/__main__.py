@@ -73,7 +73,7 @@ def add_qos_flags(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--heartbeat-ms", type=float)
     g.add_argument("--nack-delay-ms", type=float)
     g.add_argument("--reorder-timeout-ms", type=float)
-    g.add_argument("--batch", type=int, help="batch_max_samples: samples per message (1 = off)")
+    g.add_argument("--batch", type=int, help="batch_max_samples: samples per message (default 64, 1 = off)")
     g.add_argument("--batch-delay-us", type=float, help="batch_max_delay_s in microseconds")
     g.add_argument("--cache", type=int, default=10000, help="advanced: publisher cache size")
 

@@ -80,10 +80,12 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     nack_period_s: float = 0.02
     #: longest time a missing sample holds later ones back before it is declared lost
     reorder_timeout_s: float = 0.5
-    #: write batching (as Cyclone DDS's WriteBatch): up to this many samples share one Zenoh
-    #: message, which amortises the per-message cost of Python and Zenoh at high rates. 1 = off
-    #: (the default: every sample is its own message, decodable by a plain Zenoh subscriber)
-    batch_max_samples: int = 1
+    #: adaptive write batching (as Cyclone DDS's WriteBatch, and as Zenoh batches messages on a
+    #: busy link): a writer written faster than ``batch_max_delay_s`` lets up to this many samples
+    #: share one Zenoh message, which amortises the per-message cost of Python and Zenoh; a topic
+    #: slower than that never waits. 1 = off: every sample is its own message, which a plain
+    #: Zenoh subscriber decodes
+    batch_max_samples: int = 64
     #: with batching, the longest a written sample waits for its batch to fill; a sample written
     #: after a pause at least this long goes out at once, so a slow topic gains no latency
     batch_max_delay_s: float = 0.0005

@@ -12,6 +12,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
+import msgspec
 import pytest
 
 from arpz.reliability import (
@@ -52,27 +53,37 @@ def synced(writer: Writer, readers: int = 1) -> bool:
     return writer.matched_count == readers and writer.wait_for_acknowledgments(0.01)
 
 
-def test_keep_all_in_order_and_a_plain_subscriber_sees_only_payloads() -> None:
+@pytest.mark.parametrize("batch", [1, QOS_RELIABLE_ALL.batch_max_samples])
+def test_keep_all_in_order_and_a_plain_subscriber_sees_only_payloads(batch: int) -> None:
+    """Unbatched, a plain Zenoh subscriber gets each payload as it was written; with the default
+    adaptive batching (3000 writes as fast as possible do batch) it gets them concatenated."""
     sink = Sink()
     plain: list[tuple[str, bytes]] = []
+    qos = msgspec.structs.replace(QOS_RELIABLE_ALL, batch_max_samples=batch)
+    written = [b"reading %d" % i for i in range(3000)]
     with router() as (_, endpoint), client(endpoint) as a, client(endpoint) as b:
         b.subscribe("arpz/f/robot/*/sensor/*", lambda k, p, att: plain.append((k, p)))
         with (
             Reader(b, "arpz/f/robot/*/sensor/*", QOS_RELIABLE_ALL, sink) as reader,
-            Writer(a, "arpz/f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+            Writer(a, "arpz/f/robot/r1/sensor/lidar", qos) as writer,
         ):
             wait_until(lambda: synced(writer), what="match")
-            for i in range(3000):
-                writer.write(b"reading %d" % i)
+            for payload in written:
+                writer.write(payload)
             wait_until(lambda: len(sink.seqs()) == 3000, what="3000 samples")
             assert sink.seqs() == list(range(1, 3001))
             assert sink.items[41][0] == b"reading 41"
             assert writer.wait_for_acknowledgments(5.0)
             rs, ws = reader.stats(), writer.stats()
             assert (rs.delivered, rs.lost, rs.duplicates, ws.sent) == (3000, 0, 0, 3000)
-        wait_until(lambda: len(plain) >= 3000, what="plain subscriber")
+        joined = b"".join(written)
+        wait_until(lambda: sum(len(p) for _, p in plain) >= len(joined), what="plain subscriber")
         assert {k for k, _ in plain} == {"arpz/f/robot/r1/sensor/lidar"}
-        assert [p for _, p in plain[:3]] == [b"reading 0", b"reading 1", b"reading 2"]
+        assert b"".join(p for _, p in plain) == joined
+        if batch == 1:
+            assert [p for _, p in plain] == written
+        else:
+            assert len(plain) < len(written)
 
 
 def test_one_wildcard_reader_serves_many_writers_in_other_sessions() -> None:
