@@ -12,7 +12,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any, Self, TypeVar
 
@@ -138,10 +138,10 @@ class Channel:
         """Make the worker look at the machine now (it may have become busy)."""
         self._queue.put((_POST, [], None, None))
 
-    def post(self, actions: list[Action]) -> None:
+    def post(self, actions: Sequence[Action]) -> None:
         """Run actions on the worker thread (event callbacks never run on the caller's thread)."""
         if actions:
-            self._queue.put((_POST, actions, None, None))
+            self._queue.put((_POST, list(actions), None, None))
 
     def _run(self) -> None:
         q = self._queue

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 import time
 from collections.abc import Callable
 from typing import TypeVar
@@ -57,6 +58,9 @@ class Writer(Endpoint):
         self._publisher = transport.publisher(key, express=express, block=block)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
+        #: held from taking a message under the state lock until its put returns: the order
+        #: of puts is the order of seqs (lock order: state lock, then this one, never reversed)
+        self._send_lock = threading.Lock()
         self._machine_write = self._machine.write
         self._put = self._publisher.put
         try:
@@ -82,12 +86,21 @@ class Writer(Endpoint):
                 seq, ready, actions = self._wait_for_room(
                     lambda: self._machine_write(payload, stamp_ns)
                 )
-            if ready is not None:
-                self._put(ready[0], attachment=ready[1])
-            elif len(self._machine.batch) == 1 and self._channel.next_tick_s > (
+            if len(self._machine.batch) == 1 and self._channel.next_tick_s > (
                 self._machine.batch_due_s
             ):
                 self._channel.wake()  # a batch opened: the worker sends it if it is not filled
+            if ready is not None:
+                # taken before the state lock is released, so messages leave in seq order
+                self._send_lock.acquire()
+        if ready is not None:
+            # The put runs outside the state lock: it releases the GIL, and a worker that then
+            # blocked on the state lock cost both threads a futex round trip and a GIL handoff
+            # for every message (measured: 10-15 % of throughput at 1 KiB).
+            try:
+                self._put(ready[0], attachment=ready[1])
+            finally:
+                self._send_lock.release()
         if actions:
             self._channel.post(actions)
         return seq
@@ -96,7 +109,8 @@ class Writer(Endpoint):
         """Publish the open batch if it is due (or ``force``); call with the lock held."""
         ready = self._machine.flush_batch(force)
         if ready is not None:
-            self._put(ready[0], attachment=ready[1])
+            with self._send_lock:
+                self._put(ready[0], attachment=ready[1])
 
     def flush(self) -> None:
         """Publish the open batch now (batching only; otherwise every write is already out)."""

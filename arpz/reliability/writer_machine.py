@@ -8,6 +8,7 @@ resend request is answered by index and everything below ``first`` is answered w
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import msgspec
 
@@ -36,6 +37,8 @@ from arpz.reliability.timers import Clock, DeadlineTimer, LeaseTimer
 RESEND_BUDGET = 256
 #: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
 _PURGE_EVERY = 64
+#: what ``write`` returns when it has no actions (most writes): nothing allocated per write
+_NO_ACTIONS: tuple[Action, ...] = ()
 #: a batch goes out once its payloads reach this size, whatever ``batch_max_samples`` says: with
 #: its attachment (at most 20 + 12 x 1024 bytes) it stays within one Zenoh transport batch
 #: (65 535 bytes), so Zenoh never has to fragment it
@@ -159,7 +162,7 @@ class WriterMachine:
         """Samples between two ACK_REQUESTs: often enough that the history never fills while
         acknowledgements are on their way, rarely enough to cost little at high rates."""
         if self._keep_all:
-            return max(1, min(256, capacity // 4))
+            return max(1, min(1024, capacity // 4))
         return max(1, min(64, capacity // 2))
 
     # ------------------------------------------------------------------ routing
@@ -205,7 +208,7 @@ class WriterMachine:
 
     def write(
         self, payload: bytes, stamp_ns: int | None = None
-    ) -> tuple[int, tuple[bytes, bytes] | None, list[Action]]:
+    ) -> tuple[int, tuple[bytes, bytes] | None, Sequence[Action]]:
         """Assign the next seq, keep the sample, and return (seq, (payload, attachment) to
         publish on the topic key now or None, actions). Raises HistoryFullError if KEEP_ALL has no
         room (the driver waits for acknowledgements and retries up to max_blocking_time).
@@ -217,15 +220,17 @@ class WriterMachine:
 
         This is the hot path of a publisher: everything that can be decided once is decided in
         ``__init__`` or on (un)matching, not here."""
-        actions: list[Action] = []
         history = self.history
+        actions: Sequence[Action] = _NO_ACTIONS
         if len(history) >= self._capacity:
             if self._keep_all:
                 if self.first >= self._min_acked():
                     raise HistoryFullError(self._full_message())
                 self._drop_front()
             else:
-                self._overwrite_front(actions)
+                overwritten: list[Action] = []
+                self._overwrite_front(overwritten)
+                actions = overwritten
         if stamp_ns is None:
             stamp_ns = self._wall_ns()
         seq = self.last_seq = self.last_seq + 1
@@ -234,12 +239,14 @@ class WriterMachine:
         if self._n_reliable and seq - self._last_ack_request >= self._ack_interval:
             flags = wire.F_ACK_REQUEST
             self._last_ack_request = seq
-        self._asserted_since_hb = True
-        if self._timed:
+        if self._timed:  # deadline or manual liveliness: only then does a write need the time
+            timed: list[Action] = list(actions)
+            actions = timed
             now = self._mono()
-            self._deadline_met(now, actions)
+            self._asserted_since_hb = True
+            self._deadline_met(now, timed)
             self._lease.assert_alive(now)
-        if self._purges and not self._n_reliable and len(history) >= _PURGE_EVERY:
+        if not self._n_reliable and self._purges and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
         if self._batch_max == 1:
             return (
@@ -255,9 +262,20 @@ class WriterMachine:
                 attachment = self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)
                 return seq, (payload, attachment), actions
             self._batch_opened_s = now
+        elif self._batch_bytes + len(payload) > BATCH_MAX_BYTES:
+            # the open batch goes out without this sample, which opens the next one: one large
+            # sample never makes a message outgrow a Zenoh batch (and get fragmented)
+            ready = self._take_batch(now, held_back=1)
+            self._batch_opened_s = now
+            self.batch.append(payload)
+            self._batch_stamps.append(stamp_ns)
+            self._batch_flags = flags
+            self._batch_bytes = len(payload)
+            return seq, ready, actions
         batch.append(payload)
         self._batch_stamps.append(stamp_ns)
-        self._batch_flags |= flags
+        if flags:
+            self._batch_flags |= flags
         self._batch_bytes += len(payload)
         if (
             len(batch) >= self._batch_max
@@ -276,9 +294,11 @@ class WriterMachine:
             return None
         return self._take_batch(now)
 
-    def _take_batch(self, now: float) -> tuple[bytes, bytes]:
+    def _take_batch(self, now: float, held_back: int = 0) -> tuple[bytes, bytes]:
+        """The open batch as one message; ``held_back`` samples written after it (the newest
+        seqs) are not in it."""
         batch, stamps, flags = self.batch, self._batch_stamps, self._batch_flags
-        first = self.last_seq - len(batch) + 1
+        first = self.last_seq - held_back - len(batch) + 1
         self.batch, self._batch_stamps = [], []
         self._batch_flags = self._batch_bytes = 0
         self._last_put_s = now
@@ -521,9 +541,15 @@ class WriterMachine:
         return actions
 
     def busy(self) -> bool:
-        """A batch waits to go out, or a reader has not yet confirmed where its match starts
-        (SYNC is being repeated): the driver ticks at its fine period."""
-        return bool(self.batch) or any(not p.synced for p in self.proxies.values())
+        """A batch waits to go out, or one went out within the batch delay (the topic is
+        streaming: the next batch opens any moment, and a driver that went idle in between
+        would have to be woken for it), or a reader has not yet confirmed where its match
+        starts (SYNC is being repeated): the driver ticks at its fine period."""
+        return (
+            bool(self.batch)
+            or self._mono() - self._last_put_s < self._batch_delay_s
+            or any(not p.synced for p in self.proxies.values())
+        )
 
     def _expire(self, wall_ns: int) -> None:
         limit_ns = wall_ns - int(self.qos.lifespan_s * 1e9)

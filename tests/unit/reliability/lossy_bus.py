@@ -10,6 +10,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import random
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -79,7 +80,7 @@ class LossyBus:
             if key_matches(node.machine.watch_expr(), key):
                 self._later(0.002, ("token", node, key, declare))
 
-    def run(self, node: Node, actions: list[Action]) -> None:
+    def run(self, node: Node, actions: Sequence[Action]) -> None:
         for action in actions:
             if isinstance(action, Send):
                 self.send(action)

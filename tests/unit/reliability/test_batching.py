@@ -13,7 +13,7 @@ from arpz.reliability.actions import Send
 from arpz.reliability.qos import HistoryPolicy, QosProfile
 from arpz.reliability.reader_machine import ReaderMachine
 from arpz.reliability.timers import FakeClock
-from arpz.reliability.writer_machine import WriterMachine
+from arpz.reliability.writer_machine import BATCH_MAX_BYTES, WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, publish
 
 G = b"\x07" * 8
@@ -84,7 +84,27 @@ def test_the_writer_sends_alone_after_a_pause_and_batches_a_burst() -> None:
     clock.advance(0.0025)
     sends = [a for a in w.tick() if isinstance(a, Send)]
     assert sends and sends[0].key == "t/a" and wire.decode_data(sends[0].attachment) is not None
-    assert not w.batch and not w.busy()
+    assert not w.batch and w.busy()  # it just put: streaming, the driver keeps its fine tick
+    clock.advance(0.0025)
+    assert not w.busy()  # quiet for a whole batch delay: the driver may sleep
+
+
+def test_a_sample_that_would_overflow_the_size_cap_starts_the_next_batch() -> None:
+    clock = FakeClock()
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_samples=64)
+    w = WriterMachine("t/a", qos, new_guid(), clock)
+    w.write(b"first")  # alone, at once
+    half = b"h" * (BATCH_MAX_BYTES // 2)
+    assert w.write(half)[1] is None and w.write(half)[1] is not None  # exactly the cap: full
+    assert w.write(b"a")[1] is None  # opens a batch of one small sample
+    seq, ready, _ = w.write(b"b" * BATCH_MAX_BYTES)  # would make it 1 byte too big
+    assert ready is not None
+    batch = wire.decode_data(ready[1])  # the open batch went out alone, without this sample
+    assert batch is not None and batch.seq == seq - 1 and ready[0] == b"a"
+    assert w.batch == [b"b" * BATCH_MAX_BYTES]  # which opened the next batch
+    clock.advance(2 * qos.batch_max_delay_s)
+    ready = w.flush_batch(force=False)
+    assert ready is not None and wire.decode_data(ready[1]).seq == seq  # type: ignore[union-attr]
 
 
 def test_a_batch_reaches_the_reader_as_single_samples_in_order() -> None:
