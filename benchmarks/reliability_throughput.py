@@ -5,12 +5,14 @@ Each measurement is one publisher process and one subscriber process through one
 hits all transports alike, and the median round is reported. Targets (issue 3): arpz >= 0.6x raw
 Zenoh and >= 1.0x Advanced.
 
-arpz is measured twice: with the default profile, whose adaptive write batching
+arpz is measured three ways: with the default profile, whose adaptive write batching
 (``batch_max_samples = 64``, as Cyclone DDS's WriteBatch) amortises the per-message cost of Python
-and Zenoh when a topic is written faster than ``batch_max_delay_s``, and unbatched
-(``--batch 1``: every sample its own Zenoh message).
+and Zenoh when a topic is written faster than ``batch_max_delay_s``, and whose reader hands every
+message to its worker thread before the callback runs; with ``--inline`` (``Reader(...,
+inline_delivery=True)``), where the recording callback runs on Zenoh's thread as it does for the
+raw and Advanced subscribers; and unbatched (``--batch 1``: every sample its own Zenoh message).
 
-    python benchmarks/reliability_throughput.py --rounds 3
+    python benchmarks/reliability_throughput.py --rounds 5
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ RUNS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("zenoh", "zenoh", ()),
     ("advanced", "advanced", ()),
     ("arpz", "arpz", ()),
+    ("arpz inline", "arpz", ("--inline",)),
     ("arpz unbatched", "arpz", ("--batch", "1")),
 )
 
@@ -36,8 +39,8 @@ def ratios(values: dict[str, float], label: str) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--count", type=int, default=100_000, help="samples per run (24 B)")
-    ap.add_argument("--count-kib", type=int, default=50_000, help="samples per run (1 KiB)")
+    ap.add_argument("--count", type=int, default=200_000, help="samples per run (24 B)")
+    ap.add_argument("--count-kib", type=int, default=200_000, help="samples per run (1 KiB)")
     args = ap.parse_args()
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     results: dict[tuple[int, str], list[float]] = {}
@@ -65,33 +68,26 @@ def main() -> None:
                         f"{rate:10.0f} msg/s  received {report['received']}",
                         flush=True,
                     )
-    labels = [label for label, _, _ in RUNS]
     print()
-    print(
-        "| payload | raw Zenoh msg/s | Advanced msg/s | arpz msg/s | arpz unbatched msg/s "
-        "| arpz / raw | arpz / Advanced | unbatched / raw | unbatched / Advanced |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|")
-    for size in (24, 1024):
-        med = {label: statistics.median(results[(size, label)]) for label in labels}
-        print(
-            f"| {size} B | {med['zenoh']:.0f} | {med['advanced']:.0f} | {med['arpz']:.0f} "
-            f"| {med['arpz unbatched']:.0f} | {ratios(med, 'arpz')} "
-            f"| {ratios(med, 'arpz unbatched')} |"
-        )
+    print("Throughput, msg/s (median of the rounds), and arpz / raw Zenoh, arpz / Advanced:")
+    table(results, "{:.0f}")
     print()
     print("CPU per sample (publisher + subscriber processes, all their threads), us:")
-    print(
-        "| payload | raw Zenoh | Advanced | arpz | arpz unbatched "
-        "| arpz / raw | arpz / Advanced | unbatched / raw | unbatched / Advanced |"
-    )
-    print("|---|---|---|---|---|---|---|---|---|")
+    table(cpu, "{:.1f}")
+
+
+def table(values: dict[tuple[int, str], list[float]], fmt: str) -> None:
+    labels = [label for label, _, _ in RUNS]
+    arpz = [label for label in labels if label.startswith("arpz")]
+    head = ["payload", "raw Zenoh", "Advanced", *arpz]
+    head += [f"{label} / {base}" for label in arpz for base in ("raw", "Advanced")]
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
     for size in (24, 1024):
-        c = {label: statistics.median(cpu[(size, label)]) for label in labels}
-        print(
-            f"| {size} B | {c['zenoh']:.1f} | {c['advanced']:.1f} | {c['arpz']:.1f} "
-            f"| {c['arpz unbatched']:.1f} | {ratios(c, 'arpz')} | {ratios(c, 'arpz unbatched')} |"
-        )
+        med = {label: statistics.median(values[(size, label)]) for label in labels}
+        row = [f"{size} B", *(fmt.format(med[label]) for label in labels)]
+        row += [ratios(med, label) for label in arpz]
+        print("| " + " | ".join(row) + " |")
 
 
 if __name__ == "__main__":

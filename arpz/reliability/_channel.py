@@ -18,7 +18,7 @@ from typing import Any, Self, TypeVar
 
 import msgspec
 
-from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.reliability.events import DataInfo
 from arpz.reliability.reader_machine import ReaderMachine
 from arpz.reliability.writer_machine import WriterMachine
@@ -30,6 +30,8 @@ log = logging.getLogger("arpz.reliability")
 MAX_QUEUE = 200_000
 _BATCH = 512
 _STOP = object()
+#: what an inline reader performs on the transport's thread (the rest goes to its worker)
+_INLINE = (Deliver, DeliverRun, Send)
 _TOKEN = object()
 _POST = object()
 
@@ -118,8 +120,8 @@ class Channel:
                     log.exception("reliable channel: unexpected error")
                     return
                 # data and protocol messages here; events and tokens on the worker as always
-                self.perform([a for a in actions if type(a) is Deliver or type(a) is Send])
-                self.post([a for a in actions if type(a) is Notify or type(a) is TokenChange])
+                self.perform([a for a in actions if type(a) in _INLINE])
+                self.post([a for a in actions if type(a) not in _INLINE])
 
             return run_inline
 
@@ -215,7 +217,19 @@ class Channel:
         on_data = self.on_data
         for action in actions:
             kind = type(action)
-            if kind is Deliver:
+            if kind is DeliverRun:
+                if on_data is not None:
+                    run: DeliverRun = action  # type: ignore[assignment]
+                    key, writer, retransmitted = run.key, run.writer, run.retransmitted
+                    seq = run.first
+                    for stamp, payload in zip(run.stamps, run.payloads, strict=True):
+                        try:
+                            on_data(payload, DataInfo(key, writer, seq, stamp, retransmitted))
+                        except Exception:
+                            self.callback_errors += 1
+                            log.exception("on_data raised; the channel goes on")
+                        seq += 1
+            elif kind is Deliver:
                 if on_data is not None:
                     try:
                         on_data(action.payload, action.info)  # type: ignore[union-attr]

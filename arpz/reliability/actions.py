@@ -7,6 +7,9 @@ carries them out. One set of machines therefore runs unchanged under tests and i
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Iterator, Sequence
+
 import msgspec
 
 from arpz.reliability.events import DataInfo
@@ -23,6 +26,26 @@ class Deliver(msgspec.Struct, frozen=True, gc=False):
     info: DataInfo
 
 
+class DeliverRun(msgspec.Struct, frozen=True, gc=False):
+    """Deliver ``payloads`` from ``writer`` on ``key``, seqs ``first, first + 1, ...`` stamped
+    ``stamps``: a whole in-order run (a batch) as one action, so that a batch of 64 costs one
+    allocation and one dispatch, not 64 of each. Each sample still gets its own ``DataInfo``."""
+
+    key: str
+    writer: str
+    first: int
+    stamps: Sequence[int]
+    payloads: Sequence[bytes]
+    retransmitted: bool = False
+
+    def samples(self) -> Iterator[tuple[bytes, DataInfo]]:
+        key, writer, retransmitted = self.key, self.writer, self.retransmitted
+        for seq, stamp, payload in zip(
+            itertools.count(self.first), self.stamps, self.payloads, strict=False
+        ):
+            yield payload, DataInfo(key, writer, seq, stamp, retransmitted)
+
+
 class Notify(msgspec.Struct, frozen=True):
     """Fire the event callback named ``event`` (a field of the *EventCallbacks container)."""
 
@@ -35,4 +58,4 @@ class TokenChange(msgspec.Struct, frozen=True):
     declare: bool
 
 
-Action = Send | Deliver | Notify | TokenChange
+Action = Send | Deliver | DeliverRun | Notify | TokenChange

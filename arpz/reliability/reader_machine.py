@@ -18,7 +18,7 @@ import msgspec
 
 from arpz.reliability import wire
 from arpz.reliability._common import BadInput, parse_token
-from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.reliability.events import (
     DataInfo,
     DeadlineMissedStatus,
@@ -152,6 +152,10 @@ class ReaderMachine:
         self._qos_chunk = encode_match_qos(qos)
         self._reliable = qos.reliable
         self._cap = qos.capacity
+        #: BEST_EFFORT: how far past the data a heartbeat is believed (no NACK can confirm it).
+        #: At least one whole message of the largest batch, so that a batch lost at the end of a
+        #: stream is counted; at most that, so that a forged heartbeat skips one window at most.
+        self._trust_window = max(self._cap, wire.MAX_BATCH)
         self._deep = "**" in key_expr
         self._lifespan_ns = int(qos.lifespan_s * 1e9)
         self._mono = clock.monotonic_s
@@ -349,13 +353,10 @@ class ReaderMachine:
         actions: list[Action] = []
         if p.deadline.period_s:
             self._deadline_met(p, now, actions)
-        topic, writer = p.topic, p.hex
         retransmitted = bool(flags & wire.F_RETRANSMIT)
-        seq = first
-        for stamp, payload in zip(stamps, payloads, strict=True):
-            actions.append(Deliver(payload, DataInfo(topic, writer, seq, stamp, retransmitted)))
-            seq += 1
-        n = seq - first
+        n = len(payloads)
+        actions.append(DeliverRun(p.topic, p.hex, first, stamps, payloads, retransmitted))
+        seq = first + n
         p.expected = seq
         seq -= 1
         if seq > p.highest:
@@ -559,8 +560,13 @@ class ReaderMachine:
                 for seq in early:
                     del p.buffer[seq]
                 self.before_match += len(early)
-                if p.buffer:
-                    p.detect.append((max(p.buffer) - 1, now))
+                if p.highest >= p.expected:
+                    # Seen before SYNC: what is missing up to the highest seq seen (data that
+                    # overtook data, or samples beyond the pre-SYNC buffer, ignored then) is
+                    # NACKed now. Up to max(buffer) only, the samples beyond the buffer were
+                    # never asked for again (a late TRANSIENT_LOCAL reader that received a
+                    # delayed batch before its SYNC missed them for good).
+                    p.detect.append((p.highest, now))
             p.an_due_s = now
         elif not p.synced:
             return actions
@@ -706,7 +712,7 @@ class ReaderMachine:
             # beyond what the writer proved it sent, NACKs (answered by resends or GAPs) decide
             below = min(below, p.confirmed_high + 1)
         else:  # no NACKs: trust a heartbeat up to one window past the data, no further
-            below = min(below, p.confirmed_high + 1 + self._cap)
+            below = min(below, p.confirmed_high + 1 + self._trust_window)
         if below <= p.expected:
             return
         if self._reliable:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from arpz.memory_transport import key_matches
-from arpz.reliability.actions import Action, Deliver, Notify, Send, TokenChange
+from arpz.reliability.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.reliability.events import DataInfo
 from arpz.reliability.reader_machine import ReaderMachine
 from arpz.reliability.timers import FakeClock
@@ -86,6 +86,8 @@ class LossyBus:
                 self.send(action)
             elif isinstance(action, Deliver):
                 node.delivered.append((action.payload, action.info))
+            elif isinstance(action, DeliverRun):
+                node.delivered.extend(action.samples())
             elif isinstance(action, Notify):
                 node.events.append((action.event, action.status))
             elif isinstance(action, TokenChange):

@@ -7,7 +7,9 @@ import random
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from arpz.reliability import wire
 from arpz.reliability._common import new_guid
+from arpz.reliability.actions import Send
 from arpz.reliability.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
 from arpz.reliability.reader_machine import ReaderMachine
 from arpz.reliability.timers import FakeClock
@@ -179,6 +181,82 @@ def test_transient_local_late_joiner_gets_the_history() -> None:
     bus.run_for(1.0)
     assert [i.seq for _, i in late.delivered][-3:] == [13, 14, 15]
     assert [i.seq for _, i in volatile.delivered] == [13, 14, 15]
+
+
+def test_a_late_reader_asks_again_for_samples_it_had_to_ignore_before_its_sync() -> None:
+    """A batch written before a TRANSIENT_LOCAL reader existed reaches it late (the writer's
+    worker was slow to flush), after it knows the writer but before the SYNC: more samples than
+    its pre-SYNC buffer holds. The ones it ignored are NACKed after the SYNC, not missed."""
+    qos = QosProfile(depth=5, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    bus, _ = world(4, Link())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    held: list[Send] = []
+    send = bus.send
+    bus.send = lambda msg: held.append(msg) if msg.key == "t/a" else send(msg)  # type: ignore[method-assign]
+    publish(bus, writer, 12, 0.0)  # one alone, then one batch of 11 (seqs 2-12)
+    bus.run_for(0.01)
+    assert len(held) == 2
+    bus.send = send  # type: ignore[method-assign]
+    late = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    r = late.machine
+    assert isinstance(r, ReaderMachine)
+    while not r.writers:
+        bus.step(0.0005)
+    assert not r.writers[writer.machine.guid].synced
+    bus.run(late, r.on_data("t/a", held[1].payload, held[1].attachment))
+    assert r.stats().bad_input == 12 - 1 - 5  # beyond the pre-SYNC buffer of depth 5
+    bus.run_for(1.0)
+    assert [i.seq for _, i in late.delivered] == [8, 9, 10, 11, 12]
+    assert r.stats().lost == 0
+
+
+def test_best_effort_counts_a_batch_lost_at_the_end_of_a_stream() -> None:
+    """Nothing follows a lost last batch but heartbeats: a BEST_EFFORT reader (no NACKs) counts
+    it lost from their ``last``, whatever its depth (here 5, the batch 40)."""
+    qos = QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5)
+    bus, _ = world(2, Link())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    send = bus.send
+    data: list[Send] = []
+
+    def drop_all_data_but_the_first(msg: Send) -> None:
+        if msg.key == "t/a":
+            data.append(msg)
+            if len(data) > 1:
+                return
+        send(msg)
+
+    bus.send = drop_all_data_but_the_first  # type: ignore[method-assign]
+    publish(bus, writer, 41, 0.0)  # one alone, then one batch of 40 (seqs 2-41), dropped
+    bus.run_for(0.01)
+    bus.send = send  # type: ignore[method-assign]
+    bus.run_for(1.0)
+    assert len(data) == 2
+    assert [i.seq for _, i in reader.delivered] == [1]
+    check_invariant(reader, writer)
+    assert reader.machine.lost == 40
+
+
+def test_a_forged_heartbeat_skips_a_best_effort_reader_one_window_at_most() -> None:
+    qos = QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5)
+    bus, _ = world(3, Link())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    publish(bus, writer, 3, 0.001)
+    bus.run_for(0.1)
+    r, w = reader.machine, writer.machine
+    assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
+    forged = wire.encode_heartbeat(0, w.guid, 1, 10**12, 999)
+    for _ in range(5):  # repeated: still one window past what the writer proved it sent
+        bus.run(reader, r.on_heartbeat(wire.heartbeat_key("t/a", w.hex), forged, None))
+        bus.run_for(0.1)
+    assert r.lost == wire.MAX_BATCH
+    publish(bus, writer, 3, 0.001)  # real data now arrives below the forged skip: counted late
+    bus.run_for(0.1)
+    assert r.lost == wire.MAX_BATCH and r.stats().late == 3
 
 
 def test_incompatible_qos_does_not_match_and_both_sides_are_told() -> None:
