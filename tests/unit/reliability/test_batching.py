@@ -7,7 +7,8 @@ import random
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.reliability import wire
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.reliability import Writer, wire
 from arpz.reliability._common import new_guid
 from arpz.reliability.actions import Send
 from arpz.reliability.qos import HistoryPolicy, QosProfile
@@ -156,3 +157,19 @@ def test_heartbeats_stay_well_formed_when_the_history_holds_only_unsent_samples(
     assert syncs and beats and None not in syncs + beats
     assert [(h.first, h.last) for h in syncs if h] == [(4, 3)]  # match starts at 4: nothing yet
     assert [h.last for h in beats if h] == [1]  # only seq 1 went out
+
+
+def test_an_express_writer_sends_every_sample_of_a_burst_alone() -> None:
+    """``express`` is the latency choice: no arpz batching either, whatever the profile says."""
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    attachments: dict[bool, list[bytes | None]] = {True: [], False: []}
+    for express in (True, False):
+        key = f"t/{'express' if express else 'plain'}"
+        b.subscribe(key, lambda _k, _p, att, e=express: attachments[e].append(att))
+        with Writer(a, key, QosProfile(batch_max_samples=64), express=express) as writer:
+            assert writer.qos.batching is not express
+            for i in range(200):
+                writer.write(b"%d" % i)
+    assert [len(att or b"") for att in attachments[True]] == [wire.DATA.size] * 200
+    assert len(attachments[False]) < 200 / 4, "the plain writer did not batch the burst"
