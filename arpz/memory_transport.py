@@ -94,6 +94,7 @@ class _PullSubscriber:
     def __init__(self, capacity: int) -> None:
         self.queue: queue.Queue[Received] = queue.Queue(maxsize=capacity)
         self.handle: _Handle | None = None
+        self.closed = False
 
     def push(self, key: str, payload: bytes, attachment: bytes | None) -> None:
         self.queue.put((key, payload, attachment))  # blocks when full: backpressure
@@ -105,9 +106,15 @@ class _PullSubscriber:
             return None
 
     def recv(self) -> Received:
-        return self.queue.get()
+        while True:
+            try:
+                return self.queue.get(timeout=0.02)
+            except queue.Empty:
+                if self.closed:  # as Zenoh's FIFO: raise once undeclared and drained
+                    raise RuntimeError("pull subscriber undeclared") from None
 
     def undeclare(self) -> None:
+        self.closed = True
         if self.handle is not None:
             self.handle.undeclare()
 

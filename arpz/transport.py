@@ -56,8 +56,8 @@ class PullSubscriber(Protocol):
 
     When the queue is full the transport stops reading the link (backpressure to the publishers,
     which block with congestion control BLOCK): samples are delayed, never dropped. Only one
-    thread may receive. ``recv`` blocks; wake it at shutdown by putting a sample on a matching
-    key, then undeclare.
+    thread may receive. ``recv`` blocks; ``undeclare()`` makes it raise once the queue is empty
+    (a receiving thread ends that way), or wake it by putting a sample on a matching key.
     """
 
     def try_recv(self) -> Received | None: ...
@@ -162,28 +162,27 @@ class _ZenohPublisher:
 class _ZenohPullSubscriber(_Declared):
     def __init__(self, inner: zenoh.Subscriber) -> None:  # type: ignore[type-arg]
         super().__init__(inner)
-        self._try_recv = inner.try_recv
-        self._recv = inner.recv
+        # the handler's own methods, not the subscriber's: a thread blocked in the subscriber's
+        # recv keeps it borrowed and undeclare fails ("Already borrowed"); blocked in the
+        # handler's, undeclare closes the channel and that recv raises ZError
+        self._try_recv = inner.handler.try_recv
+        self._recv = inner.handler.recv
+
+    @staticmethod
+    def _received(sample: zenoh.Sample) -> Received:
+        att = sample.attachment
+        return (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            att.to_bytes() if att is not None else None,
+        )
 
     def try_recv(self) -> Received | None:
         sample = self._try_recv()
-        if sample is None:
-            return None
-        att = sample.attachment
-        return (
-            str(sample.key_expr),
-            sample.payload.to_bytes(),
-            att.to_bytes() if att is not None else None,
-        )
+        return None if sample is None else self._received(sample)
 
     def recv(self) -> Received:
-        sample = self._recv()
-        att = sample.attachment
-        return (
-            str(sample.key_expr),
-            sample.payload.to_bytes(),
-            att.to_bytes() if att is not None else None,
-        )
+        return self._received(self._recv())
 
 
 class ZenohTransport:

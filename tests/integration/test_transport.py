@@ -1,3 +1,5 @@
+import threading
+
 import pytest
 
 from arpz.transport import SessionSettings, ZenohTransport
@@ -38,3 +40,27 @@ def test_a_publisher_sees_a_subscriber_on_another_router_of_the_mesh() -> None:
                 wait_until(lambda: not publisher.matching, what="east's subscriber gone")
         finally:
             west.close()
+
+
+def test_undeclaring_a_pull_subscriber_ends_a_recv_blocked_in_another_thread() -> None:
+    """What a reader's delivery thread relies on to stop: no wake-up sample is needed."""
+    with router() as (_, endpoint), client(endpoint) as a, client(endpoint) as b:
+        pull = b.subscribe_pull("t/pull", 10)
+        got: list[object] = []
+
+        def receive() -> None:
+            try:
+                while True:
+                    got.append(pull.recv())
+            except Exception as exc:  # the closed channel
+                got.append(exc)
+
+        thread = threading.Thread(target=receive, daemon=True)
+        thread.start()
+        pub = a.publisher("t/pull")
+        wait_until(lambda: (pub.put(b"1"), bool(got))[1], what="a sample")
+        assert got[0] == ("t/pull", b"1", None)
+        pull.undeclare()
+        thread.join(2.0)
+        assert not thread.is_alive()
+        assert isinstance(got[-1], Exception)

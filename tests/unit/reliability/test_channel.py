@@ -21,6 +21,7 @@ from arpz.reliability import (
     WriterEventCallbacks,
     wire,
 )
+from arpz.reliability._channel import _Turns
 from tests.support import wait_until
 
 
@@ -122,3 +123,64 @@ def test_a_double_wildcard_reader_gets_data_but_never_control_traffic() -> None:
         assert {k for _, k in got} == {"arpz/f/robot/r1/sensor/x"}
         assert [p for p, _ in got] == [b"%d" % i for i in range(50)]
         assert reader.stats().bad_input == 0
+
+
+def test_turns_run_in_ticket_order_one_at_a_time_whatever_order_threads_arrive_in() -> None:
+    turns = _Turns()
+    tickets = [turns.take() for _ in range(6)]
+    ran: list[int] = []
+    running = [0]
+    overlap = [False]
+
+    def perform(actions: list[object]) -> None:
+        running[0] += 1
+        overlap[0] |= running[0] > 1
+        time.sleep(0.005)
+        ran.append(len(actions))
+        running[0] -= 1
+
+    threads = [
+        threading.Thread(target=turns.run, args=(t, perform, [None] * t))
+        for t in reversed(tickets)  # the last ticket's thread starts first
+    ]
+    for thread in threads:
+        thread.start()
+        time.sleep(0.002)
+    for thread in threads:
+        thread.join(5.0)
+    assert ran == tickets and not overlap[0]
+
+
+def test_a_turn_whose_perform_raises_still_passes_on() -> None:
+    turns = _Turns()
+    first, second = turns.take(), turns.take()
+
+    def boom(actions: list[object]) -> None:
+        raise RuntimeError("callback bug")
+
+    with pytest.raises(RuntimeError):
+        turns.run(first, boom, [])
+    done: list[int] = []
+    turns.run(second, lambda actions: done.append(1), [])
+    assert done == [1]
+
+
+def test_events_run_on_the_control_thread_and_close_ends_both_threads() -> None:
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    event_threads: set[str] = set()
+    events = ReaderEventCallbacks(
+        matched=lambda s: event_threads.add(threading.current_thread().name)
+    )
+    reader = Reader(b, "t/x", QOS_RELIABLE_ALL, lambda p, i: None, events=events)
+    with Writer(a, "t/x", QOS_RELIABLE_ALL):
+        wait_until(lambda: bool(event_threads), what="matched event")
+    assert event_threads == {"arpz-reader-t/x/control"}
+    names = {"arpz-reader-t/x", "arpz-reader-t/x/control"}
+    assert names <= {t.name for t in threading.enumerate()}
+    t0 = time.monotonic()
+    reader.close()  # the delivery thread is blocked in its FIFO's recv: undeclare ends it
+    assert time.monotonic() - t0 < 1.0
+    assert not names & {t.name for t in threading.enumerate()}
+    a.close()
+    b.close()
