@@ -179,10 +179,13 @@ class Channel:
                 try:
                     with self.lock:
                         actions = handler(key, payload, attachment)
+                        wake = self._worker_needed()
                 except Exception:
                     self.callback_errors += 1
                     log.exception("reliable channel: unexpected error")
                     return
+                if wake:
+                    self.wake()
                 # data and protocol messages here; events and tokens on the worker as always
                 self._perform_here(actions)
 
@@ -197,17 +200,14 @@ class Channel:
         return enqueue
 
     def _perform_here(self, actions: list[Action]) -> None:
-        """Perform data and protocol messages on this thread, post the rest to the worker, and
-        wake the worker if the machine now needs its fine timer (a gap to NACK soon)."""
+        """Perform data and protocol messages on this thread, post the rest to the worker."""
         self.perform([a for a in actions if type(a) in _INLINE])
-        rest = [a for a in actions if type(a) not in _INLINE]
-        if rest:
-            self.post(rest)
-        elif self.next_tick_s > time.monotonic() + self._fine_s:
-            with self.lock:
-                busy = self.machine.busy()
-            if busy:
-                self.wake()
+        self.post([a for a in actions if type(a) not in _INLINE])
+
+    def _worker_needed(self) -> bool:
+        """Lock held, after the machine ran on another thread than the worker: the machine now
+        needs the fine timer (a gap to NACK within nack_delay_s) but the worker sleeps longer."""
+        return self.next_tick_s > time.monotonic() + self._fine_s and self.machine.busy()
 
     def _run_delivery(self) -> None:
         """The reader's delivery thread: pull data from the FIFO in batches, run the machine on
@@ -239,6 +239,9 @@ class Channel:
                         log.exception("reliable channel delivery: unexpected error")
                 self._pull_backlog = len(items) >= _BATCH
                 ticket = self._ticket(out)
+                wake = self._worker_needed()
+            if wake:
+                self.wake()
             if ticket is not None:
                 self._turns.run(ticket, self._perform_here, out)
             elif out:
