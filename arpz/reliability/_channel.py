@@ -56,6 +56,7 @@ class _Turns:
         self._cond = threading.Condition(threading.Lock())
         self._next = 0
         self._serving = 0
+        self._waiting = 0
 
     def take(self) -> int:
         """Call with the machine's lock held; every ticket taken must be run."""
@@ -66,15 +67,20 @@ class _Turns:
     def run(
         self, ticket: int, perform: Callable[[list[Action]], None], actions: list[Action]
     ) -> None:
-        with self._cond:
-            while self._serving != ticket:
-                self._cond.wait()
+        cond = self._cond
+        if self._serving != ticket:  # only this ticket's holder can make it equal: no race
+            with cond:
+                self._waiting += 1
+                while self._serving != ticket:
+                    cond.wait()
+                self._waiting -= 1
         try:
             perform(actions)
         finally:
-            with self._cond:
+            with cond:
                 self._serving += 1
-                self._cond.notify_all()
+                if self._waiting:
+                    cond.notify_all()
 
 
 _TOKEN = object()
@@ -201,8 +207,12 @@ class Channel:
 
     def _perform_here(self, actions: list[Action]) -> None:
         """Perform data and protocol messages on this thread, post the rest to the worker."""
+        rest = [a for a in actions if type(a) not in _INLINE]
+        if not rest:  # the common case: only deliveries and ACKNACKs
+            self.perform(actions)
+            return
         self.perform([a for a in actions if type(a) in _INLINE])
-        self.post([a for a in actions if type(a) not in _INLINE])
+        self.post(rest)
 
     def _worker_needed(self) -> bool:
         """Lock held, after the machine ran on another thread than the worker: the machine now
