@@ -22,6 +22,7 @@ from types import FrameType
 from typing import Any
 
 import msgspec
+import numpy as np
 
 from arpz.perf.endpoints import (
     STOP,
@@ -127,6 +128,11 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--duration", type=float, default=0.0)
         p.add_argument("--size", type=int, default=24, help="payload bytes (at least 16)")
         p.add_argument("--json", metavar="FILE", help="write the report to FILE")
+        p.add_argument(
+            "--latency-out",
+            metavar="FILE",
+            help="sub/ping: save every latency (us, in arrival order) as a NumPy .npy file",
+        )
         p.add_argument(
             "--linger",
             type=float,
@@ -297,6 +303,10 @@ def _report(
         nacks=int(counters.get("nacks", 0)),
         duration_s=time.monotonic() - t0,
     )
+    if args.latency_out:
+        with rec.lock:
+            latency_us = np.frombuffer(rec.latency_ns, dtype=np.int64) / 1000.0
+        np.save(args.latency_out, latency_us)
     result: dict[str, Any] = msgspec.to_builtins(report)
     return result
 

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from arpz.perf.harness import child, free_port, perf_router, pingpong, pubsub
@@ -46,14 +47,23 @@ def test_pub_sub_report_counts_every_sample(transport: str, extra: tuple[str, ..
         assert report["channel"]["delivered"] == 2000 and pub["acknowledged"] is True
 
 
-def test_ping_pong_measures_round_trips_for_arpz() -> None:
+def test_ping_pong_measures_round_trips_for_arpz(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "rtt.npy"
     with perf_router(endpoint):
         report = pingpong(
-            transport="arpz", connect=endpoint, count=300, rate_hz=500, extra=["--express"]
+            transport="arpz",
+            connect=endpoint,
+            count=300,
+            rate_hz=500,
+            extra=["--express", "--latency-out", str(out)],
         )
     assert report["received"] == 300 and report["round_trip"] is True
     assert report["latency_us"]["p50"] > 0
+    latency_us = np.load(out)  # every round trip, as the report's percentiles summarise them
+    assert len(latency_us) == 300
+    assert latency_us.min() == pytest.approx(report["latency_us"]["min"])
+    assert latency_us.max() == pytest.approx(report["latency_us"]["max"])
 
 
 def test_sub_writes_its_json_report_on_sigint_and_qos_flags_are_validated(tmp_path: Path) -> None:
