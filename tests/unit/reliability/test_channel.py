@@ -196,6 +196,7 @@ def test_a_gap_seen_by_the_delivery_thread_wakes_the_idle_control_thread_to_nack
         Reader(b, "t/x", QOS_RELIABLE_ALL, lambda p, i: None) as reader,
         Writer(a, "t/x", QOS_RELIABLE_ALL) as writer,
     ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
         wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
         writer.write(b"1")
         wait_until(lambda: reader.stats().delivered == 1, what="first sample")
