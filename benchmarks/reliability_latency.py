@@ -39,7 +39,8 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--png", type=Path, help="draw the round-trip distributions to this file")
     args = ap.parse_args()
-    workdir = Path(tempfile.mkdtemp(prefix="arpz-latency-"))
+    tmp = tempfile.TemporaryDirectory(prefix="arpz-latency-")
+    workdir = Path(tmp.name)
     samples: dict[str, list[np.ndarray]] = {t: [] for t in TRANSPORTS}
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     p50: dict[str, list[float]] = {t: [] for t in TRANSPORTS}
@@ -74,6 +75,7 @@ def main() -> None:
             f"| {med99[t] / med99['zenoh']:.2f}x |"
         )
 
+    tmp.cleanup()
     if args.png is not None:
         draw(samples, args.png, args.rate)
         print(f"\nwrote {args.png}")

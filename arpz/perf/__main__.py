@@ -306,7 +306,8 @@ def _report(
     if args.latency_out:
         with rec.lock:
             latency_us = np.frombuffer(rec.latency_ns, dtype=np.int64) / 1000.0
-        np.save(args.latency_out, latency_us)
+        with open(args.latency_out, "wb") as fh:  # a file object: np.save adds no ".npy"
+            np.save(fh, latency_us)
     result: dict[str, Any] = msgspec.to_builtins(report)
     return result
 
@@ -405,6 +406,17 @@ def run_router(args: argparse.Namespace) -> dict[str, Any]:
     return {"router": args.listen}
 
 
+def _check_writable(path: str | None, option: str) -> None:
+    """Refuse an output file that cannot be written before the run, not after it."""
+    if not path:
+        return
+    try:
+        with open(path, "ab"):
+            pass
+    except OSError as exc:
+        raise ValueError(f"--{option.replace('_', '-')} {path}: {exc.strerror}") from exc
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     signal.signal(signal.SIGINT, _on_signal)
@@ -422,6 +434,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command != "router":
             qos_from_args(args)  # a bad profile is refused before any session opens
+            for option in ("json", "latency_out"):
+                _check_writable(getattr(args, option, None), option)
         result = runner[args.command](args)
     except (ValueError, msgspec.ValidationError, TransportError) as exc:
         print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)

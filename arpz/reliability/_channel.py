@@ -6,11 +6,11 @@ queue is bounded and every item it refuses is counted: a reliable reader gets a 
 again by NACK, a best-effort one reports it lost through the seq gap.
 
 A reader's data takes a shorter path: a delivery thread blocks in a Zenoh FIFO (no Python
-callback on Zenoh's thread, no GIL handoff between two Python threads per sample: measured, the
-callback-and-queue hop added 10-50 us to the median round trip and far more to the p99), runs the
-machine and calls ``on_data``. Samples the worker delivers (recovered by NACK, released by a
-timeout) take turns with it (``_Turns``): ``on_data`` is never called twice at once, and always
-in the order the machine decided.
+callback on Zenoh's thread, no GIL handoff between two Python threads per sample: with the
+callback-and-queue hop the 1 kHz round trip was 1.36-1.38x raw Zenoh's, without it about 1.2x,
+benchmarks/RESULTS.md), runs the machine and calls ``on_data``. Samples the worker delivers
+(recovered by NACK, released by a timeout) take turns with it (``_Turns``): ``on_data`` is never
+called twice at once, and always in the order the machine decided.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import logging
 import queue
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from types import TracebackType
 from typing import Any, Self, TypeVar
 
@@ -68,7 +68,9 @@ class _Turns:
         self, ticket: int, perform: Callable[[list[Action]], None], actions: list[Action]
     ) -> None:
         cond = self._cond
-        if self._serving != ticket:  # only this ticket's holder can make it equal: no race
+        # Read without the lock: once ``_serving`` equals this ticket, only this thread moves it
+        # on, so an equal read is final; an unequal one is checked again under the lock.
+        if self._serving != ticket:
             with cond:
                 self._waiting += 1
                 while self._serving != ticket:
@@ -135,6 +137,8 @@ class Channel:
         self._tokens: dict[str, Handle] = {}
         self._fine_s, self._idle_s = tick_intervals_s(machine)
         self._closed = False
+        #: set by close() before it undeclares: the delivery thread's recv failing is then the end
+        self._closing = False
         #: a reader that is not inline pulls its data on a delivery thread of its own
         self._pulls = isinstance(machine, ReaderMachine) and not inline
         self._pull: PullSubscriber | None = None
@@ -229,7 +233,15 @@ class Channel:
             try:
                 items = [recv()]
             except Exception:  # undeclared by close() and drained, or the session went away
-                log.debug("reliable channel: delivery thread stops", exc_info=True)
+                if self._closing:
+                    log.debug("reliable channel: delivery thread stops", exc_info=True)
+                else:  # nothing more is delivered: say so loudly (the transport closed first?)
+                    self.callback_errors += 1
+                    log.error(
+                        "reliable channel %s: data receive failed, delivery stopped",
+                        self._delivery.name if self._delivery else "?",
+                        exc_info=True,
+                    )
                 return
             while len(items) < _BATCH:
                 try:
@@ -357,22 +369,17 @@ class Channel:
         on_data = self.on_data
         for action in actions:
             kind = type(action)
-            if kind is DeliverRun:
-                if on_data is not None:
-                    run: DeliverRun = action  # type: ignore[assignment]
-                    key, writer, retransmitted = run.key, run.writer, run.retransmitted
-                    seq = run.first
-                    for stamp, payload in zip(run.stamps, run.payloads, strict=True):
-                        try:
-                            on_data(payload, DataInfo(key, writer, seq, stamp, retransmitted))
-                        except Exception:
-                            self.callback_errors += 1
-                            log.exception("on_data raised; the channel goes on")
-                        seq += 1
-            elif kind is Deliver:
-                if on_data is not None:
+            if kind is DeliverRun or kind is Deliver:
+                if on_data is None:
+                    continue
+                samples: Iterable[tuple[bytes, DataInfo]] = (
+                    action.samples()  # type: ignore[union-attr]
+                    if kind is DeliverRun
+                    else ((action.payload, action.info),)  # type: ignore[union-attr]
+                )
+                for payload, info in samples:
                     try:
-                        on_data(action.payload, action.info)  # type: ignore[union-attr]
+                        on_data(payload, info)
                     except Exception:
                         self.callback_errors += 1
                         log.exception("on_data raised; the channel goes on")
@@ -416,6 +423,7 @@ class Channel:
         if self._worker.is_alive() and here is not self._worker:
             self._worker.join(timeout=5.0)
         if self._pull is not None:
+            self._closing = True
             self._pull.undeclare()  # the delivery thread's recv raises once the FIFO is drained
             delivery = self._delivery
             if delivery is not None and delivery.is_alive() and here is not delivery:

@@ -7,7 +7,6 @@ carries them out. One set of machines therefore runs unchanged under tests and i
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Iterator, Sequence
 
 import msgspec
@@ -39,11 +38,10 @@ class DeliverRun(msgspec.Struct, frozen=True, gc=False):
     retransmitted: bool = False
 
     def samples(self) -> Iterator[tuple[bytes, DataInfo]]:
-        key, writer, retransmitted = self.key, self.writer, self.retransmitted
-        for seq, stamp, payload in zip(
-            itertools.count(self.first), self.stamps, self.payloads, strict=False
-        ):
-            yield payload, DataInfo(key, writer, seq, stamp, retransmitted)
+        """Each sample with its own ``DataInfo``; stamps and payloads must pair up exactly."""
+        key, writer, retransmitted, first = self.key, self.writer, self.retransmitted, self.first
+        for i, (stamp, payload) in enumerate(zip(self.stamps, self.payloads, strict=True)):
+            yield payload, DataInfo(key, writer, first + i, stamp, retransmitted)
 
 
 class Notify(msgspec.Struct, frozen=True):

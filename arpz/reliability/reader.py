@@ -21,8 +21,8 @@ class Reader(Endpoint):
     Zenoh's thread) or, for samples recovered by NACK, its control thread, in turn.
 
     ``inline_delivery=True`` trades the own threads for latency: samples are processed and
-    ``on_data`` runs on the transport's thread (no thread wake-up: 1.12-1.21x raw Zenoh's round
-    trip instead of 1.17-1.33x, see benchmarks/RESULTS.md). Only for callbacks that return quickly;
+    ``on_data`` runs on the transport's thread (no thread wake-up: usually about 1.2x raw Zenoh's
+    round trip against 1.25x, see benchmarks/RESULTS.md). Only for callbacks that return quickly;
     timers and events still run on the control thread."""
 
     def __init__(

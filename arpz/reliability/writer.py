@@ -88,7 +88,7 @@ class Writer(Endpoint):
         """
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
-        # acquire/release rather than ``with``: 0.1 us less per write, a tenth of its cost
+        # bound acquire/release rather than ``with``: fewer lookups on the hottest path
         self._acquire()
         try:
             try:

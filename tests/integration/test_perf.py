@@ -107,3 +107,19 @@ def test_sub_writes_its_json_report_on_sigint_and_qos_flags_are_validated(tmp_pa
         timeout=30,
     )
     assert bad.returncode == 2 and "depth" in bad.stderr
+
+
+PING = [sys.executable, "-m", "arpz.perf", "ping", "--connect", "tcp/127.0.0.1:9"]
+
+
+def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_path: Path) -> None:
+    missing = tmp_path / "no-such-dir" / "rtt.npy"
+    for option in ("--latency-out", "--json"):
+        bad = subprocess.run(
+            [*PING, option, str(missing)],
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        assert bad.returncode == 2, bad.stderr
+        assert option in bad.stderr and "No such file" in bad.stderr

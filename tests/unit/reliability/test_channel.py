@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -210,3 +211,42 @@ def test_a_gap_seen_by_the_delivery_thread_wakes_the_idle_control_thread_to_nack
         wait_until(lambda: reader.stats().nacks >= 1, what="the gap NACKed")
     a.close()
     b.close()
+
+
+class _BrokenPull:
+    """A pull subscriber whose receive fails at once, as a closed session's does."""
+
+    def try_recv(self) -> None:
+        return None
+
+    def recv(self) -> tuple[str, bytes, bytes | None]:
+        raise RuntimeError("session closed under the reader")
+
+    def undeclare(self) -> None:
+        pass
+
+
+class _TransportWithBrokenPull(MemoryTransport):
+    def subscribe_pull(self, key_expr: str, capacity: int) -> _BrokenPull:  # type: ignore[override]
+        return _BrokenPull()
+
+
+def test_a_delivery_thread_that_cannot_receive_says_so_and_counts_it(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Not a silent stop: the reader would never deliver again."""
+    transport = _TransportWithBrokenPull(MemoryBus())
+    with (
+        caplog.at_level(logging.ERROR, logger="arpz.reliability"),
+        Reader(transport, "t/x", QOS_RELIABLE_ALL, lambda p, i: None) as reader,
+    ):
+        wait_until(
+            lambda: reader.stats().callback_errors == 1 and "delivery stopped" in caplog.text,
+            what="the failure counted and logged",
+        )
+    caplog.clear()
+    with caplog.at_level(logging.ERROR, logger="arpz.reliability"):  # a normal close: quiet
+        bus = MemoryBus()
+        with Reader(MemoryTransport(bus), "t/x", QOS_RELIABLE_ALL, lambda p, i: None):
+            time.sleep(0.05)
+    assert "delivery stopped" not in caplog.text
