@@ -14,14 +14,13 @@ from typing import Any, Literal, TypeVar
 import msgspec
 
 from arpz import keys
-from arpz.reliability import QosProfile
+from arpz.endpoints import check_endpoints
+from arpz.errors import ConfigError as ConfigError  # re-exported: callers catch it from here
+from arpz.protocol.qos import QosProfile
+from arpz.traffic import ASSIGNMENT_QOS, COMMAND_QOS, REPORT_QOS, SENSOR_QOS, ChannelMode
 
 SensorKind = Literal["lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light"]
 SENSOR_KINDS: tuple[str, ...] = ("lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light")
-
-
-class ConfigError(ValueError):
-    """A configuration that cannot be used; ``str()`` names the file, the field and the problem."""
 
 
 class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -102,10 +101,61 @@ class SimConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only
             raise ValueError(f"noise_std_m must be >= 0, got {self.noise_std_m}")
 
 
-class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+class TrafficQos(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """The reliable channel's profile of each kind of traffic (arpz/traffic.py explains the
+    defaults). Robots and the CEDDP must agree on them; each side checks the other's offers."""
+
+    #: "channel" (every key through the reliable channel) or "none" (plain Zenoh puts)
+    reliability: ChannelMode = "channel"
+    #: every sensor topic of a robot
+    sensor_qos: QosProfile = SENSOR_QOS
+    #: the four Hello hops; None: the sensor profile (Hello is one more topic in seed 001)
+    hello_qos: QosProfile | None = None
+    #: CEDDP -> robot commands (``cmd/{name}``); keep a lifespan so a late command is dropped
+    command_qos: QosProfile = COMMAND_QOS
+    #: the QoS assignment (``ceddp/qos``); TRANSIENT_LOCAL so a (re)joining robot gets it
+    assignment_qos: QosProfile = ASSIGNMENT_QOS
+    #: stats, announcements, QoS acks, telemetry and the CEDDP's stats
+    report_qos: QosProfile = REPORT_QOS
+    #: for benchmarks only (benchmarks/downlink_hello.py): the CEDDP -> robot keys as plain puts,
+    #: arpz's downlink before issue 14; set on both sides
+    plain_downlink: bool = False
+
+    @property
+    def channel(self) -> bool:
+        return self.reliability == "channel"
+
+    def profile(self, kind: str, *, downlink: bool = False) -> QosProfile | None:
+        """The profile of ``kind`` ("sensor", "hello", "command", "assignment", "report"), or
+        None in plain mode (``downlink``: for a CEDDP -> robot key)."""
+        if not self.channel or (downlink and self.plain_downlink):
+            return None
+        if kind == "hello":
+            return self.hello_qos or self.sensor_qos
+        profile: QosProfile = getattr(self, f"{kind}_qos")
+        return profile
+
+
+class WatchdogConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Stop the actuators when a command topic goes silent past its deadline (the CEDDP died or
+    the link is down); the robot resumes on the next command (docs/sensors.md)."""
+
+    enabled: bool = True
+    #: command name -> deadline (s); None: ``velocity`` 0.5 s for a simulated body, else nothing
+    deadlines_s: dict[str, float] | None = None
+
+    def __post_init__(self) -> None:
+        for name, deadline in (self.deadlines_s or {}).items():
+            keys.check_chunk(name, what="watchdog command name")
+            if not deadline > 0:
+                raise ValueError(f"deadlines_s.{name} must be > 0 seconds, got {deadline}")
+
+
+class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
-    connect: list[str] = msgspec.field(default_factory=lambda: ["tcp/127.0.0.1:7447"])
+    #: the server's endpoints; empty: those of ``zenoh_config``, or DEFAULT_CONNECT without one
+    connect: list[str] = msgspec.field(default_factory=list)
     #: a Zenoh JSON5 config file (TLS, access control...) applied before the fields above
     zenoh_config: str | None = None
     #: "machine1", "machine2", "machine3" (seed 001's sensor sets) or None
@@ -117,15 +167,13 @@ class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
     #: simulate the body in a 2-D world (None: a real robot, or sensors only)
     sim: SimConfig | None = None
-    #: the reliable channel's QoS for every sensor topic (arpz.reliability.QosProfile fields);
-    #: None: plain Zenoh puts, no end-to-end recovery
-    sensor_qos: QosProfile | None = None
+    watchdog: WatchdogConfig = msgspec.field(default_factory=WatchdogConfig)
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
     #: how long to keep trying to reach the server at start-up
     connect_timeout_s: float = 30.0
-    #: with sensor_qos: how long to wait at start-up for the CEDDP's reader to match each topic
+    #: how long to wait at start-up for the CEDDP's readers to match each topic
     match_timeout_s: float = 5.0
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
@@ -133,10 +181,7 @@ class RobotConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     def __post_init__(self) -> None:
         keys.check_chunk(self.robot_id, what="robot_id")
         keys.check_chunk(self.fleet, what="fleet")
-        if not self.connect:
-            raise ValueError(
-                "connect must list at least one endpoint, e.g. 'tcp/192.168.1.10:7447'"
-            )
+        check_endpoints(self.connect, field="connect")
         if self.preset is not None and self.preset not in ("machine1", "machine2", "machine3"):
             raise ValueError(f"preset must be machine1, machine2 or machine3, got {self.preset!r}")
         if not self.preset_rate_hz > 0:
@@ -211,9 +256,12 @@ class MissionConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
 
 
-class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
-    listen: list[str] = msgspec.field(default_factory=lambda: ["tcp/0.0.0.0:7447"])
+    #: where robots connect; empty: the endpoints of ``zenoh_config``, or DEFAULT_LISTEN without
+    listen: list[str] = msgspec.field(default_factory=list)
+    #: with TLS in ``zenoh_config``, a plain ``tcp/`` listen endpoint is refused unless this is set
+    allow_plain_tcp: bool = False
     #: other CEDDP routers to join in one Zenoh router mesh (scale-out, docs/deploy.md)
     connect: list[str] = msgspec.field(default_factory=list)
     #: the robots this CEDDP ingests and plans for: "*", an id, or a pattern such as "east-$*";
@@ -224,8 +272,14 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     rrd: str = "ceddp.rrd"
     #: serve a live gRPC sink for a Rerun viewer on this port (0 = off)
     grpc_port: int = 0
-    #: a JSON summary written at shutdown (None = not written)
+    #: a JSON summary written at shutdown (None = not written), and every summary_period_s
+    #: while running ("complete": false), so that a killed CEDDP leaves one to reconcile against
     summary_json: str | None = None
+    summary_period_s: float = 5.0
+    #: the summary of the previous run (a path, or "latest": the newest summary*.json beside
+    #: summary_json at start): samples it had already received are flagged when a restart's
+    #: TRANSIENT_LOCAL catch-up delivers them again (``repeated_from_previous_run``)
+    previous_summary: str | None = None
     cache_control: bool = True
     metrics_period_s: float = 0.5
     #: samples waiting for the ingest worker; beyond this Zenoh applies backpressure to robots
@@ -233,26 +287,35 @@ class CeddpConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_on
     #: bounds on per-topic state: samples from more robots or topics are dropped and counted
     max_robots: int = 1000
     max_topics_per_robot: int = 64
+    #: reports and events waiting for the control worker (the latest per key; docs/operations.md)
+    control_queue_limit: int = 4096
+    #: a report (stats, announce, telemetry, QoS ack) larger than this is refused undecoded
+    max_report_bytes: int = 262_144
+    #: a sensor sample larger than this is refused undecoded, by the kind the robot announced
+    #: for its topic; "default" for other kinds and topics not yet announced
+    max_sample_bytes: dict[str, int] = msgspec.field(default_factory=lambda: {"default": 65_536})
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
     mission: MissionConfig | None = None
-    #: receive sensor topics through the reliable channel with this QoS (it must match what the
-    #: robots offer, docs/reliability.md); None: plain Zenoh subscription
-    sensor_qos: QosProfile | None = None
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 
     def __post_init__(self) -> None:
         keys.check_chunk(self.fleet, what="fleet")
         keys.check_partition(self.partition)
-        if not self.listen:
-            raise ValueError("listen must list at least one endpoint, e.g. 'tcp/0.0.0.0:7447'")
+        check_endpoints(self.listen, field="listen")
+        check_endpoints(self.connect, field="connect")
         if not 0 <= self.grpc_port <= 65535:
             raise ValueError(f"grpc_port must be 0..65535, got {self.grpc_port}")
         if self.metrics_period_s <= 0:
             raise ValueError("metrics_period_s must be > 0")
-        if self.ingest_queue_limit < 1:
-            raise ValueError("ingest_queue_limit must be >= 1")
+        if self.summary_period_s < 0:
+            raise ValueError("summary_period_s must be >= 0 (0: only at shutdown)")
+        if any(n < 1 for n in self.max_sample_bytes.values()):
+            raise ValueError(f"max_sample_bytes must all be >= 1, got {self.max_sample_bytes}")
+        for name in ("ingest_queue_limit", "control_queue_limit", "max_report_bytes"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
 T = TypeVar("T", bound=msgspec.Struct)

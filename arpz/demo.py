@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from arpz.errors import ArpzError
 from arpz.launch import FleetSpec, LaunchError, Proc, free_port, run_fleet
 
 PRESET_CYCLE = ("machine1", "machine2", "machine3")
@@ -24,7 +25,7 @@ PRESET_CYCLE = ("machine1", "machine2", "machine3")
 MISSION_FAILED = 3
 
 
-class DemoError(RuntimeError):
+class DemoError(ArpzError, RuntimeError):
     pass
 
 
@@ -63,7 +64,9 @@ def demo_spec(options: DemoOptions, endpoint: str) -> FleetSpec:
     if options.rmax_hz > 0:
         ceddp["qos"] = {"enabled": True, "rmax_hz": options.rmax_hz}
     channel: dict[str, Any] | None = None
-    if options.reliability != "none":
+    if options.reliability == "none":
+        ceddp["reliability"] = "none"
+    else:
         channel = {
             "reliability": options.reliability,
             "history": options.history,
@@ -83,6 +86,8 @@ def demo_spec(options: DemoOptions, endpoint: str) -> FleetSpec:
         }
         if channel is not None:
             conf["sensor_qos"] = channel
+        else:
+            conf["reliability"] = "none"
         if mission:
             conf["sim"] = {"world": options.world, "beam_rate_hz": options.rate_hz}
         else:

@@ -11,18 +11,20 @@ from __future__ import annotations
 
 import re
 
+from arpz.errors import ArpzError
+
 ROOT = "arpz"
 _CHUNK = re.compile(r"^[a-z0-9][a-z0-9_\-]*$")
 
 
-class KeyError_(ValueError):
+class KeyExprError(ArpzError, ValueError):
     """A name that cannot be used as a single Zenoh key chunk."""
 
 
 def check_chunk(name: str, *, what: str) -> str:
     """Return ``name`` if it is a valid single chunk, else raise saying how to fix it."""
     if not _CHUNK.match(name):
-        raise KeyError_(
+        raise KeyExprError(
             f"{what} {name!r} is not a valid key chunk: use lowercase letters, digits, '_' or '-', "
             "starting with a letter or digit (no '/', '*', '$', '?', '#' or spaces)"
         )
@@ -36,7 +38,7 @@ def check_partition(pattern: str) -> str:
     """A robot-id pattern for one key chunk: "*", an id, or ids with Zenoh's ``$*`` wildcard
     ("east-$*" = every robot whose id starts with "east-")."""
     if not _PARTITION.match(pattern):
-        raise KeyError_(
+        raise KeyExprError(
             f"partition {pattern!r} must be '*', a robot id, or a pattern with '$*' such as "
             "'east-$*' (lowercase letters, digits, '_' and '-')"
         )
@@ -56,6 +58,11 @@ def sensor_key(fleet: str, robot: str, topic: str) -> str:
     return f"{robot_prefix(fleet, robot)}/sensor/{check_chunk(topic, what='topic')}"
 
 
+#: the Hello probe's name both ways (seed 001 Fig. 9): the robot's ``sensor/hello`` up, each
+#: robot's ``cmd/hello`` down
+HELLO = "hello"
+
+
 def command_key(fleet: str, robot: str, name: str) -> str:
     """Commands for one robot's actuation (CEDDP -> robot)."""
     return f"{robot_prefix(fleet, robot)}/cmd/{check_chunk(name, what='command')}"
@@ -64,6 +71,12 @@ def command_key(fleet: str, robot: str, name: str) -> str:
 def presence_key(fleet: str, robot: str) -> str:
     """Liveliness token of a running robot agent."""
     return f"{robot_prefix(fleet, robot)}/presence"
+
+
+def robot_mode_key(fleet: str, robot: str, mode: str) -> str:
+    """Liveliness token saying how the robot exchanges data: "channel" (the reliable channel) or
+    "none" (plain puts). The CEDDP compares it with its own mode (INCOMPATIBLE_QOS if not equal)."""
+    return f"{robot_prefix(fleet, robot)}/mode/{check_chunk(mode, what='mode')}"
 
 
 def stats_key(fleet: str, robot: str) -> str:
@@ -96,6 +109,15 @@ def ceddp_presence_key(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/ceddp/presence"
 
 
+def ceddp_mode_key(fleet: str, mode: str) -> str:
+    """Liveliness token of the CEDDP's mode ("channel" or "none"), compared by every robot."""
+    return f"{fleet_prefix(fleet)}/ceddp/mode/{check_chunk(mode, what='mode')}"
+
+
+def all_ceddp_modes(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/ceddp/mode/*"
+
+
 def ceddp_stats_key(fleet: str) -> str:
     """Periodic CPU and per-topic arrival rates of the CEDDP process."""
     return f"{fleet_prefix(fleet)}/ceddp/stats"
@@ -113,6 +135,15 @@ def all_sensors(fleet: str, partition: str = "*") -> str:
 
 def all_presence(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/robot/*/presence"
+
+
+def all_robot_modes(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/mode/*"
+
+
+def all_reports(fleet: str) -> str:
+    """Every robot's reports (stats, announce, qos acks, telemetry): one chunk below the robot."""
+    return f"{fleet_prefix(fleet)}/robot/*/*"
 
 
 def all_stats(fleet: str) -> str:

@@ -9,6 +9,7 @@ they do not stop in time, which is reported.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -17,57 +18,41 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
+import tomli_w
 
-class LaunchError(RuntimeError):
+from arpz.errors import ArpzError
+
+
+class LaunchError(ArpzError, RuntimeError):
     """A process did not start, stopped early, did not stop, or wrote no summary."""
 
 
-def free_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A loopback port that was free a moment ago (bind to 0 and release): TCP, or UDP with
+    ``socket.SOCK_DGRAM``. The one helper the tools, benchmarks and tests share."""
+    with socket.socket(socket.AF_INET, kind) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
 
 
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, Sequence):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {type(value).__name__} to TOML")
-
-
-def toml_dumps(data: Mapping[str, Any], prefix: str = "") -> str:
-    """TOML for nested dicts of scalars and lists (tables after the plain keys)."""
-    plain = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, Mapping)]
-    text = "\n".join(plain) + ("\n" if plain else "")
-    for key, value in data.items():
-        if isinstance(value, Mapping):
-            name = f"{prefix}{key}"
-            text += f"\n[{name}]\n" + toml_dumps(value, prefix=f"{name}.")
-    return text
-
-
 @dataclass
 class Proc:
-    """A child process whose merged stdout/stderr is kept in memory and in a log file."""
+    """A child process whose merged stdout/stderr is kept in memory and, unless spawned with
+    ``log=False`` (the tests, where pytest shows it), in a log file."""
 
     name: str
     popen: subprocess.Popen[str]
-    log_path: Path
+    log_path: Path | None
     lines: list[str] = field(default_factory=list)
     _reader: threading.Thread | None = None
 
     @classmethod
-    def spawn(cls, name: str, args: list[str], workdir: Path) -> Proc:
+    def spawn(cls, name: str, args: list[str], workdir: Path, *, log: bool = True) -> Proc:
         popen = subprocess.Popen(
             [sys.executable, *args],
             stdout=subprocess.PIPE,
@@ -76,16 +61,17 @@ class Proc:
             cwd=workdir,
             env=dict(os.environ, PYTHONUNBUFFERED="1"),
         )
-        proc = cls(name, popen, workdir / f"{name}.log")
-        log = proc.log_path.open("w", encoding="utf-8")
+        proc = cls(name, popen, workdir / f"{name}.log" if log else None)
+        log_file = proc.log_path.open("w", encoding="utf-8") if proc.log_path else None
 
         def pump() -> None:
             assert popen.stdout is not None
-            with popen.stdout, log:
+            with popen.stdout, log_file or contextlib.nullcontext():
                 for line in popen.stdout:
                     proc.lines.append(line)
-                    log.write(line)
-                    log.flush()
+                    if log_file is not None:
+                        log_file.write(line)
+                        log_file.flush()
 
         proc._reader = threading.Thread(target=pump, name=f"log-{name}", daemon=True)
         proc._reader.start()
@@ -105,13 +91,14 @@ class Proc:
         if self.has_line(needle):
             return
         raise LaunchError(
-            f"{self.name} did not print {needle!r} within {timeout_s:.0f} s "
-            f"(exit code {self.popen.poll()}); see {self.log_path}:\n{self.tail()}"
+            f"{self.name} did not print {needle!r} within {timeout_s:g} s "
+            f"(exit code {self.popen.poll()}); {self._where(tail=True)}"
         )
 
-    def stop(self, timeout_s: float) -> int:
+    def stop(self, timeout_s: float, *, sig: int = signal.SIGINT) -> int:
+        """Send ``sig`` (SIGINT: the clean path) and wait; kill and raise if it does not stop."""
         if self.popen.poll() is None:
-            self.popen.send_signal(signal.SIGINT)
+            self.popen.send_signal(sig)
         try:
             return self.popen.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
@@ -120,8 +107,8 @@ class Proc:
             time.sleep(0.5)
             self.kill()
             raise LaunchError(
-                f"{self.name} did not stop within {timeout_s:.0f} s of SIGINT and was killed; "
-                f"see {self.log_path}"
+                f"{self.name} did not stop within {timeout_s:g} s of "
+                f"{signal.Signals(sig).name} and was killed; {self._where(tail=False)}"
             ) from None
 
     def kill(self) -> None:
@@ -131,8 +118,17 @@ class Proc:
         if self._reader is not None:
             self._reader.join(timeout=10)
 
+    def output(self) -> str:
+        return "".join(self.lines)
+
     def tail(self, n: int = 15) -> str:
         return "".join(self.lines[-n:])
+
+    def _where(self, *, tail: bool) -> str:
+        """Where to read what it printed: its log (and its last lines), or all of it."""
+        if self.log_path is None:
+            return f"its output:\n{self.output()}"
+        return f"see {self.log_path}" + (f":\n{self.tail()}" if tail else "")
 
 
 @dataclass
@@ -160,11 +156,11 @@ def run_fleet(
     workdir.mkdir(parents=True, exist_ok=True)
     ceddp_conf = dict(spec.ceddp, summary_json=str(workdir / "summary.json"))
     ceddp_path = workdir / "ceddp.toml"
-    ceddp_path.write_text(toml_dumps(ceddp_conf), encoding="utf-8")
+    ceddp_path.write_text(tomli_w.dumps(ceddp_conf), encoding="utf-8")
     robot_paths = {}
     for robot, conf in spec.robots.items():
         path = workdir / f"{robot}.toml"
-        path.write_text(toml_dumps(conf), encoding="utf-8")
+        path.write_text(tomli_w.dumps(conf), encoding="utf-8")
         robot_paths[robot] = path
     procs: list[Proc] = []
     try:

@@ -20,6 +20,7 @@ from arpz.transport import (
     Publisher,
     PullSubscriber,
     Received,
+    TransportError,
 )
 
 
@@ -111,7 +112,7 @@ class _PullSubscriber:
                 return self.queue.get(timeout=0.02)
             except queue.Empty:
                 if self.closed:  # as Zenoh's FIFO: raise once undeclared and drained
-                    raise RuntimeError("pull subscriber undeclared") from None
+                    raise TransportError("pull subscriber undeclared") from None
 
     def undeclare(self) -> None:
         self.closed = True
@@ -130,7 +131,7 @@ class MemoryTransport:
 
     def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
         if self.closed:
-            raise RuntimeError("put on a closed MemoryTransport")
+            raise TransportError("put on a closed MemoryTransport")
         with self.bus.lock:
             targets = [cb for expr, cb in self.bus.subscribers if key_matches(expr, key)]
         for callback in targets:

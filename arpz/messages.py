@@ -33,6 +33,13 @@ class Sample(msgspec.Struct, array_like=True, frozen=True):
     seq: int
     stamp_ns: int
     value: SensorValue
+    #: when the robot first read this value (the start of its run of equal readings; the
+    #: receiver measures staleness from it); 0 = not given (then ``stamp_ns``)
+    changed_ns: int = 0
+    #: ``changed_ns`` of the oldest sample of this topic not yet acknowledged when this one was
+    #: written (= ``changed_ns`` when all were): where staleness starts if samples before this
+    #: one were lost; 0 = not given
+    since_ns: int = 0
 
 
 class Hello(msgspec.Struct, array_like=True, frozen=True):
@@ -94,6 +101,30 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     gapped: int = 0
     overwritten_unacked: int = 0
     deadline_missed: int = 0
+    #: times the local cache forgot its last value because the newest sample could no longer
+    #: be delivered (it expired unacknowledged), so the next reading is sent anyway
+    cache_forgets: int = 0
+    #: samples the history held when a reliable TRANSIENT_LOCAL reader matched (summed over
+    #: matches): the most that late joiners could need resent
+    history_offered: int = 0
+
+
+class InboundCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
+    """What a robot's reader of one CEDDP -> robot key saw (the downlink's half of the
+    reconciliation: the CEDDP's writer reports what it sent within the match)."""
+
+    delivered: int = 0
+    lost: int = 0
+    lifespan_expired: int = 0
+    duplicates: int = 0
+    #: samples refused because the CEDDP publishes them without the channel (or with it, in
+    #: plain mode): INCOMPATIBLE_QOS
+    refused: int = 0
+    #: writers matched now
+    matched: int = 0
+    #: per matched writer (its guid): [first seq of the match, last seq accounted for,
+    #: delivered, lost, lifespan expired] (the last three count the seqs in that range)
+    writers: dict[str, list[int]] = msgspec.field(default_factory=dict)
 
 
 class HelloStats(msgspec.Struct, frozen=True):
@@ -128,6 +159,18 @@ class RobotStats(msgspec.Struct, frozen=True):
     qos_epoch: int = 0
     qos_rate_hz: float | None = None
     qos_depth: int | None = None
+    #: per CEDDP -> robot key (``cmd/velocity``, ``cmd/hello``, ``ceddp/qos``, by the key's
+    #: last chunks): the downlink's counters
+    inbound: dict[str, InboundCounters] = msgspec.field(default_factory=dict)
+    #: commands dropped because they arrived past the command lifespan
+    commands_expired: int = 0
+    #: command watchdog: safe stops per command name, and the names stopped now
+    watchdog_stops: dict[str, int] = msgspec.field(default_factory=dict)
+    watchdog_stopped: list[str] = msgspec.field(default_factory=list)
+    #: INCOMPATIBLE_QOS seen by the robot: "what: why" lines (empty when all matched)
+    incompatible_qos: list[str] = msgspec.field(default_factory=list)
+    #: "channel" or "none"
+    mode: str = "channel"
 
 
 class TopicRate(msgspec.Struct, frozen=True):
@@ -161,6 +204,8 @@ class Announce(msgspec.Struct, frozen=True):
     incarnation: str
     sensors: list[TopicInfo]
     commands: list[str]
+    #: "channel" (every key through the reliable channel) or "none" (plain puts)
+    mode: str = "channel"
 
 
 class RobotQos(msgspec.Struct, frozen=True):
@@ -204,7 +249,8 @@ class QosAck(msgspec.Struct, frozen=True):
 
 #: what decoding untrusted bytes may raise: msgspec raises UnicodeDecodeError, not DecodeError,
 #: for a msgpack string that is not valid UTF-8 (found by the property tests)
-DECODE_ERRORS: Final = (msgspec.DecodeError, UnicodeDecodeError)
+#: what a decoder raises on bad bytes; RecursionError: msgpack nested deeper than msgspec follows
+DECODE_ERRORS: Final = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
 
 SAMPLE_ENCODER: Final = msgspec.msgpack.Encoder()
 SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(Sample)

@@ -64,6 +64,12 @@ class Distribution:
         self._fold(self._drain())
         return [float(v) for v in self._reservoir]
 
+    def values(self) -> np.ndarray:
+        """The same sample as ``sample``, as the array itself (no Python float per value: the
+        summary, written every few seconds, merges these without churning the heap)."""
+        self._fold(self._drain())
+        return self._reservoir
+
     def quantile(self, q: float) -> float | None:
         self._fold(self._drain())
         return percentile(self._reservoir, q)

@@ -17,17 +17,13 @@ alternate raw/arpz so drift on a shared machine hits both. Target (issue 2): arp
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import subprocess
 import sys
 import tempfile
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-
-import zenoh
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -35,14 +31,17 @@ sys.path.insert(0, str(ROOT))
 from arpz.ceddp.dashboard import Dashboard  # noqa: E402
 from arpz.ceddp.server import CeddpServer  # noqa: E402
 from arpz.config import CeddpConfig  # noqa: E402
+from arpz.perf.zenoh_baselines import ZenohCounter, open_session  # noqa: E402
 from arpz.reliability import QOS_RELIABLE_ALL  # noqa: E402
-from arpz.transport import SessionSettings, ZenohTransport  # noqa: E402
+from arpz.transport import SessionSettings  # noqa: E402
+from arpz.zenoh_transport import ZenohTransport  # noqa: E402
 from tests.support import free_port  # noqa: E402
 
 PUBLISHER = r"""
 import sys, time
 from arpz.messages import Sample, encode
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 endpoint, count, index, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 t = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]), timeout_s=10)
 topics = [(f"robot{r}", name) for r in range(1, 4)
@@ -117,25 +116,17 @@ def wait_count(get: Callable[[], int], total: int, timeout_s: float) -> float:
 def run_raw(total: int, publishers: int) -> float:
     """A plain zenoh-python router session whose subscriber callback only counts."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    conf = zenoh.Config()
-    conf.insert_json5("mode", '"router"')
-    conf.insert_json5("listen/endpoints", json.dumps([endpoint]))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    count = [0]
-    lock = threading.Lock()
-
-    def on_sample(sample: zenoh.Sample) -> None:
-        with lock:
-            count[0] += 1
-
-    with zenoh.open(conf) as session:
-        sub = session.declare_subscriber("arpz/bench/robot/*/sensor/*", on_sample)
+    session = open_session(SessionSettings(mode="router", listen=[endpoint]))
+    try:
+        sub = ZenohCounter(session, "arpz/bench/robot/*/sensor/*")
         try:
             procs, t0 = start_publishers(endpoint, total // publishers, publishers)
-            t1 = wait_count(lambda: count[0], total, 120)
+            t1 = wait_count(lambda: sub.count, total, 120)
             stop_publishers(procs)
         finally:
-            sub.undeclare()
+            sub.close()
+    finally:
+        session.close()  # type: ignore[no-untyped-call]
     return total / (t1 - t0)
 
 
@@ -145,7 +136,8 @@ def run_arpz(total: int, publishers: int, workdir: Path, path: str) -> tuple[flo
         fleet="bench",
         listen=[endpoint],
         rrd=str(workdir / "bench.rrd"),
-        sensor_qos=QOS_RELIABLE_ALL if path == "channel" else None,
+        reliability="channel" if path == "channel" else "none",
+        sensor_qos=QOS_RELIABLE_ALL,
     )
     router = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))
     dashboard = Dashboard(config.rrd)

@@ -4,7 +4,7 @@ Prints one Markdown table row per (instance, problem) as it goes, each method's 
 relative to the exact MILP (the reference measured in the same run) and the solve times, then
 writes docs/figures/configure_figure5.png. Every solution is checked by the independent checker.
 
-    /work/venv/bin/python benchmarks/configure_solvers.py [--time-limit 120] [--quick]
+    python benchmarks/configure_solvers.py [--time-limit 120] [--quick]
 """
 
 from __future__ import annotations

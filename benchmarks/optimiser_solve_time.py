@@ -4,7 +4,7 @@ Why it matters: the CEDDP re-solves whenever the fleet changes, so the solve sit
 from "a robot joined" to "every robot runs at the new R and D". The paper solves with CVXPY;
 the closed form gives the same optimum (tested) and this measures what that saves.
 
-Run:  /work/venv/bin/python benchmarks/optimiser_solve_time.py [--closed-reps N] [--cvxpy-reps N]
+Run:  python benchmarks/optimiser_solve_time.py [--closed-reps N] [--cvxpy-reps N]
 
 Each setting is timed as the median of repeated solves in the same process (the first CVXPY
 solve, which pays for imports and solver start-up, is a separate warm-up). Progress goes to

@@ -18,7 +18,8 @@ from collections.abc import Callable
 
 from arpz.perf.harness import _perf, child, free_port, perf_router
 from arpz.reliability import HistoryPolicy, QosProfile, Writer
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 
 KEY = "bench/write"
 

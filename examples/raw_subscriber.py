@@ -34,7 +34,8 @@ def main() -> int:
     done = threading.Event()
 
     def on_sample(sample: zenoh.Sample) -> None:
-        writer, seq, stamp_ns, value = msgspec.msgpack.decode(sample.payload.to_bytes())
+        # by position: later versions may append elements (changed_ns is the fifth)
+        writer, seq, stamp_ns, value = msgspec.msgpack.decode(sample.payload.to_bytes())[:4]
         topic = str(sample.key_expr).rsplit("/", 1)[-1]
         received.append(
             {

@@ -21,7 +21,8 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     Writer,
 )
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 
 QOS = QosProfile(history=HistoryPolicy.KEEP_ALL, deadline_s=0.5)
 

@@ -7,20 +7,13 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from arpz.transport import SessionSettings, ZenohTransport
-
-
-def free_port() -> int:
-    """A TCP port that was free a moment ago (bind to 0 and release)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+from arpz.launch import free_port  # re-exported: the tests import it from here
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    return free_port(socket.SOCK_DGRAM)
 
 
 def wait_until(

@@ -12,9 +12,13 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from arpz.cli import configure_logging, stop_on_signals
 from arpz.config import CeddpConfig, ConfigError, from_dict, load_toml
-from arpz.transport import SessionSettings, TransportError, ZenohTransport
+from arpz.endpoints import DEFAULT_LISTEN, plain_tcp_beside_tls, resolve
+from arpz.transport import SessionSettings, TransportError
+from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config, uses_tls
 
 log = logging.getLogger("arpz.ceddp")
 
@@ -48,11 +52,30 @@ def load(args: argparse.Namespace) -> CeddpConfig:
     return from_dict({}, CeddpConfig, overrides, source="command line")
 
 
+def resolve_listen(config: CeddpConfig, source: str) -> CeddpConfig:
+    """The config with its listen endpoints in force (the TOML's, else zenoh_config's, else the
+    default), refusing plain ``tcp/`` next to a TLS setup unless ``allow_plain_tcp``."""
+    zconf = load_zenoh_config(config.zenoh_config, source=source) if config.zenoh_config else None
+    from_file = config_endpoints(zconf, "listen") if zconf is not None else []
+    listen = resolve(config.listen, from_file, DEFAULT_LISTEN)
+    plain = plain_tcp_beside_tls(listen) if zconf is not None and uses_tls(zconf) else []
+    if plain and not config.allow_plain_tcp:
+        i = plain[0]
+        raise ConfigError(
+            f"{source}: listen[{i}] {listen[i]!r} is plain TCP while zenoh_config "
+            f"{config.zenoh_config} sets up TLS: listen on tls/ only"
+            + ("" if config.listen else " (the TOML lists no listen endpoint, nor does the JSON5)")
+            + ", or set allow_plain_tcp = true to accept unencrypted robots"
+        )
+    return msgspec.structs.replace(config, listen=listen)
+
+
 def serve(argv: list[str] | None) -> int:
     args = parse_args(argv)
     configure_logging(args.log_level)
     try:
         config = load(args)
+        config = resolve_listen(config, str(args.config or "command line"))
     except ConfigError as exc:
         print(f"arpz.ceddp: bad configuration: {exc}", file=sys.stderr)
         return 2

@@ -19,59 +19,16 @@ import subprocess
 import sys
 import threading
 import time
-from dataclasses import dataclass, field
+import warnings
 from pathlib import Path
 from typing import Any
 
 import rerun as rr
 import rerun.blueprint as rrb
 
+from arpz.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
+
 log = logging.getLogger(__name__)
-
-#: metric name -> (view title, unit) for every per-topic series
-TOPIC_METRICS: dict[str, str] = {
-    "rate_hz": "arrival rate (Hz)",
-    "bytes_per_s": "bytes/s",
-    "latency_ms_p50": "latency p50 (ms)",
-    "latency_ms_p99": "latency p99 (ms)",
-    "lost": "lost (cumulative)",
-    "held_back": "held back by local cache (cumulative)",
-    "cc_discarded": "discarded by cache control (cumulative)",
-    "decode_errors": "decode errors (cumulative)",
-}
-#: metric name -> view title for every per-robot series
-ROBOT_METRICS: dict[str, str] = {
-    "hello_rtt_ms_p50": "Hello round trip p50 (ms)",
-    "cpu_percent": "CPU (% of one core)",
-    "qos_rate_hz": "QoS rate R applied (Hz)",
-    "qos_depth": "QoS depth D applied (samples)",
-}
-TIMELINE = "time"
-
-
-@dataclass(frozen=True)
-class MetricsFrame:
-    """One reporting interval: ``topics[(robot, topic)][metric]`` and ``robots[robot][metric]``."""
-
-    stamp_ns: int
-    topics: dict[tuple[str, str], dict[str, float]] = field(default_factory=dict)
-    robots: dict[str, dict[str, float]] = field(default_factory=dict)
-
-
-@dataclass(frozen=True)
-class WorldMap:
-    """The static world of a mission: wall polylines and obstacle outlines."""
-
-    stamp_ns: int
-    walls: list[list[tuple[float, float]]]
-    obstacles: list[list[tuple[float, float]]]
-
-
-@dataclass(frozen=True)
-class Event:
-    stamp_ns: int
-    text: str
-    level: str = "INFO"
 
 
 def blueprint() -> rrb.Blueprint:
@@ -275,6 +232,30 @@ def preserve_previous(path: Path) -> Path | None:
     else:
         log.info("the previous recording was kept as %s", kept)
     return kept
+
+
+def rrd_recording_ids(path: Path) -> list[str]:
+    """The recording ids in an ``.rrd`` (one per CEDDP run merged into it)."""
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():
+        # a CEDDP killed hard leaves no footer; the file still reads by scanning it
+        warnings.simplefilter("ignore")
+        return [e.recording_id for e in RrdReader(str(path)).recordings()]
+
+
+def merge_rrd(files: list[Path], merged: Path, *, timeout_s: float) -> str | None:
+    """``rerun rrd merge`` of ``files`` into ``merged``; None, or why it failed."""
+    result = subprocess.run(
+        [sys.executable, "-m", "rerun", "rrd", "merge", *map(str, files), "-o", str(merged)],
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
+    if result.returncode != 0 or not merged.exists():
+        return f"rerun rrd merge failed: {result.stderr[-500:]}"
+    return None
 
 
 def _part(name: str) -> str:

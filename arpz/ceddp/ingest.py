@@ -15,12 +15,15 @@ from dataclasses import dataclass, field
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
-from arpz.messages import DECODE_ERRORS, HELLO_DECODER, SAMPLE_DECODER
+from arpz.messages import DECODE_ERRORS, HELLO_DECODER, SAMPLE_DECODER, SensorValue
 from arpz.percentiles import Distribution
+from arpz.protocol.wire import MAX_BATCH, MAX_SEQ, MAX_WRITE_RATE_HZ
 
 log = logging.getLogger(__name__)
 
-HELLO_TOPIC = "hello"
+#: incarnations (writer ids) tracked per topic: a restarted robot is one more, a client inventing
+#: a writer id per sample is refused past this (counted in ``over_limit``)
+MAX_WRITERS_PER_TOPIC = 16
 
 
 @dataclass
@@ -41,13 +44,41 @@ class TopicMetrics:
     before_join: int = 0
     #: writers seen on the topic beyond the first (a restarted robot is a new incarnation)
     writer_changes: int = 0
+    #: samples refused for a seq outside 1 .. 2**63 - 1, or further ahead of the writer's last
+    #: one than it can have written since (wire.MAX_WRITE_RATE_HZ): bad input, not loss
+    implausible_seq: int = 0
+    #: samples refused because the topic already tracks MAX_WRITERS_PER_TOPIC writer ids
+    writers_over_limit: int = 0
+    #: when the last sample of the topic arrived (the time base of the plausible jump)
+    last_arrival_ns: int = 0
+    #: samples refused undecoded for being larger than ``max_bytes``
+    oversize: int = 0
+    #: per writer, the highest seq the previous run of this CEDDP received (``previous_summary``)
+    seen_before: dict[str, int] = field(default_factory=dict)
+    #: the current writer's entry of ``seen_before`` (0: none)
+    prev_high: int = 0
+    #: samples with a seq the previous run already received (a restart's TRANSIENT_LOCAL
+    #: catch-up): counted, and kept from the planner, never taken for new data
+    repeated_from_previous_run: int = 0
+    #: the size bound of this topic's samples (by its kind, once the robot announced it)
+    max_bytes: int = 65_536
     #: the sequence state of the writer of the last sample (the hot path compares only this);
     #: other writers' states wait in ``others`` (many writers to one topic is legitimate)
     writer: str = ""
     next_seq: int = 0
     highest_seq: int = 0
-    others: dict[str, tuple[int, int]] = field(default_factory=dict)
+    #: the same writer's share of received, lost and before_join (per incarnation reporting)
+    w_received: int = 0
+    w_lost: int = 0
+    w_before_join: int = 0
+    #: other writers: (next_seq, highest_seq, received, lost, before_join)
+    others: dict[str, tuple[int, int, int, int, int]] = field(default_factory=dict)
     latency_ms: Distribution = field(default_factory=Distribution)
+    #: how long this CEDDP held a value other than the robot's latest reading, measured once
+    #: per change when the new value arrives (arrival - the robot's first read of it)
+    staleness_ms: Distribution = field(default_factory=Distribution)
+    #: the value the CEDDP holds now (the last one received), independent of cache control
+    held: SensorValue | None = None
     cache: CacheSlot = field(default_factory=CacheSlot)
 
 
@@ -68,7 +99,10 @@ class Ingest:
         *,
         max_robots: int = 1000,
         max_topics_per_robot: int = 64,
+        max_sample_bytes: dict[str, int] | None = None,
     ) -> None:
+        #: per sensor kind, and "default" for the others and for topics not yet announced
+        self.max_sample_bytes = {"default": 65_536, **(max_sample_bytes or {})}
         self.max_robots = max_robots
         self.max_topics_per_robot = max_topics_per_robot
         self._topics_per_robot: dict[str, int] = {}
@@ -80,6 +114,10 @@ class Ingest:
         #: held by the worker while it processes a batch, and by readers of the metrics
         self.lock = threading.Lock()
         self._by_key: dict[str, TopicMetrics | None] = {}
+        #: (robot, topic) -> writer -> highest seq the previous run received
+        self.seen_before: dict[tuple[str, str], dict[str, int]] = {}
+        #: per robot, the size bound of each announced topic
+        self._kinds: dict[str, dict[str, int]] = {}
         self._prefix = keys.fleet_prefix(fleet) + "/robot/"
 
     def metrics_for(self, key: str) -> TopicMetrics | None:
@@ -96,10 +134,29 @@ class Ingest:
                     # not cached: invented names must not grow any table, even this one
                     self.counters.over_limit += 1
                     return None
-                metrics = TopicMetrics(robot, topic, cache=self.cache_control.slot(robot, topic))
+                metrics = TopicMetrics(
+                    robot,
+                    topic,
+                    cache=self.cache_control.slot(robot, topic),
+                    max_bytes=self._kinds.get(robot, {}).get(
+                        topic, self.max_sample_bytes["default"]
+                    ),
+                    seen_before=self.seen_before.get((robot, topic), {}),
+                )
                 self.topics[(robot, topic)] = metrics
             self._by_key[key] = metrics
         return metrics
+
+    def set_kinds(self, robot: str, kinds: dict[str, str]) -> None:
+        """The robot announced its topics' kinds: bound each topic's samples by its kind's size
+        (call with ``lock`` held). Topics not tracked yet get theirs when they are created."""
+        limits = self.max_sample_bytes
+        self._kinds[robot] = {
+            topic: limits.get(kind, limits["default"]) for topic, kind in list(kinds.items())[:256]
+        }
+        for (r, topic), metrics in self.topics.items():
+            if r == robot:
+                metrics.max_bytes = self._kinds[robot].get(topic, limits["default"])
 
     def _room_for(self, robot: str, topic: str) -> bool:
         """Per-topic state is created only for valid names within the limits, so a client
@@ -107,7 +164,7 @@ class Ingest:
         try:
             keys.check_chunk(robot, what="robot id")
             keys.check_chunk(topic, what="topic")
-        except keys.KeyError_:
+        except keys.KeyExprError:
             return False
         count = self._topics_per_robot.get(robot)
         if count is None:
@@ -144,7 +201,18 @@ class Ingest:
                     "ignoring sample on unknown key %s (%d so far)", key, self.counters.unknown_keys
                 )
             return
-        if metrics.topic == HELLO_TOPIC:
+        if len(payload) > metrics.max_bytes:
+            metrics.oversize += 1
+            if metrics.oversize in (1, 10, 100) or metrics.oversize % 10000 == 0:
+                log.warning(
+                    "sample of %d bytes on %s refused: more than %d for its kind (%d so far)",
+                    len(payload),
+                    key,
+                    metrics.max_bytes,
+                    metrics.oversize,
+                )
+            return
+        if metrics.topic == keys.HELLO:
             self._handle_hello(metrics, payload, arrival_ns)
             return
         try:
@@ -154,18 +222,38 @@ class Ingest:
             return
         # the common case (same writer, next number) inlined: this runs for every sample
         seq = sample.seq
-        if sample.writer is metrics.writer or sample.writer == metrics.writer:
+        same_writer = sample.writer is metrics.writer or sample.writer == metrics.writer
+        follows = same_writer and seq == metrics.next_seq
+        if not follows and not self._admissible(metrics, sample.writer, seq, arrival_ns, key):
+            return
+        metrics.last_arrival_ns = arrival_ns
+        if same_writer:
             metrics.received += 1
+            metrics.w_received += 1
             metrics.bytes += len(payload)
             metrics.latency_ms.add((arrival_ns - sample.stamp_ns) / 1e6)
-            if seq == metrics.next_seq:
+            if follows:
                 metrics.next_seq = seq + 1
                 metrics.highest_seq = seq
             else:
                 self._sequence_jump(metrics, seq)
         else:
             self._account(metrics, sample.writer, seq, sample.stamp_ns, arrival_ns, len(payload))
-        if metrics.cache.admit(sample.value):
+        if seq <= metrics.prev_high:
+            metrics.repeated_from_previous_run += 1
+            return
+        value = sample.value
+        held = metrics.held
+        if held is None:
+            metrics.held = value  # the first value: nothing was stale before it
+        elif type(held) is not type(value) or held != value:
+            # after lost samples, the CEDDP may have been stale since the oldest of them was
+            # read: the robot says when that was (``since_ns``; conservative by at most the
+            # acknowledgement delay)
+            start_ns = (sample.since_ns if not follows else 0) or sample.changed_ns
+            metrics.staleness_ms.add((arrival_ns - (start_ns or sample.stamp_ns)) / 1e6)
+            metrics.held = value
+        if metrics.cache.admit(value):
             self.planner.on_reading(
                 Reading(
                     metrics.robot,
@@ -186,8 +274,49 @@ class Ingest:
             self.counters.hello_decode_errors += 1
             self._decode_error(metrics, metrics.topic, payload, exc)
             return
+        follows = hello.writer == metrics.writer and hello.seq == metrics.next_seq
+        if not follows and not self._admissible(
+            metrics, hello.writer, hello.seq, arrival_ns, metrics.topic
+        ):
+            return
+        metrics.last_arrival_ns = arrival_ns
         self._account(metrics, hello.writer, hello.seq, hello.stamp_ns, arrival_ns, len(payload))
         self.planner.on_hello(metrics.robot, hello)
+
+    @staticmethod
+    def _admissible(
+        metrics: TopicMetrics, writer: str, seq: int, arrival_ns: int, key: str
+    ) -> bool:
+        """Whether a sample that does not simply follow its writer's last one may be counted:
+        its seq in range, not further ahead than the writer can have written since the topic's
+        last sample, and its writer id within the per-topic bound. Refusals are bad input,
+        counted and logged at 1, 10, 100 and every 10 000 (never once per sample)."""
+        reason = ""
+        if not 1 <= seq <= MAX_SEQ:
+            reason = "seq out of range"
+        elif writer == metrics.writer or writer in metrics.others:
+            next_seq = metrics.next_seq if writer == metrics.writer else metrics.others[writer][0]
+            silent_s = max(arrival_ns - metrics.last_arrival_ns, 0) / 1e9
+            if seq - next_seq > MAX_BATCH + MAX_WRITE_RATE_HZ * silent_s:
+                reason = f"seq {seq} too far past {next_seq - 1} for {silent_s:.3f} s"
+        elif metrics.writer and len(metrics.others) + 1 >= MAX_WRITERS_PER_TOPIC:
+            metrics.writers_over_limit += 1
+            n = metrics.writers_over_limit
+            if n in (1, 10, 100) or n % 10000 == 0:
+                log.warning(
+                    "sample on %s refused: more than %d writer ids on the topic (%d so far)",
+                    key,
+                    MAX_WRITERS_PER_TOPIC,
+                    n,
+                )
+            return False
+        if not reason:
+            return True
+        metrics.implausible_seq += 1
+        n = metrics.implausible_seq
+        if n in (1, 10, 100) or n % 10000 == 0:
+            log.warning("sample on %s refused: %s (%d so far)", key, reason, n)
+        return False
 
     def _decode_error(
         self, metrics: TopicMetrics, key: str, payload: bytes, exc: Exception
@@ -212,17 +341,33 @@ class Ingest:
         if writer != metrics.writer:
             previous = metrics.writer
             if previous:
-                metrics.others[previous] = (metrics.next_seq, metrics.highest_seq)
+                metrics.others[previous] = (
+                    metrics.next_seq,
+                    metrics.highest_seq,
+                    metrics.w_received,
+                    metrics.w_lost,
+                    metrics.w_before_join,
+                )
             known = metrics.others.pop(writer, None)
             metrics.writer = writer
+            metrics.prev_high = metrics.seen_before.get(writer, 0)
             if known is None:
                 if previous:
                     metrics.writer_changes += 1
                 metrics.before_join += max(seq - 1, 0)
                 metrics.next_seq = seq + 1
                 metrics.highest_seq = seq
+                metrics.w_received, metrics.w_lost = 1, 0
+                metrics.w_before_join = max(seq - 1, 0)
                 return
-            metrics.next_seq, metrics.highest_seq = known
+            (
+                metrics.next_seq,
+                metrics.highest_seq,
+                metrics.w_received,
+                metrics.w_lost,
+                metrics.w_before_join,
+            ) = known
+        metrics.w_received += 1
         if seq == metrics.next_seq:
             metrics.next_seq += 1
             metrics.highest_seq = max(metrics.highest_seq, seq)
@@ -233,6 +378,7 @@ class Ingest:
     def _sequence_jump(metrics: TopicMetrics, seq: int) -> None:
         if seq > metrics.next_seq:
             metrics.lost += seq - metrics.next_seq
+            metrics.w_lost += seq - metrics.next_seq
             metrics.next_seq = seq + 1
         else:
             metrics.out_of_order += 1
@@ -243,7 +389,29 @@ class Ingest:
         """The highest seq received from ``writer`` on this topic (0: none)."""
         if writer == metrics.writer:
             return metrics.highest_seq
-        return metrics.others.get(writer, (0, 0))[1]
+        return metrics.others.get(writer, (0, 0, 0, 0, 0))[1]
+
+    def load_previous_run(self, topics: dict[tuple[str, str], dict[str, int]]) -> None:
+        """What the previous run of this CEDDP received, per topic and writer (its summary's
+        ``writers``): a sample at or below that seq is counted ``repeated_from_previous_run``."""
+        self.seen_before = {
+            slot: dict(list(w.items())[:MAX_WRITERS_PER_TOPIC]) for slot, w in topics.items()
+        }
+        for slot, metrics in self.topics.items():
+            metrics.seen_before = self.seen_before.get(slot, {})
+            metrics.prev_high = metrics.seen_before.get(metrics.writer, 0)
+
+    @staticmethod
+    def writer_counts(metrics: TopicMetrics) -> dict[str, tuple[int, int, int]]:
+        """Per writer (incarnation) of the topic: (highest seq, received, lost + before_join)."""
+        counts = {w: (o[1], o[2], o[3] + o[4]) for w, o in metrics.others.items()}
+        if metrics.writer:
+            counts[metrics.writer] = (
+                metrics.highest_seq,
+                metrics.w_received,
+                metrics.w_lost + metrics.w_before_join,
+            )
+        return counts
 
     def cache_counters(self, robot: str, topic: str) -> CacheControlCounters:
         return self.cache_control.counters.get((robot, topic), CacheControlCounters())

@@ -18,29 +18,19 @@ from typing import Any
 
 import msgspec
 
-from arpz.ceddp.hallway import HallwayPlanner, PlannerSettings
 from arpz.ceddp.planner import CommandSink, Planner, Reading
 from arpz.config import MissionConfig
+from arpz.errors import ArpzError
+from arpz.frames import WorldView
 from arpz.messages import Command, Telemetry, encode
-from arpz.sim import BEAM_ANGLES_DEG, Pose, World, beam_endpoints, beam_of_topic
-from arpz.sim.judge import Judge, JudgeSettings, MissionResult
+from arpz.mission import BEAM_ANGLES_DEG, Pose, World, beam_endpoints, beam_of_topic
+from arpz.mission.hallway import HallwayPlanner, PlannerSettings
+from arpz.mission.judge import Judge, JudgeSettings, MissionResult
 
 log = logging.getLogger(__name__)
 
 #: (text, level) -> None: the server's event log
 EventSink = Callable[[str, str], None]
-
-
-class WorldView(msgspec.Struct, frozen=True):
-    """What the dashboard draws of the world at one moment."""
-
-    stamp_ns: int
-    #: robot -> (x_m, y_m, theta_rad), the true pose
-    poses: dict[str, tuple[float, float, float]]
-    #: robot -> end points of its 8 rays, cast from the true pose with the ranges the CEDDP has
-    rays: dict[str, list[tuple[float, float]]]
-    #: robot -> the true path so far
-    paths: dict[str, list[tuple[float, float]]]
 
 
 class MissionRunner(Planner):
@@ -82,7 +72,7 @@ class MissionRunner(Planner):
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="arpz-mission", daemon=True)
-        self._seq = 0
+        self._seqs: dict[str, int] = {}
 
     # -- Planner hooks --------------------------------------------------------------------------
 
@@ -187,12 +177,13 @@ class MissionRunner(Planner):
             self.on_result(result)
 
     def _send(self, robot: str, v_m_s: float, omega_rad_s: float) -> None:
-        self._seq += 1
-        command = Command(self.writer, self._seq, time.time_ns(), [v_m_s, omega_rad_s])
+        # seq counts per key (docs/protocol.md): one counter per robot's cmd/velocity
+        seq = self._seqs[robot] = self._seqs.get(robot, 0) + 1
+        command = Command(self.writer, seq, time.time_ns(), [v_m_s, omega_rad_s])
         try:
             self.sink.send(robot, "velocity", encode(command))
             self.commands_sent += 1
-        except Exception as exc:  # the session may be closing
+        except ArpzError as exc:  # the session may be closing, or a full history refused it
             log.debug("velocity command not sent: %s", exc)
 
     def _view(self) -> WorldView:

@@ -29,12 +29,13 @@ from arpz.ceddp.optimiser import (
     QosLimits,
     assign_qos,
 )
+from arpz.errors import ArpzError
 
 EXIT_USAGE = 2
 EXIT_DISAGREE = 1
 
 
-class _UsageError(Exception):
+class _UsageError(ArpzError):
     pass
 
 

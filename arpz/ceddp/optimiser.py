@@ -36,6 +36,8 @@ from typing import Any, Final, Literal
 
 import msgspec
 
+from arpz.errors import ArpzError
+
 #: Fast DDS ``max_samples`` default: the "Dmax = 5000" of seed 001 (its reference 17).
 DEFAULT_DMAX: Final = 5000
 #: A KEEP_LAST history holds at least one sample.
@@ -71,7 +73,7 @@ _SOLVED: Final = ("optimal", "optimal_inaccurate")
 _DEPTH_TOL: Final = Fraction(1, 10**6)
 
 
-class OptimiserError(ValueError):
+class OptimiserError(ArpzError, ValueError):
     """Base of the optimiser's errors; a ValueError so callers that validate input catch it."""
 
 

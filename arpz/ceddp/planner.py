@@ -18,8 +18,10 @@ import msgspec
 
 from arpz import keys
 from arpz.messages import Hello, SensorValue, Telemetry
+from arpz.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
+_throttled = ThrottledLog(log)
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,7 +95,7 @@ class HelloRelay(Planner):
         self.relay = relay
         self.counters = HelloRelayCounters()
         self._present: set[str] = set()
-        self._seq = 0
+        self._seqs: dict[str, int] = {}
         self._lock = threading.Lock()
 
     def on_robot(self, robot: str, alive: bool) -> None:
@@ -103,7 +105,7 @@ class HelloRelay(Planner):
     def on_hello(self, robot: str, hello: Hello) -> None:
         try:
             keys.check_chunk(hello.origin, what="Hello origin")
-        except keys.KeyError_:
+        except keys.KeyExprError:
             self.counters.bad_origin += 1
             log.warning("Hello from %s with an invalid origin %r dropped", robot, hello.origin)
             return
@@ -113,6 +115,14 @@ class HelloRelay(Planner):
                 known = relay in self._present
             if not known:  # forwarding to an absent robot would lose it silently in Zenoh
                 self.counters.no_relay += 1
+                _throttled.warning(
+                    f"no relay {relay}",
+                    "Hello from %s dropped: its relay robot %r is not connected (%d so far); "
+                    "set [hello] relay in the CEDDP config to a robot of this fleet",
+                    robot,
+                    relay,
+                    self.counters.no_relay,
+                )
                 return
             self._forward(relay, hello, stage=1)
             self.counters.forwarded_to_relay += 1
@@ -124,8 +134,9 @@ class HelloRelay(Planner):
             log.warning("Hello with stage %d published by %s ignored", hello.stage, robot)
 
     def _forward(self, robot: str, hello: Hello, *, stage: int) -> None:
-        self._seq += 1
+        # seq counts per key (docs/protocol.md): one counter per robot's cmd/hello
+        seq = self._seqs[robot] = self._seqs.get(robot, 0) + 1
         hop = msgspec.structs.replace(
-            hello, writer=self.writer, seq=self._seq, stamp_ns=time.time_ns(), stage=stage
+            hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns(), stage=stage
         )
-        self.sink.send(robot, "hello", msgspec.msgpack.encode(hop))
+        self.sink.send(robot, keys.HELLO, msgspec.msgpack.encode(hop))

@@ -10,11 +10,13 @@ before this CEDDP was listening.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import msgspec
+import numpy as np
 
+from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
 from arpz.messages import RobotStats, writer_id
@@ -27,11 +29,14 @@ TOTALS = (
     "held_back",
     "write_failures",
     "retransmitted",
+    "history_offered",
     "received",
     "cc_discarded",
     "cc_passed",
     "lost",
     "decode_errors",
+    "implausible_seq",
+    "implausible_lost",
 )
 
 
@@ -44,35 +49,137 @@ class RobotReport:
     leaves: int
     control_decode_errors: int
     stats: RobotStats | None
+    #: INCOMPATIBLE_QOS lines; the robot's data is refused while there are any
+    incompatible: list[str] = field(default_factory=list)
+    #: samples refused per key because the robot's mode disagrees with the CEDDP's
+    refused: dict[str, int] = field(default_factory=dict)
+    #: command name -> what the CEDDP wrote to this robot
+    downlink: dict[str, DownlinkCounters] = field(default_factory=dict)
+    #: the last report of each incarnation (a restarted robot is a new one), oldest first
+    incarnations: dict[str, RobotStats] = field(default_factory=dict)
+
+
+def incarnation_summary(
+    ingest: Ingest, robot: str, incarnations: dict[str, RobotStats]
+) -> dict[str, dict[str, Any]]:
+    """Per incarnation of the robot: what it says it sent and what arrived from its writer, so
+    that a restart never merges two runs' counts. ``reconciled``: sent == received + lost once
+    the incarnation's final report came (call with ``ingest.lock`` held)."""
+    rows: dict[str, dict[str, Any]] = {}
+    for incarnation, stats in incarnations.items():
+        writer = writer_id(robot, incarnation)
+        sent = received = lost = 0
+        for topic, counters in stats.topics.items():
+            if topic == "hello":
+                continue
+            sent += counters.sent
+            m = ingest.topics.get((robot, topic))
+            highest, got, missing = (
+                Ingest.writer_counts(m).get(writer, (0, 0, 0)) if m else (0, 0, 0)
+            )
+            received += got
+            tail = max(counters.last_seq - highest, 0) if stats.final else 0
+            lost += missing + tail
+        rows[incarnation] = {
+            "final": stats.final,
+            "sent": sent,
+            "received": received,
+            "lost": lost,
+            "reconciled": (sent == received + lost) if stats.final else None,
+        }
+    return rows
 
 
 def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> dict[str, Any]:
     cc = ingest.cache_counters(m.robot, m.topic)
     counters = stats.topics.get(m.topic) if stats else None
     tail_lost = 0
+    lost = m.lost + m.before_join
+    excess = 0
     if stats is not None and stats.final and counters is not None:
         # samples sent after the last one that arrived: invisible as a gap, but lost
         last = Ingest.highest_seq(m, writer_id(m.robot, stats.incarnation))
         tail_lost = max(counters.last_seq - last, 0)
+        lost += tail_lost
+        if not m.writer_changes:
+            # never more lost than the robot sent and we did not receive: the rest was claimed
+            # by seqs the robot never wrote (its counters are the truth for one incarnation)
+            excess = max(lost - max(counters.sent - m.received, 0), 0)
+            lost -= excess
     return {
         "produced": counters.produced if counters else 0,
         "sent": counters.sent if counters else 0,
         "held_back": counters.held_back if counters else 0,
         "write_failures": counters.write_failures if counters else 0,
         "retransmitted": counters.retransmitted if counters else 0,
+        "history_offered": counters.history_offered if counters else 0,
         "gapped": counters.gapped if counters else 0,
         "overwritten_unacked": counters.overwritten_unacked if counters else 0,
         "received": m.received,
         "cc_discarded": cc.hits,
         "cc_passed": cc.misses,
-        "lost": m.lost + tail_lost + m.before_join,
+        "lost": lost,
+        "implausible_lost": excess,
+        "implausible_seq": m.implausible_seq,
+        "writers_over_limit": m.writers_over_limit,
+        "oversize": m.oversize,
+        "repeated_from_previous_run": m.repeated_from_previous_run,
+        # highest seq received per writer: what the next run's ``previous_summary`` reads
+        "writers": {w: c[0] for w, c in Ingest.writer_counts(m).items()},
         "out_of_order": m.out_of_order,
         "writer_changes": m.writer_changes,
         "before_join": m.before_join,
         "decode_errors": m.decode_errors,
         "latency_ms_p50": m.latency_ms.quantile(50),
         "latency_ms_p99": m.latency_ms.quantile(99),
+        "staleness_ms_p50": m.staleness_ms.quantile(50),
+        "staleness_ms_p99": m.staleness_ms.quantile(99),
+        "staleness_ms_max": m.staleness_ms.max,
+        "cache_forgets": counters.cache_forgets if counters else 0,
     }
+
+
+def downlink_summary(
+    downlink: dict[str, DownlinkCounters], stats: RobotStats | None
+) -> dict[str, dict[str, Any]]:
+    """Per command key, the CEDDP's writer reconciled with the robot's reader.
+
+    The robot reports, for the CEDDP's writer (this incarnation's), the range of seqs its reader
+    accounted for and how many of them were delivered, declared lost or dropped past their
+    lifespan (``this_writer``; the totals count every writer it had); everything written outside
+    that range is ``before_match`` (written before the robot's reader matched) or
+    ``after_robot_stopped`` (in flight when the robot closed its reader). ``reconciled``: the
+    robot's delivered + lost + expired equals the range, and the range lies within what the CEDDP
+    wrote. It is None while the robot has not sent its final report, and for a plain-put
+    downlink (``channel`` false: ``plain_downlink``), which has no channel to reconcile.
+    """
+    rows: dict[str, dict[str, Any]] = {}
+    for name, c in sorted(downlink.items()):
+        inbound = stats.inbound.get(f"cmd/{name}") if stats else None
+        row: dict[str, Any] = {
+            "written": c.written,
+            "unmatched": c.unmatched,
+            "refused": c.refused,
+            "write_failures": c.write_failures,
+            "gapped": c.gapped,
+            "retransmitted": c.retransmitted,
+            "delivered": inbound.delivered if inbound else 0,
+            "lost": inbound.lost if inbound else 0,
+            "lifespan_expired": inbound.lifespan_expired if inbound else 0,
+            "channel": bool(c.guid),
+            "reconciled": None,
+        }
+        span = inbound.writers.get(c.guid) if inbound and c.guid else None
+        if span is not None and len(span) == 5 and stats is not None and stats.final:
+            start, through, delivered, lost, expired = span
+            row["this_writer"] = {"delivered": delivered, "lost": lost, "lifespan_expired": expired}
+            row["before_match"] = start - 1
+            row["after_robot_stopped"] = max(c.last_seq - through, 0)
+            row["reconciled"] = (
+                delivered + lost + expired == through - start + 1 and through <= c.last_seq
+            )
+        rows[name] = row
+    return rows
 
 
 def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, Any]:
@@ -93,6 +200,16 @@ def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, 
         "latency_ms_p99": merged_quantile(latencies, 99),
         "cpu_percent": stats.cpu_percent if stats else None,
         "hello": msgspec.to_builtins(stats.hello) if stats and stats.hello else None,
+        "staleness_ms_p99": merged_quantile(
+            [m.staleness_ms for topic, m in mine if topic != "hello"], 99
+        ),
+        "incompatible_qos": list(report.incompatible)
+        + [f"(robot side) {line}" for line in (stats.incompatible_qos if stats else [])],
+        "refused": sum(report.refused.values()),
+        "downlink": downlink_summary(report.downlink, stats),
+        "commands_expired": stats.commands_expired if stats else 0,
+        "watchdog_stops": dict(stats.watchdog_stops) if stats else {},
+        "incarnations": incarnation_summary(ingest, robot, report.incarnations),
         "topics": topics,
     }
 
@@ -107,7 +224,25 @@ def qos_summary(qos: QosController) -> dict[str, Any]:
 
 
 def merged_quantile(distributions: list[Distribution], q: float) -> float | None:
-    values: list[float] = []
-    for dist in distributions:
-        values.extend(dist.sample())
-    return percentile(values, q)
+    arrays = [dist.values() for dist in distributions]
+    return percentile(np.concatenate(arrays), q) if arrays else None
+
+
+def previous_run(summary: dict[str, Any]) -> dict[tuple[str, str], dict[str, int]]:
+    """Per (robot, topic), the highest seq each writer had delivered to the run that wrote
+    ``summary`` (malformed entries are skipped: a summary is input like any other)."""
+    seen: dict[tuple[str, str], dict[str, int]] = {}
+    robots = summary.get("robots")
+    if not isinstance(robots, dict):
+        return seen
+    for robot, row in robots.items():
+        topics = row.get("topics") if isinstance(row, dict) else None
+        if not isinstance(topics, dict):
+            continue
+        for topic, t in topics.items():
+            writers = t.get("writers") if isinstance(t, dict) else None
+            if isinstance(writers, dict):
+                seen[(str(robot), str(topic))] = {
+                    str(w): int(h) for w, h in writers.items() if isinstance(h, int) and h > 0
+                }
+    return seen

@@ -299,7 +299,8 @@ def eq10_text(rows: list[Eq10Row]) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from arpz.configure.model import ModelError
-    from arpz.transport import SessionSettings, TransportError, ZenohTransport
+    from arpz.transport import SessionSettings, TransportError
+    from arpz.zenoh_transport import ZenohTransport
 
     expected = None
     if args.expected:

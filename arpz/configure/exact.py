@@ -20,7 +20,6 @@ explores every permutation of them. So the model is solved in steps:
 from __future__ import annotations
 
 import contextlib
-import itertools
 import math
 import os
 import sys
@@ -44,19 +43,11 @@ DEFAULT_TIME_LIMIT_S = 60.0
 #: HiGHS stops when the relative gap is below this; tight, so "optimal" means optimal to the
 #: second decimal of any objective this module sees.
 MIP_REL_GAP = 1e-7
-_VERBOSE = False
-#: explicit symmetry breaking of the aggregated MILP: "none" (HiGHS detects the permutations of
-#: identical computers itself), "load" (order identical computers by load) or "hash" (by a
-#: random linear signature). Measured on 20 robots: none 9.6 s, load 14 s, hash > 60 s.
-_SYMMETRY = "none"
 
 
 @contextlib.contextmanager
 def _quiet_stdout() -> Iterator[None]:
     """HiGHS prints its banner on the C stdout, which would corrupt ``solve --json``."""
-    if _VERBOSE:
-        yield
-        return
     sys.stdout.flush()
     try:
         saved = os.dup(1)
@@ -102,8 +93,17 @@ class _Lp:
     ) -> tuple[Status, np.ndarray | None, float | None, str]:
         """Returns (status, x, bound on obj @ x, message)."""
         if backend == "cvxpy":
-            return self._solve_cvxpy(maximise=maximise, time_limit_s=time_limit_s)
-        return self._solve_highs(maximise=maximise, time_limit_s=time_limit_s, initial=initial)
+            answer = self._solve_cvxpy(maximise=maximise, time_limit_s=time_limit_s)
+        else:
+            answer = self._solve_highs(
+                maximise=maximise, time_limit_s=time_limit_s, initial=initial
+            )
+        status, x, bound, _ = answer
+        if x is not None and not self._satisfies(*self._matrix(), x):
+            # seen at a time limit of 0.2 s on a 40-robot model: a "solution" of all zeros that
+            # places no unit; a point that breaks the rows is no solution, whatever the status
+            return status, None, bound, "time limit hit before a solution that meets the model"
+        return answer
 
     def _matrix(self) -> tuple[sp.csc_matrix, np.ndarray, np.ndarray]:
         data: list[float] = []
@@ -120,6 +120,23 @@ class _Lp:
             upper.append(b)
         a = sp.csc_matrix((data, (ri, ci)), shape=(len(lower), len(self.obj)))
         return a, np.array(lower, dtype=float), np.array(upper, dtype=float)
+
+    def _satisfies(
+        self, a: sp.csc_matrix, row_lower: np.ndarray, row_upper: np.ndarray, x: np.ndarray
+    ) -> bool:
+        """``x`` meets every row, column bound and integrality of the model (to 1e-6)."""
+        if len(x) != len(self.obj):
+            return False
+        tol = 1e-6
+        activity = a @ x
+        rows = np.all(activity >= row_lower - tol * (1 + np.abs(row_lower))) and np.all(
+            activity <= row_upper + tol * (1 + np.abs(row_upper))
+        )
+        lower, upper = np.array(self.lower, dtype=float), np.array(self.upper, dtype=float)
+        cols = np.all(x >= lower - tol) and np.all(x <= upper + tol)
+        integer = np.array(self.integer, dtype=bool)
+        whole = np.all(np.abs(x[integer] - np.round(x[integer])) <= tol)
+        return bool(rows and cols and whole)
 
     def _solve_highs(
         self, *, maximise: bool, time_limit_s: float, initial: np.ndarray | None
@@ -148,7 +165,7 @@ class _Lp:
         ]
         with _quiet_stdout():
             highs = hp.Highs()  # type: ignore[no-untyped-call]
-            highs.setOptionValue("output_flag", _VERBOSE)
+            highs.setOptionValue("output_flag", False)
             highs.setOptionValue("time_limit", max(time_limit_s, 0.1))
             highs.setOptionValue("mip_rel_gap", MIP_REL_GAP)
             highs.passModel(lp)
@@ -224,7 +241,7 @@ class _Lp:
                     solver=cp.HIGHS,
                     time_limit=max(time_limit_s, 0.1),
                     mip_rel_gap=MIP_REL_GAP,
-                    verbose=_VERBOSE,
+                    verbose=False,
                 )
         except cp.SolverError as exc:
             return "error", None, None, f"HiGHS failed: {exc}"
@@ -257,9 +274,9 @@ def solve(
     """Optimal (or time-limited, with its gap) solution.
 
     ``backend``: "cvxpy" (CVXPY's HiGHS interface) or "highs" (highspy directly, which can also
-    start from the improved heuristic's answer with ``warm_start``). Measured on the case study
-    the incumbent slows HiGHS down (10 robots: 1.0 s without, 3.1 s with; 20 robots: 8.8 s vs
-    10.8 s): most of its time goes into closing the bound, not into finding solutions.
+    start from the improved heuristic's answer with ``warm_start``). On the case study's fleets
+    the incumbent slows HiGHS down rather than speeding it up: most of its time goes into
+    closing the bound, not into finding solutions, so ``warm_start`` is off by default.
     """
     from arpz.configure import improved  # improved imports greedy, not exact
 
@@ -575,6 +592,44 @@ def _pattern_levels(
     return chosen
 
 
+@dataclass
+class _Types:
+    """Coresidence units grouped into types (same settings, weights and allowed computers).
+
+    A pinned type (one allowed computer, one setting per member) gets no variable: it only adds
+    a load to its computer and a constant to the objective."""
+
+    units: list[list[int]]
+    allowed: list[tuple[int, ...]]
+    pinned: list[bool]
+    #: per computer, the load of the pinned types
+    fixed_load: list[float]
+    #: the pinned types' share of Problem 1's objective
+    constant: float
+    #: per computer, whether a type with a choice of settings may use only it; such computers
+    #: are not pooled with others into a class of identical computers
+    confined: list[bool]
+
+
+#: what makes computers identical: (server, growable, capacity, pinned load, allowed types)
+_ClassKey = tuple[bool, bool, float, float, tuple[int, ...]]
+
+
+@dataclass
+class _AggregatedMilp:
+    """The aggregated MILP and where its variables are, to read its answer back."""
+
+    lp: _Lp
+    #: per type, per computer outside the pattern classes: how many units of the type it holds
+    counts: list[dict[int, int]]
+    #: per type, per member, per computer, per setting: how many units run the member at that
+    #: setting (empty for a member with a single setting)
+    settings: list[list[dict[int, dict[int, int]]]]
+    patterns: list[_PatternClass]
+    #: objective terms with no variable (pinned types; pinned load on Problem 2's servers)
+    constant: float
+
+
 def _aggregated(
     problem: Problem,
     time_limit_s: float,
@@ -582,85 +637,147 @@ def _aggregated(
     incumbent: tuple[list[int], list[int]] | None = None,
     backend: str = "highs",
 ) -> _Answer:
-    types: dict[tuple[object, ...], list[int]] = defaultdict(list)
+    """The relaxation without messages (the module docstring's step 1), turned back into a
+    placement of named nodes (step 2)."""
+    types = _unit_types(problem)
+    overloaded = _pinned_overload(problem, types)
+    if overloaded is not None:
+        return _Answer("infeasible", message=overloaded)
+    milp = _build_milp(problem, types, _pattern_classes(problem, types))
+    status, values, bound, message = _solve_milp(
+        problem, types, milp, time_limit_s, incumbent=incumbent, backend=backend
+    )
+    if values is None:  # the dual bound holds whether or not a solution was found
+        total = None if bound is None else bound + milp.constant
+        return _Answer(status, bound=total, message=message)
+    computer, level = _disaggregate(
+        problem, types.units, *_decode_counts(problem, types, milp, values)
+    )
+    objective = _objective(problem, computer, level)
+    total_bound = None if bound is None else bound + milp.constant
+    if status == "optimal" and total_bound is None:
+        total_bound = objective
+    return _Answer(status, computer, level, objective, total_bound, message)
+
+
+def _unit_types(problem: Problem) -> _Types:
+    by_signature: dict[tuple[object, ...], list[int]] = defaultdict(list)
     for u in range(len(problem.units)):
-        types[_unit_signature(problem, u)].append(u)
-    type_units = list(types.values())
+        by_signature[_unit_signature(problem, u)].append(u)
+    type_units = list(by_signature.values())
     n_comp = len(problem.computers)
-    lp = _Lp()
     maximise = problem.kind == 1
-    constant = 0.0
-    fixed_load = [0.0] * n_comp
-    load_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
-    sig_terms: list[dict[int, float]] = [defaultdict(float) for _ in range(n_comp)]
-    rng = np.random.default_rng(12345)
-    unique_comp = [False] * n_comp
-    pinned = [False] * len(type_units)
-    type_allowed: list[tuple[int, ...]] = []
+    types = _Types(
+        units=type_units,
+        allowed=[],
+        pinned=[False] * len(type_units),
+        fixed_load=[0.0] * n_comp,
+        constant=0.0,
+        confined=[False] * n_comp,
+    )
     for t, units in enumerate(type_units):
         members = _canonical_members(problem, units[0])
         allowed = problem.unit_allowed[units[0]]
-        type_allowed.append(allowed)
+        types.allowed.append(allowed)
         multi = any(len(problem.options[n]) > 1 for n in members)
         if len(allowed) == 1 and not multi:
-            pinned[t] = True
+            types.pinned[t] = True
             for n in members:
                 cpu, perf = problem.options[n][0]
-                fixed_load[allowed[0]] += len(units) * cpu
-                constant += len(units) * problem.weight[n] * perf if maximise else 0.0
+                types.fixed_load[allowed[0]] += len(units) * cpu
+                types.constant += len(units) * problem.weight[n] * perf if maximise else 0.0
         elif len(allowed) == 1:
-            unique_comp[allowed[0]] = True
-    for c in range(n_comp):
-        if not problem.growable(c) and problem.capacity[c] - fixed_load[c] < -1e-9:
-            return _Answer(
-                "infeasible",
-                message=f"the nodes pinned to {problem.computers[c]} exceed its capacity",
-            )
+            types.confined[allowed[0]] = True
+    return types
 
-    # Classes of identical computers: same kind, capacity, pinned load and allowed types.
-    classes: dict[tuple[bool, bool, float, float, tuple[int, ...]], list[int]] = defaultdict(list)
-    for c in range(n_comp):
-        if unique_comp[c]:
+
+def _pinned_overload(problem: Problem, types: _Types) -> str | None:
+    """Why no placement exists when the pinned nodes alone overload a computer, else None."""
+    for c in range(len(problem.computers)):
+        if not problem.growable(c) and problem.capacity[c] - types.fixed_load[c] < -1e-9:
+            return f"the nodes pinned to {problem.computers[c]} exceed its capacity"
+    return None
+
+
+def _identical_computers(problem: Problem, types: _Types) -> dict[_ClassKey, list[int]]:
+    """Classes of computers that no constraint tells apart (same kind, capacity, pinned load
+    and allowed types); any permutation inside a class is an equivalent answer."""
+    classes: dict[_ClassKey, list[int]] = defaultdict(list)
+    for c in range(len(problem.computers)):
+        if types.confined[c]:
             continue
         member_of = tuple(
-            t for t, allowed in enumerate(type_allowed) if c in allowed and not pinned[t]
+            t for t, allowed in enumerate(types.allowed) if c in allowed and not types.pinned[t]
         )
         key = (
             problem.is_server[c],
             problem.growable(c),
             round(problem.capacity[c], 9) if not problem.growable(c) else 0.0,
-            round(fixed_load[c], 9),
+            round(types.fixed_load[c], 9),
             member_of,
         )
         classes[key].append(c)
+    return classes
+
+
+def _pattern_classes(problem: Problem, types: _Types) -> list[_PatternClass]:
+    """The classes of identical computers small enough to model by packing patterns.
+
+    The others keep per-computer counts with no symmetry-breaking rows: HiGHS detects their
+    permutations itself, and ordering them explicitly (by load or by a random signature) was
+    slower."""
+    maximise = problem.kind == 1
     pattern_classes: list[_PatternClass] = []
-    for key, comps in classes.items():
-        if key[1] or not key[4]:  # growable (Problem 2 servers) or nothing to place
+    for (_, growable, _, _, members), comps in _identical_computers(problem, types).items():
+        if growable or not members:  # Problem 2 servers, or nothing to place
             continue
-        free = problem.capacity[comps[0]] - fixed_load[comps[0]]
-        cls = _pattern_class(problem, comps, list(key[4]), type_units, free, maximise)
+        free = problem.capacity[comps[0]] - types.fixed_load[comps[0]]
+        cls = _pattern_class(problem, comps, list(members), types.units, free, maximise)
         if cls is not None:
             pattern_classes.append(cls)
-    in_pattern = {c for cls in pattern_classes for c in cls.computers}
+    return pattern_classes
 
-    # per type: g[c] var, per member j: {c: {k: var}} (empty when the member has one setting)
-    g_vars: list[dict[int, int]] = []
-    z_vars: list[list[dict[int, dict[int, int]]]] = []
+
+def _build_milp(
+    problem: Problem, types: _Types, pattern_classes: list[_PatternClass]
+) -> _AggregatedMilp:
+    lp = _Lp()
+    load_terms: list[dict[int, float]] = [defaultdict(float) for _ in problem.computers]
+    in_pattern = {c for cls in pattern_classes for c in cls.computers}
+    counts, settings, count_rows = _add_count_variables(lp, problem, types, in_pattern, load_terms)
+    _add_pattern_variables(lp, pattern_classes, count_rows, maximise=problem.kind == 1)
+    for t, row in enumerate(count_rows):
+        if not types.pinned[t]:
+            lp.eq.append((row, float(len(types.units[t]))))
+    constant = _add_capacities(lp, problem, types, load_terms)
+    return _AggregatedMilp(lp, counts, settings, pattern_classes, constant)
+
+
+def _add_count_variables(
+    lp: _Lp,
+    problem: Problem,
+    types: _Types,
+    in_pattern: set[int],
+    load_terms: list[dict[int, float]],
+) -> tuple[list[dict[int, int]], list[list[dict[int, dict[int, int]]]], list[dict[int, float]]]:
+    """Per type, a count of its units on each allowed computer outside the pattern classes, and
+    per member with a choice of settings, how many of them use each setting there. Returns
+    (counts, settings, the rows that sum a type's counts, still open for the patterns)."""
+    maximise = problem.kind == 1
+    counts: list[dict[int, int]] = []
+    settings: list[list[dict[int, dict[int, int]]]] = []
     count_rows: list[dict[int, float]] = []
-    for t, units in enumerate(type_units):
+    for t, units in enumerate(types.units):
         members = _canonical_members(problem, units[0])
-        count = len(units)
-        if pinned[t]:
-            g_vars.append({})
-            z_vars.append([{} for _ in members])
+        if types.pinned[t]:
+            counts.append({})
+            settings.append([{} for _ in members])
             count_rows.append({})
             continue
-        g = {c: lp.var(0, count, integer=True) for c in type_allowed[t] if c not in in_pattern}
-        g_vars.append(g)
+        count = len(units)
+        g = {c: lp.var(0, count, integer=True) for c in types.allowed[t] if c not in in_pattern}
+        counts.append(g)
         count_rows.append({v: 1.0 for v in g.values()})
-        coef_g = float(rng.uniform(1.0, 2.0))
-        for c, gv in g.items():
-            sig_terms[c][gv] += coef_g
         per_member: list[dict[int, dict[int, int]]] = []
         for n in members:
             opts = problem.options[n]
@@ -674,19 +791,29 @@ def _aggregated(
                 per_member.append({})
                 continue
             zs: dict[int, dict[int, int]] = {}
-            coefs_k = rng.uniform(1.0, 2.0, size=len(opts)).tolist()
             for c, gv in g.items():
                 zs[c] = {}
                 row: dict[int, float] = {gv: -1.0}
                 for k, (cpu, perf) in enumerate(opts):
                     zv = lp.var(0, count, integer=True, obj=w * perf if maximise else 0.0)
-                    sig_terms[c][zv] += coefs_k[k]
                     zs[c][k] = zv
                     row[zv] = 1.0
                     load_terms[c][zv] += cpu
                 lp.eq.append((row, 0.0))
             per_member.append(zs)
-        z_vars.append(per_member)
+        settings.append(per_member)
+    return counts, settings, count_rows
+
+
+def _add_pattern_variables(
+    lp: _Lp,
+    pattern_classes: list[_PatternClass],
+    count_rows: list[dict[int, float]],
+    *,
+    maximise: bool,
+) -> None:
+    """Per class, how many of its computers use each pattern (all of them use one), and the
+    units those patterns hold added to their types' counts."""
     for cls in pattern_classes:
         size = len(cls.computers)
         cls.x_vars = [
@@ -697,86 +824,98 @@ def _aggregated(
             for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
                 if pattern[i]:
                     count_rows[t][xv] = count_rows[t].get(xv, 0.0) + pattern[i]
-    for t, row in enumerate(count_rows):
-        if not pinned[t]:
-            lp.eq.append((row, float(len(type_units[t]))))
 
-    for c in range(n_comp):
+
+def _add_capacities(
+    lp: _Lp, problem: Problem, types: _Types, load_terms: list[dict[int, float]]
+) -> float:
+    """A capacity row per fixed-size computer. Problem 2 minimises the load of the growable
+    servers instead; their pinned load joins the objective's constant, which is returned."""
+    maximise = problem.kind == 1
+    constant = types.constant
+    for c in range(len(problem.computers)):
         if problem.growable(c):
             if not maximise:
                 for var, coef in load_terms[c].items():
                     lp.obj[var] += coef
-                constant += fixed_load[c]
+                constant += types.fixed_load[c]
             continue
         if load_terms[c]:
-            lp.ub.append((dict(load_terms[c]), problem.capacity[c] - fixed_load[c]))
+            lp.ub.append((dict(load_terms[c]), problem.capacity[c] - types.fixed_load[c]))
+    return constant
 
-    # Optional explicit symmetry breaking among identical computers left outside patterns.
-    order_by = load_terms if _SYMMETRY == "load" else sig_terms
-    for comps in classes.values() if _SYMMETRY != "none" else []:
-        rest = [c for c in comps if c not in in_pattern]
-        for a, b in itertools.pairwise(rest):
-            row = defaultdict(float)
-            for var, coef in order_by[b].items():
-                row[var] += coef
-            for var, coef in order_by[a].items():
-                row[var] -= coef
-            if row:
-                lp.ub.append((dict(row), 0.0))
 
-    if not lp.obj:
-        values = np.zeros(0)
-        status: Status = "optimal"
-        bound: float | None = 0.0
-        message = ""
-    else:
-        initial = None
-        if incumbent is not None and _SYMMETRY == "none" and not pattern_classes:
-            initial = _counts_of(problem, incumbent, type_units, g_vars, z_vars, len(lp.obj))
-        status, x, bound, message = lp.solve(
-            maximise=maximise, time_limit_s=time_limit_s, initial=initial, backend=backend
+def _solve_milp(
+    problem: Problem,
+    types: _Types,
+    milp: _AggregatedMilp,
+    time_limit_s: float,
+    *,
+    incumbent: tuple[list[int], list[int]] | None,
+    backend: str,
+) -> tuple[Status, np.ndarray | None, float | None, str]:
+    """(status, values, bound without the constant, message), as ``_Lp.solve``."""
+    lp = milp.lp
+    if not lp.obj:  # every type pinned: nothing to decide
+        return "optimal", np.zeros(0), 0.0, ""
+    initial = None
+    if incumbent is not None and not milp.patterns:
+        # pattern variables have no value to start from in a per-computer placement
+        initial = _counts_of(
+            problem, incumbent, types.units, milp.counts, milp.settings, len(lp.obj)
         )
-        if x is None:
-            return _Answer(status, message=message)
-        values = x
-    total_bound = None if bound is None else bound + constant
+    return lp.solve(
+        maximise=problem.kind == 1, time_limit_s=time_limit_s, initial=initial, backend=backend
+    )
 
-    def decode(values: np.ndarray) -> tuple[list[int], list[int]]:
-        counts = [{c: round(values[v]) for c, v in g.items()} for g in g_vars]
-        levels: list[list[dict[int, list[int]]]] = []
-        for per_member in z_vars:
-            member_levels: list[dict[int, list[int]]] = []
-            for zs in per_member:
-                by_comp: dict[int, list[int]] = {}
-                for c, ks in zs.items():
-                    pool: list[int] = []
-                    for k, v in ks.items():
-                        pool.extend([k] * round(values[v]))
-                    by_comp[c] = pool
-                member_levels.append(by_comp)
-            levels.append(member_levels)
-        for cls in pattern_classes:
-            free_comps = list(cls.computers)
-            for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
-                for _ in range(round(values[xv])):
-                    c = free_comps.pop(0)
-                    chosen = _pattern_levels(problem, cls, pattern, type_units, maximise)
-                    for i, t in enumerate(cls.types):
-                        if pattern[i]:
-                            counts[t][c] = pattern[i]
-                        for j, pool in enumerate(chosen[t]):
-                            if pool:
-                                levels[t][j][c] = pool
-        for t in range(len(type_units)):
-            if pinned[t]:
-                counts[t] = {type_allowed[t][0]: len(type_units[t])}
-        return _disaggregate(problem, type_units, counts, levels)
 
-    computer, level = decode(values)
-    objective = _objective(problem, computer, level)
-    if status == "optimal":
-        total_bound = objective if total_bound is None else total_bound
-    return _Answer(status, computer, level, objective, total_bound, message)
+def _decode_counts(
+    problem: Problem, types: _Types, milp: _AggregatedMilp, values: np.ndarray
+) -> tuple[list[dict[int, int]], list[list[dict[int, list[int]]]]]:
+    """The MILP's values as, per type, units per computer, and per member and computer, the
+    settings its units there use (a pool of levels, handed out to named units later)."""
+    counts = [{c: round(values[v]) for c, v in g.items()} for g in milp.counts]
+    levels: list[list[dict[int, list[int]]]] = []
+    for per_member in milp.settings:
+        member_levels: list[dict[int, list[int]]] = []
+        for zs in per_member:
+            by_comp: dict[int, list[int]] = {}
+            for c, ks in zs.items():
+                pool: list[int] = []
+                for k, v in ks.items():
+                    pool.extend([k] * round(values[v]))
+                by_comp[c] = pool
+            member_levels.append(by_comp)
+        levels.append(member_levels)
+    for cls in milp.patterns:
+        _decode_patterns(problem, types, cls, values, counts, levels)
+    for t in range(len(types.units)):
+        if types.pinned[t]:
+            counts[t] = {types.allowed[t][0]: len(types.units[t])}
+    return counts, levels
+
+
+def _decode_patterns(
+    problem: Problem,
+    types: _Types,
+    cls: _PatternClass,
+    values: np.ndarray,
+    counts: list[dict[int, int]],
+    levels: list[list[dict[int, list[int]]]],
+) -> None:
+    """Give each computer of a pattern class one of the patterns chosen, with its best settings."""
+    maximise = problem.kind == 1
+    free_comps = list(cls.computers)
+    for pattern, xv in zip(cls.patterns, cls.x_vars, strict=True):
+        for _ in range(round(values[xv])):
+            c = free_comps.pop(0)
+            chosen = _pattern_levels(problem, cls, pattern, types.units, maximise)
+            for i, t in enumerate(cls.types):
+                if pattern[i]:
+                    counts[t][c] = pattern[i]
+                for j, pool in enumerate(chosen[t]):
+                    if pool:
+                        levels[t][j][c] = pool
 
 
 def _counts_of(
@@ -983,8 +1122,8 @@ def _full(problem: Problem, time_limit_s: float) -> _Answer:
         lp.ub.append((row, problem.link_bandwidth[link]))
 
     status, x, bound, message = lp.solve(maximise=maximise, time_limit_s=time_limit_s)
-    if x is None:
-        return _Answer(status, message=message)
+    if x is None:  # the dual bound holds whether or not a solution was found
+        return _Answer(status, bound=bound, message=message)
     computer = [-1] * len(problem.nodes)
     level = [0] * len(problem.nodes)
     for u, yu in enumerate(y):

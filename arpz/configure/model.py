@@ -16,11 +16,13 @@ from pathlib import Path
 from typing import Literal
 
 import msgspec
+import tomli_w
 
 from arpz.configure.regression import FitChoice, FitError, expand
+from arpz.errors import ArpzError
 
 
-class ModelError(ValueError):
+class ModelError(ArpzError, ValueError):
     """A model file that cannot be used; the message names the file and every problem found."""
 
 
@@ -266,39 +268,22 @@ def fixed_setting(node: Node) -> Setting:
     return max(node.settings, key=lambda s: (s.performance, s.cpu))
 
 
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int | float):
-        return repr(value)
-    if isinstance(value, str):
-        return msgspec.json.encode(value).decode()
-    if isinstance(value, list | tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+def _without_none(value: object) -> object:
+    """TOML has no null: an unset field is left out, at any depth."""
     if isinstance(value, dict):
-        items = [f"{k} = {_toml_value(v)}" for k, v in value.items() if v is not None]
-        return "{" + ", ".join(items) + "}"
-    raise TypeError(f"cannot write {value!r} to TOML")
+        return {k: _without_none(v) for k, v in value.items() if v is not None}
+    if isinstance(value, list):
+        return [_without_none(v) for v in value]
+    return value
 
 
 def dump_toml(model: Model) -> str:
-    """The model as TOML (tomllib reads but does not write it; the format is small enough)."""
+    """The model as TOML, in the order people read it: name and description, then computers,
+    links, nodes and messages (an empty section is left out)."""
     raw = msgspec.to_builtins(model)
-    lines: list[str] = []
-    for key in ("name", "description"):
-        if raw.get(key) is not None:
-            lines.append(f"{key} = {_toml_value(raw[key])}")
-    for section in ("computers", "links", "nodes", "messages"):
-        for item in raw.get(section, []):
-            lines.append("")
-            lines.append(f"[[{section}]]")
-            for key, value in item.items():
-                if value is None:
-                    continue
-                if key == "settings":
-                    lines.append("settings = [")
-                    lines.extend(f"  {_toml_value(s)}," for s in value)
-                    lines.append("]")
-                else:
-                    lines.append(f"{key} = {_toml_value(value)}")
-    return "\n".join(lines) + "\n"
+    ordered = {
+        key: _without_none(raw[key])
+        for key in ("name", "description", "computers", "links", "nodes", "messages")
+        if raw.get(key) not in (None, [])
+    }
+    return tomli_w.dumps(ordered)

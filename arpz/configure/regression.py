@@ -16,6 +16,8 @@ from typing import Literal
 
 import numpy as np
 
+from arpz.errors import ArpzError
+
 Kind = Literal["linear", "log", "poly2"]
 FitChoice = Literal["linear", "log", "poly2", "best"]
 
@@ -26,7 +28,7 @@ _MIN_POINTS: dict[Kind, int] = {"linear": 2, "log": 2, "poly2": 3}
 _TIE = 1e-9
 
 
-class FitError(ValueError):
+class FitError(ArpzError, ValueError):
     """The points cannot support the requested curve (too few, or a log of a non-positive CPU)."""
 
 

@@ -1,8 +1,9 @@
 """``python -m arpz.experiment run SPEC.toml|PRESET --out DIR`` and ``report DIR``.
 
 ``run`` runs every cell not yet in DIR/results.csv (a rerun resumes), then writes the report;
-``report`` rebuilds the figures and REPORT.md from results.csv alone, so results can be
-re-plotted, merged or shared without rerunning anything.
+``report`` rebuilds the figures and REPORT.md from results.csv alone (a results directory or a
+committed results.csv), so results can be re-plotted, merged or shared without rerunning
+anything.
 """
 
 from __future__ import annotations
@@ -40,8 +41,13 @@ def main(argv: list[str] | None = None) -> int:
         "--no-merge", action="store_true", help="do not merge the runs' .rrd into all_runs.rrd"
     )
     rep = sub.add_parser("report", help="rebuild figures and REPORT.md from DIR/results.csv")
-    rep.add_argument("dir", type=Path)
-    rep.add_argument("--figures", type=Path, help="where the PNGs go (default: DIR/figures)")
+    rep.add_argument(
+        "dir", type=Path, help="a results directory, or a results.csv file (e.g. a committed one)"
+    )
+    rep.add_argument(
+        "--out", type=Path, help="where REPORT.md and figures/ go (default: the CSV's directory)"
+    )
+    rep.add_argument("--figures", type=Path, help="where the PNGs go (default: OUT/figures)")
     rep.add_argument(
         "--refresh",
         action="store_true",
@@ -54,9 +60,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.refresh:
             from arpz.experiment.results import refresh_rows
 
-            print(f"refreshed {refresh_rows(args.dir)} rows from runs/*/summary.json")
+            directory = args.dir.parent if args.dir.suffix == ".csv" else args.dir
+            print(f"refreshed {refresh_rows(directory)} rows from runs/*/summary.json")
         try:
-            paths = write_report(args.dir, figures=args.figures)
+            paths = write_report(args.dir, figures=args.figures, out=args.out)
         except ReportError as exc:
             print(f"report: {exc}", file=sys.stderr)
             return 2
@@ -65,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         spec = resolve_spec(args.spec)
+        from arpz.experiment.fleet import check_cells
+
+        check_cells(spec)  # optr / optd need the optimiser's R / D: infeasible is an error now
     except SpecError as exc:
         print(f"experiment: {exc}", file=sys.stderr)
         return 2

@@ -3,15 +3,34 @@
 Every robot connects through its own emulated link (an ``arpz.netem`` proxy in front of the
 CEDDP's UDP endpoint). Without OPT the sensors publish at Rmax per topic (seed 001: "DEADLINE
 Rmax") with the cell's fixed KEEP_LAST depth; with OPT the CEDDP's optimiser assigns R and D
-(Opt(R), Opt(D)) and the robots apply them in place.
+(Opt(R), Opt(D)) and the robots apply them in place. ``optr`` and ``optd`` apply only one of the
+two: the CEDDP's optimiser is off, and the robots are configured with the optimiser's R (at the
+cell's fixed depth) or its D (at Rmax), computed here as the CEDDP would (``solve_closed``, the
+"paper" depth policy, the topic counts the robots announce).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from arpz.ceddp.optimiser import InvalidQosInput, OptimiserError, QosLimits, solve_closed
-from arpz.experiment.spec import OPT_DEPTH, Cell, ExperimentSpec, has_feature, has_opt
+from arpz.ceddp.optimiser import (
+    InvalidQosInput,
+    OptimiserError,
+    QosLimits,
+    QosSolution,
+    solve_closed,
+)
+from arpz.config import ConfigError, TrafficQos, from_dict
+from arpz.experiment.spec import (
+    OPT_DEPTH,
+    Cell,
+    ExperimentSpec,
+    SpecError,
+    has_feature,
+    has_opt,
+    opt_depth,
+    opt_rate,
+)
 from arpz.launch import FleetSpec
 from arpz.robot.sensors.presets import PRESETS
 
@@ -29,24 +48,78 @@ def topic_counts(spec: ExperimentSpec) -> list[int]:
     return [len(PRESETS[p]) + 1 for p in spec.presets]
 
 
+def optimiser_solution(spec: ExperimentSpec, rmax_hz: float) -> QosSolution:
+    """Problem (6) for the whole fleet at ``rmax_hz``, as the CEDDP's optimiser solves it once
+    every robot has announced its topics. Raises OptimiserError (infeasible or invalid)."""
+    limits = QosLimits(rmax_hz=rmax_hz, rmin_hz=spec.rmin_hz, dmax=spec.dmax)
+    return solve_closed(limits, topic_counts(spec))
+
+
 def start_rate(spec: ExperimentSpec, cell: Cell) -> float:
     """The publish rate robots start with: Rmax without OPT; with OPT the optimiser's R for the
     whole fleet, so the window measures the optimised steady state rather than a start-up burst
-    at Rmax (the CEDDP's own assignment, recorded in results.csv, replaces it within a second)."""
-    if not has_opt(cell.config):
+    at Rmax (the CEDDP's own assignment, recorded in results.csv, replaces it within a second);
+    with optr the optimiser's R for the whole run."""
+    if not opt_rate(cell.config):
         return cell.rmax_hz
     try:
-        limits = QosLimits(rmax_hz=cell.rmax_hz, rmin_hz=spec.rmin_hz, dmax=spec.dmax)
-        return float(solve_closed(limits, topic_counts(spec)).rate_hz)
-    except (OptimiserError, InvalidQosInput):
-        return cell.rmax_hz
+        return float(optimiser_solution(spec, cell.rmax_hz).rate_hz)
+    except (OptimiserError, InvalidQosInput) as exc:
+        if has_opt(cell.config):
+            return cell.rmax_hz  # the CEDDP reports the same error and assigns nothing
+        raise SpecError(f"{cell.label}: no Opt(R) to run at: {exc}") from None
+
+
+def start_depth(spec: ExperimentSpec, cell: Cell) -> int:
+    """The KEEP_LAST depth of robots and CEDDP: the cell's fixed depth; with OPT the depth the
+    robots hold until the CEDDP's first assignment; with optd the optimiser's D, fixed."""
+    if has_opt(cell.config):
+        return INITIAL_OPT_DEPTH
+    if opt_depth(cell.config):
+        try:
+            return int(optimiser_solution(spec, cell.rmax_hz).depth)
+        except (OptimiserError, InvalidQosInput) as exc:
+            raise SpecError(f"{cell.label}: no Opt(D) to run at: {exc}") from None
+    if cell.depth == OPT_DEPTH:
+        raise SpecError(f"{cell.label}: depth {OPT_DEPTH!r} without opt or optd")
+    return int(cell.depth)
+
+
+def configured_qos(spec: ExperimentSpec, cell: Cell) -> tuple[float, int]:
+    """(rate, depth) the robots run at when no CEDDP assignment replaces them (all but opt):
+    what results.csv records as the QoS used. Raises SpecError when the optimiser cannot give
+    optr's R or optd's D."""
+    return start_rate(spec, cell), start_depth(spec, cell)
+
+
+def check_cells(spec: ExperimentSpec) -> None:
+    """Raise SpecError naming the first cell whose configs cannot be made (before any runs)."""
+    for cell in spec.cells():
+        configured_qos(spec, cell)
+    check_traffic(spec)
+
+
+def check_traffic(spec: ExperimentSpec) -> None:
+    """Raise SpecError when ``[traffic]`` names what arpz.config's TrafficQos does not take."""
+    unknown = sorted(set(spec.traffic) - set(TrafficQos.__struct_fields__))
+    if "sensor_qos" in spec.traffic:
+        raise SpecError("[traffic] cannot set sensor_qos: the grid's depths and configs set it")
+    if unknown:
+        raise SpecError(
+            f"[traffic] takes the traffic keys of both configs "
+            f"({', '.join(TrafficQos.__struct_fields__)}), not {', '.join(unknown)}"
+        )
+    try:
+        from_dict(spec.traffic, TrafficQos, source="[traffic]")
+    except ConfigError as exc:
+        raise SpecError(str(exc)) from None
 
 
 def cell_fleet(
     spec: ExperimentSpec, cell: Cell, *, listen: list[str], robot_connect: dict[str, str], rrd: str
 ) -> FleetSpec:
     """The CEDDP and robot configs (dicts in arpz.config's TOML schema) of ``cell``."""
-    depth = INITIAL_OPT_DEPTH if cell.depth == OPT_DEPTH else int(cell.depth)
+    rate, depth = configured_qos(spec, cell)
     channel = {"reliability": "reliable", "history": "keep_last", "depth": depth}
     ceddp: dict[str, Any] = {
         "fleet": "exp",
@@ -54,6 +127,7 @@ def cell_fleet(
         "rrd": rrd,
         "cache_control": has_feature(cell.config, "cc"),
         "sensor_qos": channel,
+        **spec.traffic,
     }
     if has_opt(cell.config):
         ceddp["qos"] = {
@@ -71,7 +145,6 @@ def cell_fleet(
         }
     else:
         ceddp["hello"] = {"relay": spec.hello_relay}
-    rate = start_rate(spec, cell)
     robots: dict[str, dict[str, Any]] = {}
     for index, robot in enumerate(spec.robot_names):
         conf: dict[str, Any] = {
@@ -85,6 +158,7 @@ def cell_fleet(
             },
             "sensor_qos": channel,
             "match_timeout_s": 15.0,
+            **spec.traffic,
         }
         if mission is not None:
             conf["sim"] = {"world": mission.world, "beam_rate_hz": rate}

@@ -1,5 +1,6 @@
 """One ``.rrd`` with every run: the CEDDP of each cell writes its own recording, and
-``rerun rrd merge`` puts them side by side in ``DIR/all_runs.rrd`` (one recording per cell).
+``rerun rrd merge`` puts them side by side in ``DIR/all_runs.rrd`` (one recording per cell),
+through arpz.ceddp.dashboard, the one module that knows Rerun.
 
 Each cell's recording has a random id, so ``DIR/rrd/index.csv`` says which id is which cell;
 the viewer's recording list then reads like results.csv.
@@ -8,25 +9,15 @@ the viewer's recording list then reads like results.csv.
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
-import warnings
 from pathlib import Path
 
+from arpz.ceddp.dashboard import merge_rrd, rrd_recording_ids
+from arpz.errors import ArpzError
 from arpz.experiment.results import read_rows
 
 
-class MergeError(RuntimeError):
+class MergeError(ArpzError, RuntimeError):
     pass
-
-
-def recording_ids(path: Path) -> list[str]:
-    from rerun.chunk import RrdReader
-
-    with warnings.catch_warnings():
-        # a CEDDP killed hard leaves no footer; the file still reads by scanning it
-        warnings.simplefilter("ignore")
-        return [e.recording_id for e in RrdReader(str(path)).recordings()]
 
 
 def merge_recordings(directory: Path, *, timeout_s: float = 600.0) -> Path:
@@ -42,17 +33,11 @@ def merge_recordings(directory: Path, *, timeout_s: float = 600.0) -> Path:
         for row in rows:
             path = directory / row["rrd"]
             if path.exists():
-                for rec in recording_ids(path):
+                for rec in rrd_recording_ids(path):
                     cell = [row[k] for k in ("rmax_hz", "depth", "config", "network", "repeat")]
                     writer.writerow([row["rrd"], rec, *cell])
     merged = directory / "all_runs.rrd"
-    result = subprocess.run(
-        [sys.executable, "-m", "rerun", "rrd", "merge", *map(str, files), "-o", str(merged)],
-        capture_output=True,
-        text=True,
-        timeout=timeout_s,
-        check=False,
-    )
-    if result.returncode != 0 or not merged.exists():
-        raise MergeError(f"rerun rrd merge failed: {result.stderr[-500:]}")
+    failure = merge_rrd(files, merged, timeout_s=timeout_s)
+    if failure is not None:
+        raise MergeError(failure)
     return merged

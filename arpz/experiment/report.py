@@ -1,9 +1,11 @@
 """Figures and REPORT.md from results.csv alone (``python -m arpz.experiment report DIR``).
 
 The figures follow seed 001's bar charts: one panel per Rmax, DEPTH groups on the x axis
-(1 ... 5000, then Opt(D)), one bar per configuration. Repeats are averaged (mission success is
-the share of successful repeats). Nothing here reruns or reads anything but the CSV, so results
-can be re-plotted, merged from several machines, or checked by a reviewer.
+(1 ... 5000, then Opt(D)), one bar per configuration. A bar is the mean over the cell's repeats
+with a whisker from the lowest to the highest repeat and a dot per repeat (mission success: the
+share of successful repeats, whisker the Wilson 95 % interval of that share). Nothing here
+reruns or reads anything but the CSV, so results can be re-plotted, merged from several
+machines, or checked by a reviewer.
 """
 
 from __future__ import annotations
@@ -22,23 +24,30 @@ import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
+from arpz.errors import ArpzError
 from arpz.experiment.results import read_rows
-from arpz.experiment.spec import FEATURES, OPT_DEPTH, config_label
+from arpz.experiment.spec import FEATURES, OPT_DEPTH, OPT_VARIANTS, config_label
 
 Row = dict[str, str]
 
 
-class ReportError(Exception):
+class ReportError(ArpzError):
     """No results to report (or an unreadable results.csv)."""
 
 
 @dataclass(frozen=True)
-class Metric:
-    key: str
-    title: str
-    unit: str
-    value: Callable[[Sequence[Row]], float | None]
-    log: bool = False
+class Spread:
+    """One bar: its height, its whisker and the repeats behind it."""
+
+    value: float
+    low: float
+    high: float
+    #: the per-repeat values (mission: 100 for a success, 0 for a failure)
+    points: tuple[float, ...]
+
+    @property
+    def n(self) -> int:
+        return len(self.points)
 
 
 def _floats(rows: Sequence[Row], column: str) -> list[float]:
@@ -53,25 +62,103 @@ def _mean(column: str) -> Callable[[Sequence[Row]], float | None]:
     return value
 
 
-def _success(rows: Sequence[Row]) -> float | None:
+def _range(column: str) -> Callable[[Sequence[Row]], Spread | None]:
+    """Mean of the repeats, whisker min..max."""
+
+    def spread(rows: Sequence[Row]) -> Spread | None:
+        values = _floats(rows, column)
+        if not values:
+            return None
+        return Spread(statistics.fmean(values), min(values), max(values), tuple(values))
+
+    return spread
+
+
+#: z of a two-sided 95 % interval
+Z95 = 1.959963984540054
+
+
+def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """The Wilson score interval of a proportion (0..1): sensible at 0/n and n/n, unlike the
+    normal approximation, which is what a few repeats of a mission give."""
+    if n <= 0:
+        return (0.0, 1.0)
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    # exact at the ends (rounding would put 0 successes a hair above 0)
+    low = 0.0 if successes == 0 else max(0.0, min(p, centre - half))
+    high = 1.0 if successes == n else min(1.0, max(p, centre + half))
+    return (low, high)
+
+
+def _success_spread(rows: Sequence[Row]) -> Spread | None:
     verdicts = [r["mission"] for r in rows if r.get("mission")]
     if not verdicts:
         return None
-    return 100.0 * sum(v == "success" for v in verdicts) / len(verdicts)
+    wins = sum(v == "success" for v in verdicts)
+    low, high = wilson(wins, len(verdicts))
+    points = tuple(100.0 if v == "success" else 0.0 for v in verdicts)
+    return Spread(100.0 * wins / len(verdicts), 100.0 * low, 100.0 * high, points)
+
+
+def _success(rows: Sequence[Row]) -> float | None:
+    spread = _success_spread(rows)
+    return None if spread is None else spread.value
+
+
+@dataclass(frozen=True)
+class Metric:
+    key: str
+    title: str
+    unit: str
+    spread: Callable[[Sequence[Row]], Spread | None]
+    log: bool = False
+    #: how the whisker is computed, for the figure's caption
+    whisker: str = "min-max of the repeats"
+    #: the y axis label (short: the title says the rest)
+    axis: str = ""
+
+    def value(self, rows: Sequence[Row]) -> float | None:
+        spread = self.spread(rows)
+        return None if spread is None else spread.value
 
 
 METRICS: tuple[Metric, ...] = (
-    Metric("latency", "Hello round-trip latency (p50)", "ms", _mean("latency_ms_p50"), log=True),
-    Metric("loss", "Hello packet loss", "%", _mean("loss_pct")),
+    Metric(
+        "latency",
+        "Hello round-trip latency (p50)",
+        "ms",
+        _range("latency_ms_p50"),
+        log=True,
+        axis="Hello RTT p50",
+    ),
+    Metric("loss", "Hello packet loss", "%", _range("loss_pct"), axis="Hello loss"),
     Metric(
         "sample_latency",
         "sensor sample latency (p50, worst robot)",
         "ms",
-        _mean("sample_latency_ms_p50"),
+        _range("sample_latency_ms_p50"),
         log=True,
+        axis="sample latency p50",
     ),
-    Metric("sample_loss", "sensor sample loss", "%", _mean("sample_loss_pct")),
-    Metric("mission", "mission success", "%", _success),
+    Metric("sample_loss", "sensor sample loss", "%", _range("sample_loss_pct"), axis="sample loss"),
+    Metric(
+        "staleness",
+        "sensor value staleness at the CEDDP (p99, worst robot)",
+        "ms",
+        _range("staleness_ms_p99"),
+        log=True,
+        axis="staleness p99",
+    ),
+    Metric(
+        "mission",
+        "mission success",
+        "%",
+        _success_spread,
+        whisker="Wilson 95 % interval of the share",
+        axis="mission success",
+    ),
 )
 
 
@@ -84,9 +171,12 @@ def _depth_label(depth: str) -> str:
 
 
 def _config_order(config: str) -> tuple[int, int, str]:
+    """baseline, LC, CC ..., then OPT R-only, OPT D-only and OPT, each alone and then combined."""
     parts = config.split("+")
+    variant = next((v for v in OPT_VARIANTS if v in parts), None)
+    rank = {None: 0, "optr": 1, "optd": 2, "opt": 3}[variant]
     return (
-        "opt" in parts,
+        rank,
         len(parts) if config != "baseline" else 0,
         "".join(str(FEATURES.index(p)) for p in parts if p in FEATURES),
     )
@@ -119,10 +209,10 @@ def _bar_panel(
     colours = plt.get_cmap("tab10")
     present = {
         depth: [
-            (config, value)
+            (config, spread)
             for config in configs
             if (cell := groups.get((network, rmax, depth, config)))
-            and (value := metric.value(cell)) is not None
+            and (spread := metric.spread(cell)) is not None
         ]
         for depth in depths
     }
@@ -130,24 +220,44 @@ def _bar_panel(
     if not widest:
         return False
     width = 0.8 / widest
+    floor = 1.0 if metric.log else -math.inf
     labelled: set[str] = set()
     for di, depth in enumerate(depths):
         bars = present[depth]
-        for bi, (config, value) in enumerate(bars):
+        for bi, (config, spread) in enumerate(bars):
             x = di + (bi - (len(bars) - 1) / 2) * width
+            height = max(spread.value, floor)
+            low = min(max(spread.low, floor), height)
+            high = max(spread.high, floor, height)
             ax.bar(
                 x,
-                max(value, 1.0) if metric.log else value,
+                height,
                 width,
+                yerr=[[height - low], [high - height]] if spread.n > 1 else None,
+                capsize=min(3.0, 60 * width),
+                error_kw={"elinewidth": 0.9, "ecolor": "0.15"},
                 color=colours(configs.index(config) % 10),
                 label=None if config in labelled else config_label(config),
             )
+            if spread.n > 1:
+                # every repeat, spread across the bar so equal values stay visible
+                offsets = [
+                    (i - (spread.n - 1) / 2) * width / (spread.n + 1) for i in range(spread.n)
+                ]
+                ax.scatter(
+                    [x + o for o in offsets],
+                    [max(p, floor) for p in spread.points],
+                    s=6,
+                    color="black",
+                    zorder=3,
+                    linewidths=0,
+                )
             labelled.add(config)
-            if value == 0:
+            if spread.value == 0 and spread.high == 0:
                 ax.text(x, 0, "0", ha="center", va="bottom", fontsize=7)
     ax.set_xticks(range(len(depths)), [_depth_label(d) for d in depths])
     ax.set_xlabel("DEPTH")
-    ax.set_ylabel(f"{metric.title} ({metric.unit})")
+    ax.set_ylabel(f"{metric.axis or metric.title} ({metric.unit})")
     ax.set_title(f"Rmax = {rmax} Hz")
     if metric.log:
         # from 1 ms, so bar heights compare; plain numbers on the ticks, not powers of ten
@@ -159,6 +269,18 @@ def _bar_panel(
         ax.set_ylim(0, 105)
     ax.grid(axis="y", alpha=0.3)
     return True
+
+
+def _caption(
+    metric: Metric, groups: dict[tuple[str, str, str, str], list[Row]], network: str
+) -> str:
+    """What a bar and its whisker are, and over how many repeats."""
+    counts = {len(g) for (n, *_), g in groups.items() if n == network}
+    if max(counts, default=1) <= 1:
+        return "one run per bar (no repeats: no spread)"
+    n = str(max(counts)) if len(counts) == 1 else f"{min(counts)}-{max(counts)}"
+    what = "share of successes" if metric.key == "mission" else "mean"
+    return f"bar: {what} of {n} repeats; whisker: {metric.whisker}; dots: each repeat"
 
 
 def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
@@ -191,15 +313,23 @@ def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
                     if label not in labels:
                         handles.append(handle)
                         labels.append(label)
-            fig.suptitle(f"{metric.title}, network {network}", y=0.995)
+            # in inches from the top: the title, then the legend's rows; the caption at the foot
+            height = fig.get_figheight()
+            ncol = min(len(labels), 4 * cols)
+            legend_rows = math.ceil(len(labels) / max(ncol, 1))
+            fig.suptitle(
+                f"{metric.title}, network {network}", y=1 - 0.08 / height, fontsize="large"
+            )
+            fig.text(0.5, 0.06 / height, _caption(metric, groups, network), ha="center")
             fig.legend(
                 handles,
                 labels,
                 loc="upper center",
-                bbox_to_anchor=(0.5, 0.97),
-                ncol=min(len(labels), 7),
+                bbox_to_anchor=(0.5, 1 - 0.4 / height),
+                ncol=ncol,
             )
-            fig.tight_layout(rect=(0, 0, 1, 0.92))
+            top = 1 - (0.45 + 0.3 * legend_rows) / height
+            fig.tight_layout(rect=(0, 0.3 / height, 1, top))
             path = figures / f"experiment_{metric.key}{suffix}.png"
             fig.savefig(path, dpi=100)
             plt.close(fig)
@@ -207,6 +337,10 @@ def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
             for rmax in rates:
                 fig, ax = plt.subplots(figsize=(7.5, 4.2))
                 if _bar_panel(ax, metric, groups, network, rmax, configs, depths):
+                    ax.set_title(
+                        f"Rmax = {rmax} Hz\n{_caption(metric, groups, network)}",
+                        fontsize="small",
+                    )
                     ax.legend(
                         fontsize="small",
                         loc="upper center",
@@ -227,10 +361,21 @@ def _fmt(value: float | None, digits: int = 3) -> str:
     return f"{value:.{digits}g}"
 
 
+def _ranged(rows: Sequence[Row], column: str, digits: int = 3) -> str:
+    """The mean over the repeats, and [lowest-highest] when the repeats differ."""
+    spread = _range(column)(rows)
+    if spread is None:
+        return "-"
+    low, high = _fmt(spread.low, digits), _fmt(spread.high, digits)
+    if spread.n < 2 or low == high:
+        return _fmt(spread.value, digits)
+    return f"{_fmt(spread.value, digits)} [{low}-{high}]"
+
+
 def consistency(rows: Sequence[Row]) -> list[str]:
     """Counts that must add up in every ok row: every robot's final counters arrived,
     produced = sent + held back + write failures, sent = received + lost, Hello sent =
-    received + lost."""
+    received + lost, and every robot's downlink reconciled (rows that record it)."""
     problems = []
     fleet = max((int(r["final_reports"] or 0) for r in rows if r["status"] == "ok"), default=0)
     for row in rows:
@@ -249,6 +394,10 @@ def consistency(rows: Sequence[Row]) -> list[str]:
             problems.append(f"{where}: sent != received + lost")
         if row["hello_sent"] and n["hello_sent"] != n["hello_received"] + n["hello_lost"]:
             problems.append(f"{where}: Hello sent != received + lost")
+        if row.get("downlink_reconciled") == "no":
+            problems.append(
+                f"{where}: downlink not reconciled ({row.get('downlink_unreconciled') or '?'})"
+            )
     return problems
 
 
@@ -263,8 +412,10 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
         "",
         f"{len(ok)} cells ok, {len(errors)} failed to run; total run time "
         f"{wall / 60:.1f} min (sum of cell wall times). Each table cell is the mean over "
-        "repeats; latency is the Hello round trip p50 (ms), loss the Hello loss (%), "
-        "samples the sensor sample loss (%); mission is the share of successful repeats.",
+        "repeats, with [lowest-highest repeat] when there are several; latency is the Hello "
+        "round trip p50 (ms), loss the Hello loss (%), samples the sensor sample loss (%), "
+        "staleness the worst robot's p99 (ms); mission is the share of successful repeats "
+        "(successes/repeats).",
         "",
     ]
     has_hello = any(r["hello_sent"] for r in ok)
@@ -287,12 +438,14 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
                     parts = []
                     if has_hello:
                         parts.append(
-                            f"{_fmt(_mean('latency_ms_p50')(g))} ms, "
-                            f"{_fmt(_mean('loss_pct')(g), 2)} %"
+                            f"{_ranged(g, 'latency_ms_p50')} ms, {_ranged(g, 'loss_pct', 2)} %"
                         )
-                    parts.append(f"samples {_fmt(_mean('sample_loss_pct')(g), 2)} % lost")
+                    parts.append(f"samples {_ranged(g, 'sample_loss_pct', 2)} % lost")
+                    if any(r.get("staleness_ms_p99") for r in g):
+                        parts.append(f"staleness {_ranged(g, 'staleness_ms_p99')} ms")
                     if has_mission:
-                        parts.append(f"mission {_fmt(_success(g))} %")
+                        wins = sum(r.get("mission") == "success" for r in g)
+                        parts.append(f"mission {_fmt(_success(g))} % ({wins}/{len(g)})")
                     rate = _mean("rate_hz")(g)
                     parts.append(f"R {_fmt(rate)} D {g[0]['qos_depth']}")
                     cells.append("<br>".join(parts))
@@ -303,7 +456,8 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
         "## Consistency",
         "",
         "Every ok row reconciles (every robot's final counters arrived, produced = sent + "
-        "held back + write failures, sent = received + lost, Hello sent = received + lost)."
+        "held back + write failures, sent = received + lost, Hello sent = received + lost, "
+        "every robot's downlink reconciled where recorded)."
         if not problems
         else "\n".join(f"- {p}" for p in problems),
         "",
@@ -325,9 +479,16 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
     return "\n".join(lines)
 
 
-def write_report(directory: Path, *, figures: Path | None = None) -> list[Path]:
-    """Rebuild DIR/REPORT.md and the figures; returns the paths written (REPORT.md first)."""
-    results = directory / "results.csv"
+def write_report(
+    source: Path, *, figures: Path | None = None, out: Path | None = None
+) -> list[Path]:
+    """Rebuild REPORT.md and the figures from ``source`` (a results directory or a results.csv
+    file, e.g. a committed one) into ``out`` (default: the CSV's directory; figures in
+    ``out/figures`` unless ``figures`` says otherwise). Returns the paths written (REPORT.md
+    first)."""
+    results = source if source.suffix == ".csv" else source / "results.csv"
+    directory = out or results.parent
+    directory.mkdir(parents=True, exist_ok=True)
     try:
         rows = read_rows(results)
     except (OSError, KeyError, ValueError) as exc:

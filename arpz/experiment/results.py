@@ -12,11 +12,14 @@ import csv
 import io
 import json
 import os
-from collections.abc import Iterable, Mapping
+import statistics
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from arpz.experiment.spec import Cell, format_rate
+import msgspec
+
+from arpz.experiment.spec import Cell, ExperimentSpec, SpecError, format_rate
 
 COLUMNS: tuple[str, ...] = (
     "experiment",
@@ -54,6 +57,28 @@ COLUMNS: tuple[str, ...] = (
     "deadline_ms",
     "qos_epochs",
     "qos_applied",
+    # how stale the CEDDP's view was: per change of value, how long it held another value than
+    # the robot's latest reading (sensor topics of every robot)
+    "staleness_ms_p50",
+    "staleness_ms_p99",
+    "staleness_ms_max",
+    # the local cache forgot what it had sent after a loss (it resends the next reading)
+    "cache_forgets",
+    # CEDDP -> robot, through the reliable channel: the Hello hops (cmd/hello) and the other
+    # commands (cmd/velocity ...), written by the CEDDP and accounted for by the robots
+    "hello_hops_written",
+    "hello_hops_delivered",
+    "hello_hops_lost",
+    "commands_written",
+    "commands_delivered",
+    "commands_lost",
+    "commands_expired",
+    "downlink_reconciled",
+    "downlink_unreconciled",
+    "watchdog_stops",
+    # QoS mismatches between robots and CEDDP, and the samples refused because of them
+    "incompatible_qos",
+    "samples_refused",
     # the hallway mission (seed 001 Fig. 16); empty for the sensor fleet
     "mission",
     "mission_reason",
@@ -73,17 +98,57 @@ def _cell_key(row: Mapping[str, str]) -> tuple[str, str, str, str, str]:
     return (row["rmax_hz"], row["depth"], row["config"], row["repeat"], row["network"])
 
 
+def _header(path: Path) -> tuple[str, ...]:
+    with path.open(newline="", encoding="utf-8") as handle:
+        return tuple(next(csv.reader(handle), []))
+
+
+def _complete_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
+    """The header and every complete row of ``path``, in file order; a row of a file written
+    before a column existed gets "" for it (so readers can index every column of COLUMNS)."""
+    with path.open(newline="", encoding="utf-8") as handle:
+        reader = csv.DictReader(handle)
+        rows = [r for r in reader if r.get("status") and None not in r.values()]
+        header = list(reader.fieldnames or [])
+    for row in rows:
+        for column in COLUMNS:
+            row.setdefault(column, "")
+    return header, rows
+
+
 def read_rows(path: Path) -> list[dict[str, str]]:
     """Every complete row of ``path`` (none if it does not exist); later rows for the same cell
-    (a retried failure) replace earlier ones."""
+    (a retried failure) replace earlier ones. Columns the file predates read as ""."""
     if not path.exists():
         return []
-    with path.open(newline="", encoding="utf-8") as handle:
-        rows = [r for r in csv.DictReader(handle) if r.get("status") and None not in r.values()]
+    _, rows = _complete_rows(path)
     latest: dict[tuple[str, str, str, str, str], dict[str, str]] = {}
     for row in rows:
         latest[_cell_key(row)] = row
     return list(latest.values())
+
+
+def upgrade_header(path: Path) -> bool:
+    """Rewrite a results.csv written with other columns (an older version) with today's,
+    atomically, every complete row kept in order and columns it lacked empty, so rows appended
+    by a resumed run line up with the header. Columns no longer written are dropped. True if
+    the file was rewritten."""
+    if not path.exists() or path.stat().st_size == 0:
+        return False
+    header, rows = _complete_rows(path)
+    if tuple(header) == COLUMNS:
+        return False
+    tmp = path.with_suffix(".csv.upgrade")
+    with tmp.open("w", encoding="utf-8", newline="") as handle:
+        writer = csv.DictWriter(
+            handle, fieldnames=COLUMNS, lineterminator="\n", extrasaction="ignore"
+        )
+        writer.writeheader()
+        writer.writerows(rows)
+        handle.flush()
+        os.fsync(handle.fileno())
+    tmp.replace(path)
+    return True
 
 
 def done_keys(path: Path) -> set[tuple[str, str, str, str, str]]:
@@ -107,6 +172,8 @@ def append_row(path: Path, row: Mapping[str, Any]) -> None:
     buffer = io.StringIO()
     writer = csv.DictWriter(buffer, fieldnames=COLUMNS, lineterminator="\n")
     new = not path.exists() or path.stat().st_size == 0
+    if not new and _header(path) != COLUMNS:
+        upgrade_header(path)  # resuming a results.csv of an older version
     if new:
         writer.writeheader()
     writer.writerow({k: _text(row.get(k)) for k in COLUMNS})
@@ -122,6 +189,93 @@ def _pct(part: float, whole: float) -> float | None:
 
 def _sum(rows: Iterable[Mapping[str, Any]], key: str) -> int:
     return int(sum(int(r.get(key) or 0) for r in rows))
+
+
+def _count(value: Any) -> int:
+    return int(value or 0)
+
+
+def _sum_known(
+    rows: Iterable[Mapping[str, Any]], key: str, measure: Callable[[Any], int] = _count
+) -> int | None:
+    """The sum of ``measure(row[key])``, or None when no row has ``key`` (a summary from before
+    it existed)."""
+    present = [r[key] for r in rows if key in r]
+    return sum(measure(v) for v in present) if present else None
+
+
+def _median(values: list[float]) -> float | None:
+    return statistics.median(values) if values else None
+
+
+def _max(values: Iterable[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
+
+
+def staleness(robots: Iterable[Mapping[str, Any]]) -> dict[str, float | None]:
+    """The fleet's staleness over the robots' sensor topics (not the Hello probe).
+
+    The summary gives, per topic, p50, p99 and max, and per robot a p99 pooled over its sensor
+    topics (no pooled p50, no fleet-wide pool). ``staleness_ms_max`` is the maximum over every
+    topic, exact; ``staleness_ms_p99`` the worst robot's pooled p99 (a robot without it: the
+    maximum of its topics' p99), as ``sample_latency_ms_p99`` is the worst robot's;
+    ``staleness_ms_p50`` the median of the per-topic p50s (a typical topic's median)."""
+    p50s: list[float] = []
+    p99s: list[float | None] = []
+    maxima: list[float | None] = []
+    for robot in robots:
+        sensors = [t for name, t in (robot.get("topics") or {}).items() if name != "hello"]
+        p50s += [t["staleness_ms_p50"] for t in sensors if t.get("staleness_ms_p50") is not None]
+        topic_p99 = _max(t.get("staleness_ms_p99") for t in sensors)
+        pooled = robot.get("staleness_ms_p99")
+        p99s.append(pooled if pooled is not None else topic_p99)
+        maxima += [t.get("staleness_ms_max") for t in sensors]
+    return {
+        "staleness_ms_p50": _median(p50s),
+        "staleness_ms_p99": _max(p99s),
+        "staleness_ms_max": _max(maxima),
+    }
+
+
+def downlink(robots: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """CEDDP -> robot counters summed over the fleet, split into Hello hops and other commands.
+
+    ``downlink_reconciled``: every robot command key that reached a matched reader (written
+    minus unmatched minus write failures > 0) was reconciled by the CEDDP's summary (the robot's
+    delivered + lost + lifespan-expired covers what this CEDDP's writer sent it);
+    ``downlink_unreconciled`` lists the others as ``robot/command``. Both empty when the
+    summary has no downlink (a CEDDP older than issue 14, or nothing written); "plain" when
+    every command key was a plain put (``plain_downlink``: no channel, nothing to reconcile)."""
+    out: dict[str, Any] = {}
+    for prefix in ("hello_hops", "commands"):
+        for field in ("written", "delivered", "lost"):
+            out[f"{prefix}_{field}"] = 0
+    unreconciled: list[str] = []
+    seen = through_channel = False
+    for robot, row in sorted(robots.items()):
+        for name, c in sorted((row.get("downlink") or {}).items()):
+            seen = True
+            prefix = "hello_hops" if name == "hello" else "commands"
+            for field in ("written", "delivered", "lost"):
+                out[f"{prefix}_{field}"] += int(c.get(field) or 0)
+            reached = (
+                int(c.get("written") or 0)
+                - int(c.get("unmatched") or 0)
+                - int(c.get("write_failures") or 0)
+            )
+            if c.get("channel") is False:
+                continue  # a plain put: the robot's seq gaps are its only account
+            through_channel = True
+            if reached > 0 and c.get("reconciled") is not True:
+                unreconciled.append(f"{robot}/{name}")
+    if not seen:
+        return dict.fromkeys(out) | {"downlink_reconciled": None, "downlink_unreconciled": None}
+    if not through_channel:
+        return out | {"downlink_reconciled": "plain", "downlink_unreconciled": ""}
+    out["downlink_reconciled"] = "no" if unreconciled else "yes"
+    out["downlink_unreconciled"] = ";".join(unreconciled)
+    return out
 
 
 def _identity(cell: Cell, experiment: str) -> dict[str, Any]:
@@ -144,8 +298,13 @@ def row_from_summary(
     measured_s: float,
     wall_s: float,
     rrd: str,
+    configured: tuple[float, int] | None = None,
 ) -> dict[str, Any]:
-    """The results.csv row of a finished cell, from the CEDDP's summary.json."""
+    """The results.csv row of a finished cell, from the CEDDP's summary.json.
+
+    ``configured``: the (rate, depth) the robots were configured with (fleet.configured_qos),
+    recorded as the QoS used when the CEDDP assigned none (all but opt); without it, Rmax and
+    the cell's depth."""
     robots: dict[str, Any] = dict(summary.get("robots") or {})
     rows = list(robots.values())
     hello = (robots.get("robot1") or {}).get("hello") or {}
@@ -175,9 +334,11 @@ def row_from_summary(
             and int(a.get("epoch") or 0) >= int(in_force["epoch"])
         )
     else:
-        rate_hz = cell.rmax_hz
-        depth = int(cell.depth) if str(cell.depth).isdigit() else 0
-        deadline_ms = 1000.0 / cell.rmax_hz
+        rate_hz, depth = configured or (
+            cell.rmax_hz,
+            int(cell.depth) if str(cell.depth).isdigit() else 0,
+        )
+        deadline_ms = 1000.0 / rate_hz
         applied = 0
     mission = summary.get("mission") or {}
     result = mission.get("result") if isinstance(mission, dict) else None
@@ -209,6 +370,13 @@ def row_from_summary(
         "deadline_ms": deadline_ms,
         "qos_epochs": len(assignments),
         "qos_applied": applied,
+        **staleness(rows),
+        "cache_forgets": _sum_known(topics, "cache_forgets"),
+        **downlink(robots),
+        "commands_expired": _sum_known(rows, "commands_expired"),
+        "watchdog_stops": _sum_known(rows, "watchdog_stops", lambda v: sum((v or {}).values())),
+        "incompatible_qos": _sum_known(rows, "incompatible_qos", lambda v: len(v or [])),
+        "samples_refused": _sum_known(rows, "refused"),
         # a mission with no verdict (it never started: a robot missing) failed too
         "mission": (result or {}).get("mission", "failure") if mission else None,
         "mission_reason": (result or {}).get("reason", "no verdict: the mission never started")
@@ -233,12 +401,38 @@ def error_row(cell: Cell, *, experiment: str, error: str, wall_s: float) -> dict
     }
 
 
+def _saved_spec(directory: Path) -> ExperimentSpec | None:
+    """The spec the run wrote to DIR/spec.json (None if absent or unreadable)."""
+    try:
+        return msgspec.json.decode((directory / "spec.json").read_bytes(), type=ExperimentSpec)
+    except (OSError, msgspec.DecodeError, msgspec.ValidationError):
+        return None
+
+
+def _configured(
+    spec: ExperimentSpec | None, cell: Cell, row: Mapping[str, str]
+) -> tuple[float, int] | None:
+    """The (rate, depth) the cell's robots were configured with: from the spec if it is known,
+    else what the row already says."""
+    from arpz.experiment.fleet import configured_qos
+
+    if spec is not None:
+        try:
+            return configured_qos(spec, cell)
+        except SpecError:
+            pass
+    if row.get("rate_hz") and row.get("qos_depth"):
+        return float(row["rate_hz"]), int(row["qos_depth"])
+    return None
+
+
 def refresh_rows(directory: Path) -> int:
     """Re-derive every ok row from its cell's kept ``runs/<cell>/summary.json`` (after a change
     to how rows are computed), keeping what only the runner knew (link counters, timings);
     results.csv is replaced atomically. Returns the number of rows refreshed."""
     path = directory / "results.csv"
     rows = read_rows(path)
+    spec = _saved_spec(directory)
     refreshed = 0
     out: list[dict[str, Any]] = []
     for row in rows:
@@ -259,6 +453,7 @@ def refresh_rows(directory: Path) -> int:
             measured_s=float(row["measured_s"] or 0),
             wall_s=float(row["wall_s"] or 0),
             rrd=row["rrd"],
+            configured=_configured(spec, cell, row),
         )
         out.append(new)
         refreshed += 1

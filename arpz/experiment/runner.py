@@ -21,7 +21,8 @@ from typing import Any, TextIO
 
 import msgspec
 
-from arpz.experiment.fleet import cell_fleet
+from arpz.errors import ArpzError
+from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
 from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile
 from arpz.launch import LaunchError, Proc, free_port, run_fleet
@@ -55,6 +56,11 @@ class Links:
     impaired_at: float | None = None
     #: the last time the fleet was seen running (the end of the measured window)
     last_seen: float | None = None
+    #: the proxies' totals when the links were impaired and when they were made clean again:
+    #: the link loss is reported over that window only, not diluted by the clean setup and
+    #: shutdown (the final reports and acknowledgements would otherwise halve it in a short cell)
+    at_impair: dict[str, int] | None = None
+    at_clear: dict[str, int] | None = None
 
     @classmethod
     def start(cls, forward: str, profiles: dict[str, NetworkProfile], seed: int) -> Links:
@@ -73,7 +79,17 @@ class Links:
     def endpoint(self, robot: str) -> str:
         return f"udp/127.0.0.1:{self.proxies[robot].listen_port}"
 
+    def totals(self) -> dict[str, int]:
+        totals = {"received": 0, "dropped": 0}
+        for proxy in self.proxies.values():
+            report = proxy.report()
+            for counters in (report.up, report.down):
+                totals["received"] += counters.received
+                totals["dropped"] += counters.dropped
+        return totals
+
     def impair(self) -> None:
+        self.at_impair = self.totals()
         for robot, proxy in self.proxies.items():
             proxy.set_impairments(impairments(self.profiles[robot]))
         self.impaired_at = time.monotonic()
@@ -83,18 +99,19 @@ class Links:
         the channel's last acknowledgements must not be lost, or the counts cannot reconcile."""
         for proxy in self.proxies.values():
             proxy.set_impairments(Impairments())
+        self.at_clear = self.totals()
 
     def stop(self) -> dict[str, int]:
-        totals = {"received": 0, "dropped": 0}
+        """Stop the proxies; the datagrams received and dropped during the impaired window
+        (the whole run when it never started or never ended)."""
         for proxy in self.proxies.values():
-            report = proxy.stop()
-            for counters in (report.up, report.down):
-                totals["received"] += counters.received
-                totals["dropped"] += counters.dropped
-        return totals
+            proxy.stop()
+        start = self.at_impair or {"received": 0, "dropped": 0}
+        end = self.at_clear or self.totals()
+        return {key: end[key] - start[key] for key in ("received", "dropped")}
 
 
-class Interrupted(Exception):
+class Interrupted(ArpzError):
     """Ctrl-C or SIGTERM: the cell in progress is not written."""
 
 
@@ -169,6 +186,7 @@ def run_cell(
         measured_s=measured,
         wall_s=time.monotonic() - started,
         rrd=str(rrd.relative_to(out)),
+        configured=configured_qos(spec, cell),
     )
     if not keep_logs:
         # keep the summary (small) and drop the logs and configs of a successful cell
@@ -196,6 +214,9 @@ def run_experiment(
     """Run every cell not yet in ``out/results.csv``; returns how many cells were run.
 
     Raises Interrupted (after writing every finished cell) on Ctrl-C or SIGTERM."""
+    # absolute: each process runs in its own cell directory, so a relative ``--out`` (as the
+    # docs write it) would name config files that do not exist from there
+    out = out.resolve()
     out.mkdir(parents=True, exist_ok=True)
     (out / "spec.json").write_bytes(msgspec.json.format(msgspec.json.encode(spec)))
     results = out / "results.csv"
@@ -268,9 +289,11 @@ def _row_line(row: dict[str, Any]) -> str:
         f"rtt p50 {_fmt(row['latency_ms_p50'], ' ms')}; samples sent {row['samples_sent']} "
         f"held {row['samples_held_back']} lost {row['samples_lost']} "
         f"({_fmt(row['sample_loss_pct'], ' %')}), p50 {_fmt(row['sample_latency_ms_p50'], ' ms')}; "
-        f"R {_fmt(row['rate_hz'])} Hz D {row['qos_depth']}; link loss "
-        f"{_fmt(row['link_loss_pct'], ' %')}"
+        f"R {_fmt(row['rate_hz'])} Hz D {row['qos_depth']}; staleness p99 "
+        f"{_fmt(row.get('staleness_ms_p99'), ' ms')}; link loss {_fmt(row['link_loss_pct'], ' %')}"
     )
+    if row.get("downlink_reconciled") == "no":
+        text += f"; downlink NOT reconciled: {row['downlink_unreconciled']}"
     if row.get("mission"):
         text += f"; mission {row['mission']}: {row['mission_reason']}"
     return text

@@ -15,13 +15,19 @@ from typing import Any
 
 import msgspec
 
-#: the features a configuration may combine (seed 001: LC, CC, OPT)
-FEATURES: tuple[str, ...] = ("lc", "cc", "opt")
+from arpz.errors import ArpzError
+
+#: the features a configuration may combine: seed 001's LC, CC and OPT, and OPT with only one of
+#: its two outputs applied (``optr``: the optimiser's R at the cell's fixed depth; ``optd``: the
+#: optimiser's D at Rmax), to tell which of the two carries OPT's effect
+FEATURES: tuple[str, ...] = ("lc", "cc", "opt", "optr", "optd")
+#: the QoS balancing variants: a configuration has at most one
+OPT_VARIANTS: tuple[str, ...] = ("opt", "optr", "optd")
 #: the depth label of cells whose DEPTH comes from the QoS optimiser: Opt(D) of Table 2
 OPT_DEPTH = "opt"
 
 
-class SpecError(ValueError):
+class SpecError(ArpzError, ValueError):
     """A spec that cannot be run; ``str()`` names the source, the field and how to fix it."""
 
 
@@ -96,9 +102,10 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
     name: str
     description: str = ""
     rmax_hz: list[float]
-    #: fixed KEEP_LAST depths for configurations without OPT ("opt" is implied for OPT ones)
+    #: fixed KEEP_LAST depths of the configurations whose depth is not the optimiser's (all but
+    #: opt and optd, which run at Opt(D) only)
     depths: list[int]
-    #: "baseline", or features joined by "+": "lc", "cc", "opt", "lc+opt", "lc+cc+opt" ...
+    #: "baseline", or features joined by "+": "lc", "cc", "opt", "optr", "optd", "lc+opt" ...
     configs: list[str]
     #: network profile names (built-in or from [profiles]); every cell runs on each
     networks: list[str] = msgspec.field(default_factory=lambda: ["wifi-bad"])
@@ -118,6 +125,9 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
     rmin_hz: float = 1.0
     dmax: int = 5000
     mission: MissionSpec | None = None
+    #: keys of arpz.config's TrafficQos set in the CEDDP's and every robot's config, to compare
+    #: the fleet's traffic profiles (e.g. ``plain_downlink = true``, or ``[traffic.command_qos]``)
+    traffic: dict[str, Any] = msgspec.field(default_factory=dict)
     seed: int = 1
 
     def __post_init__(self) -> None:
@@ -129,8 +139,11 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
             raise ValueError('configs must list at least one, e.g. ["baseline", "lc+opt"]')
         for config in self.configs:
             normalise_config(config)
-        if any(not has_opt(c) for c in self.configs) and not self.depths:
-            raise ValueError("configurations without opt need at least one fixed depth")
+        if any(not opt_depth(c) for c in self.configs) and not self.depths:
+            raise ValueError(
+                "configurations whose depth is not the optimiser's (all but opt and optd) need "
+                "at least one fixed depth"
+            )
         if self.repeats < 1:
             raise ValueError(f"repeats must be >= 1, got {self.repeats}")
         if not self.duration_s > 0 or not self.hello_rate_hz > 0:
@@ -159,7 +172,7 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
         out = []
         for rmax, network, config in itertools.product(self.rmax_hz, self.networks, self.configs):
             name = normalise_config(config)
-            depths: list[int | str] = [OPT_DEPTH] if has_opt(name) else list(self.depths)
+            depths: list[int | str] = [OPT_DEPTH] if opt_depth(name) else list(self.depths)
             for depth in depths:
                 for repeat in range(1, self.repeats + 1):
                     out.append(Cell(float(rmax), depth, name, repeat, network))
@@ -218,22 +231,43 @@ def normalise_config(config: str) -> str:
             f"unknown configuration feature {unknown[0]!r} in {config!r}: use 'baseline' or "
             f"features {', '.join(FEATURES)} joined by '+', e.g. 'lc+opt'"
         )
+    variants = [v for v in OPT_VARIANTS if v in parts]
+    if len(variants) > 1:
+        raise ValueError(
+            f"{config!r} combines {' and '.join(variants)}: a configuration applies the "
+            "optimiser's R and D (opt), only its R (optr) or only its D (optd), not several"
+        )
     return "+".join(f for f in FEATURES if f in parts)
-
-
-def has_opt(config: str) -> bool:
-    return "opt" in config.split("+")
 
 
 def has_feature(config: str, feature: str) -> bool:
     return feature in config.split("+")
 
 
+def has_opt(config: str) -> bool:
+    """The CEDDP runs the live optimiser and assigns R and D (seed 001's OPT)."""
+    return has_feature(config, "opt")
+
+
+def opt_rate(config: str) -> bool:
+    """The robots publish at the optimiser's R (opt, optr), not at Rmax."""
+    return has_feature(config, "opt") or has_feature(config, "optr")
+
+
+def opt_depth(config: str) -> bool:
+    """The KEEP_LAST depth is the optimiser's D (opt, optd): the cell's depth is Opt(D)."""
+    return has_feature(config, "opt") or has_feature(config, "optd")
+
+
+#: how figures and tables name the features
+_LABELS = {"lc": "LC", "cc": "CC", "opt": "OPT", "optr": "OPT R-only", "optd": "OPT D-only"}
+
+
 def config_label(config: str) -> str:
-    """The paper's names: "without optimisation", "LC", "LC + OPT" ..."""
+    """The paper's names: "without optimisation", "LC", "LC + OPT" ... and "OPT R-only"."""
     if config == "baseline":
         return "no opt."
-    return " + ".join(p.upper() for p in config.split("+"))
+    return " + ".join(_LABELS.get(p, p.upper()) for p in config.split("+"))
 
 
 def spec_from_dict(raw: dict[str, Any], *, source: str) -> ExperimentSpec:

@@ -24,23 +24,10 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from arpz.perf.endpoints import (
-    STOP,
-    TRANSPORTS,
-    AdvancedPub,
-    AdvancedSub,
-    ArpzPub,
-    ArpzSub,
-    OnPayload,
-    Pub,
-    Sub,
-    ZenohPub,
-    ZenohSub,
-    open_session,
-)
+from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
 from arpz.perf.report import HEADER, Recorder, build_report, payload_maker
-from arpz.reliability import HistoryFullError
-from arpz.reliability.qos import (
+from arpz.perf.zenoh_baselines import AdvancedPub, AdvancedSub, ZenohPub, ZenohSub, open_session
+from arpz.protocol.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
@@ -48,7 +35,9 @@ from arpz.reliability.qos import (
     ReliabilityPolicy,
     load_qos,
 )
-from arpz.transport import SessionSettings, TransportError, ZenohTransport
+from arpz.reliability import HistoryFullError
+from arpz.transport import SessionSettings, TransportError
+from arpz.zenoh_transport import ZenohTransport
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:

@@ -6,7 +6,7 @@ deadline, lifespan and liveliness, matching with incompatible-QoS events, and th
 for every reader delivered + reported lost == sent during the match.
 """
 
-from arpz.reliability.events import (
+from arpz.protocol.events import (
     DataInfo,
     DeadlineMissedStatus,
     IncompatibleQosStatus,
@@ -18,7 +18,7 @@ from arpz.reliability.events import (
     UnchangedStatus,
     WriterEventCallbacks,
 )
-from arpz.reliability.qos import (
+from arpz.protocol.qos import (
     QOS_DEFAULT,
     QOS_LATCHED,
     QOS_PARAMETERS,
@@ -34,13 +34,14 @@ from arpz.reliability.qos import (
     load_qos,
     qos_from_toml,
 )
+from arpz.protocol.reader_machine import PLAIN_PEER, ReaderMachine, ReaderStats
+from arpz.protocol.timers import Clock, FakeClock, SystemClock
+from arpz.protocol.writer_machine import HistoryFullError, WriterMachine, WriterStats
 from arpz.reliability.reader import Reader
-from arpz.reliability.reader_machine import ReaderMachine, ReaderStats
-from arpz.reliability.timers import Clock, FakeClock, SystemClock
 from arpz.reliability.writer import Writer
-from arpz.reliability.writer_machine import HistoryFullError, WriterMachine, WriterStats
 
 __all__ = [
+    "PLAIN_PEER",
     "QOS_DEFAULT",
     "QOS_LATCHED",
     "QOS_PARAMETERS",

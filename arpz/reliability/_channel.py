@@ -25,11 +25,11 @@ from typing import Any, Self, TypeVar
 
 import msgspec
 
-from arpz.reliability.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
-from arpz.reliability.events import DataInfo
-from arpz.reliability.reader_machine import ReaderMachine
-from arpz.reliability.writer_machine import WriterMachine
-from arpz.transport import Handle, PullSubscriber, Transport
+from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
+from arpz.protocol.events import DataInfo
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.writer_machine import WriterMachine
+from arpz.transport import Handle, PullSubscriber, Transport, TransportError
 
 log = logging.getLogger("arpz.reliability")
 
@@ -232,7 +232,7 @@ class Channel:
         while True:
             try:
                 items = [recv()]
-            except Exception:  # undeclared by close() and drained, or the session went away
+            except TransportError:  # undeclared by close() and drained, or the session went away
                 if self._closing:
                     log.debug("reliable channel: delivery thread stops", exc_info=True)
                 else:  # nothing more is delivered: say so loudly (the transport closed first?)
@@ -246,13 +246,16 @@ class Channel:
             while len(items) < _BATCH:
                 try:
                     item = try_recv()
-                except Exception:  # closed meanwhile: handle what came, recv says the rest
+                except TransportError:  # closed meanwhile: handle what came, recv says the rest
                     break
                 if item is None:
                     break
                 items.append(item)
             out: list[Action] = []
             with self.lock:
+                if isinstance(self.machine, ReaderMachine):
+                    # a full pull leaves more queued: a NACK now would ask for some of it
+                    self.machine.queued = len(items) >= _BATCH
                 for item in items:
                     try:
                         out.extend(handler(item[0], item[1], item[2]))
@@ -386,7 +389,7 @@ class Channel:
             elif kind is Send:
                 try:
                     self.transport.put(action.key, action.payload, attachment=action.attachment)  # type: ignore[union-attr]
-                except Exception as exc:  # a closed session during shutdown
+                except TransportError as exc:  # a closed session during shutdown
                     log.debug("put on %s failed: %s", action.key, exc)  # type: ignore[union-attr]
             elif kind is Notify:
                 self._call(getattr(self.events, action.event, None), action.status)  # type: ignore[union-attr]

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from arpz.protocol._common import new_guid
+from arpz.protocol.events import DataInfo, ReaderEventCallbacks
+from arpz.protocol.qos import QosProfile
+from arpz.protocol.reader_machine import DEFAULT_MAX_WRITERS, ReaderMachine, ReaderStats
+from arpz.protocol.timers import Clock, SystemClock
 from arpz.reliability._channel import Channel, Endpoint
-from arpz.reliability._common import new_guid
-from arpz.reliability.events import DataInfo, ReaderEventCallbacks
-from arpz.reliability.qos import QosProfile
-from arpz.reliability.reader_machine import ReaderMachine, ReaderStats
-from arpz.reliability.timers import Clock, SystemClock
 from arpz.transport import Transport
 
 
@@ -35,10 +35,12 @@ class Reader(Endpoint):
         events: ReaderEventCallbacks | None = None,
         clock: Clock | None = None,
         inline_delivery: bool = False,
+        max_writers: int = DEFAULT_MAX_WRITERS,
     ) -> None:
         self.key_expr = key_expr
-        self.qos = qos
-        self._machine = ReaderMachine(key_expr, qos, new_guid(), clock or SystemClock())
+        self._machine = ReaderMachine(
+            key_expr, qos, new_guid(), clock or SystemClock(), max_writers=max_writers
+        )
         self.guid = self._machine.hex
         self._channel = Channel(
             transport,
@@ -54,6 +56,28 @@ class Reader(Endpoint):
     def matched_count(self) -> int:
         with self._channel.lock:
             return len(self._machine.writers)
+
+    def retune(self, *, depth: int) -> None:
+        """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""
+        with self._channel.lock:
+            self._machine.retune(depth=depth)
+
+    @property
+    def qos(self) -> QosProfile:
+        """The QoS in force: the machine's, which ``retune`` changes (the one place it lives)."""
+        return self._machine.qos
+
+    def accounted(self) -> dict[str, tuple[int, int, int, int, int]]:
+        """Per matched writer: (first seq of the match, last seq accounted for, delivered, lost,
+        lifespan expired)."""
+        with self._channel.lock:
+            return self._machine.accounted()
+
+    def plain_samples(self) -> dict[str, int]:
+        """Plain Zenoh samples (no channel header) refused so far, per key: each such key has a
+        publisher that offers no channel (reported once as INCOMPATIBLE_QOS)."""
+        with self._channel.lock:
+            return dict(self._machine.plain_samples)
 
     def stats(self) -> ReaderStats:
         with self._channel.lock:

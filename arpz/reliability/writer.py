@@ -9,12 +9,12 @@ from typing import TypeVar
 
 import msgspec
 
+from arpz.protocol._common import new_guid
+from arpz.protocol.events import WriterEventCallbacks
+from arpz.protocol.qos import QosProfile
+from arpz.protocol.timers import Clock, SystemClock
+from arpz.protocol.writer_machine import HistoryFullError, WriterMachine, WriterStats
 from arpz.reliability._channel import Channel, Endpoint
-from arpz.reliability._common import new_guid
-from arpz.reliability.events import WriterEventCallbacks
-from arpz.reliability.qos import QosProfile
-from arpz.reliability.timers import Clock, SystemClock
-from arpz.reliability.writer_machine import HistoryFullError, WriterMachine, WriterStats
 from arpz.transport import Transport
 
 _W = TypeVar("_W")
@@ -53,7 +53,6 @@ class Writer(Endpoint):
         if express and qos.batching:
             qos = msgspec.structs.replace(qos, batch_max_samples=1)
         self.key = key
-        self.qos = qos
         self._machine = WriterMachine(key, qos, new_guid(), clock or SystemClock())
         self.guid = self._machine.hex
         self._channel = Channel(
@@ -151,6 +150,11 @@ class Writer(Endpoint):
             actions = self._machine.assert_unchanged()
         self._channel.post(actions)
 
+    @property
+    def qos(self) -> QosProfile:
+        """The QoS in force: the machine's, which ``retune`` changes (the one place it lives)."""
+        return self._machine.qos
+
     def retune(self, *, depth: int, deadline_s: float) -> None:
         """Change the KEEP_LAST depth and the offered deadline in place (a QoS assignment)."""
         with self._lock:
@@ -174,6 +178,18 @@ class Writer(Endpoint):
                     return False
                 self._lock.wait(min(remaining, 0.05))
         return True
+
+    def acknowledged_through(self) -> int:
+        """The highest seq every matched reliable reader acknowledged (with all before it)."""
+        with self._lock:
+            return self._machine.acknowledged_through()
+
+    def latest_undeliverable(self) -> bool:
+        """True when a reliable reader can never get the last sample written (it expired before
+        being acknowledged). The robot's local cache then forgets its last value, so the next
+        reading is sent even if equal."""
+        with self._lock:
+            return self._machine.latest_undeliverable()
 
     @property
     def matched_count(self) -> int:

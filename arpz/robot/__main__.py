@@ -12,12 +12,16 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import msgspec
+
 from arpz.cli import configure_logging, stop_on_signals
 from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
+from arpz.endpoints import DEFAULT_CONNECT, resolve
 from arpz.robot.agent import RobotAgent
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
-from arpz.transport import SessionSettings, TransportError, ZenohTransport
+from arpz.transport import SessionSettings, TransportError
+from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config
 
 log = logging.getLogger("arpz.robot")
 
@@ -81,6 +85,15 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.log_level)
     try:
         config = load(args)
+        zconf = None
+        if config.zenoh_config:
+            zconf = load_zenoh_config(
+                config.zenoh_config, source=str(args.config or "command line")
+            )
+        from_file = config_endpoints(zconf, "connect") if zconf is not None else []
+        config = msgspec.structs.replace(
+            config, connect=resolve(config.connect, from_file, DEFAULT_CONNECT)
+        )
     except ConfigError as exc:
         print(f"arpz.robot: bad configuration: {exc}", file=sys.stderr)
         return 2

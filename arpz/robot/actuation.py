@@ -3,18 +3,25 @@
 The agent decodes commands on its own worker thread (never on a Zenoh callback) and hands each
 one to ``Actuator.apply``. ``RecordingActuator`` is the simulated actuator: it keeps the last
 command per name and counts them, which is what tests and the demo look at. A real robot
-subclasses ``Actuator`` and drives its motors in ``apply``.
+subclasses ``Actuator`` and drives its motors in ``apply``, and brakes them in ``safe_stop``,
+which the agent calls when a command's deadline passes with no new command
+(arpz.robot.watchdog).
 """
 
 from __future__ import annotations
 
 import threading
 from collections import Counter
+from collections.abc import Sequence
 
 from arpz.messages import Command
 
 
 class Actuator:
+    #: the command names this actuator acts on: the robot reads ``cmd/{name}`` for each (through
+    #: the reliable channel) and announces them, so the CEDDP opens a writer for each
+    commands: Sequence[str] = ()
+
     def apply(self, name: str, command: Command) -> None:
         """Act on one command (``name`` is the command topic, e.g. "velocity")."""
         raise NotImplementedError
@@ -22,18 +29,44 @@ class Actuator:
     def stop(self) -> None:
         """Bring the robot to a safe state; called when the agent stops."""
 
+    def safe_stop(self) -> None:
+        """Stop moving: a command's deadline passed with no new command.
+
+        The CEDDP died or the link is down, so the robot must not keep driving on its last
+        command. The default calls ``stop()``; a hardware actuator overrides it to brake or zero
+        its motors. It must be idempotent and quick (it runs on the agent's worker thread); the
+        next ``apply`` resumes normal operation.
+        """
+        self.stop()
+
 
 class RecordingActuator(Actuator):
-    def __init__(self) -> None:
+    """Records commands instead of acting on them (a robot without actuators, and tests).
+
+    It acts on no command unless given some: seed 001's machines 1-3 only sense, and eq. 1 of
+    the QoS optimiser counts every command topic a robot announces."""
+
+    def __init__(self, commands: Sequence[str] = ()) -> None:
+        self.commands = tuple(commands)
         self._lock = threading.Lock()
         self.counts: Counter[str] = Counter()
         self.last: dict[str, Command] = {}
         self.stopped = False
+        #: safe stops so far, and whether the robot is in one now (cleared by the next apply)
+        self.safe_stops = 0
+        self.safe_stopped = False
 
     def apply(self, name: str, command: Command) -> None:
         with self._lock:
             self.counts[name] += 1
             self.last[name] = command
+            self.safe_stopped = False
+
+    def safe_stop(self) -> None:
+        # recorded apart from stop(): ``stopped`` means the agent shut down
+        with self._lock:
+            self.safe_stops += 1
+            self.safe_stopped = True
 
     def stop(self) -> None:
         self.stopped = True

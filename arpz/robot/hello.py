@@ -1,16 +1,24 @@
-"""Bookkeeping of the Hello round trips at the origin robot (seed 001 Fig. 9).
+"""The Hello round trips at the robot (seed 001 Fig. 9): the probe that sends and relays hops,
+and the bookkeeping at the origin.
 
 A Hello is outstanding from the moment it is sent until it comes back (a round trip) or
 ``timeout_s`` passes (lost). A Hello that comes back after it was declared lost, or twice, is
-counted as late, never as a second round trip. Pure logic, thread-safe.
+counted as late, never as a second round trip. The tracker is pure logic, thread-safe.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
+import time
 
-from arpz.messages import HelloStats
+import msgspec
+
+from arpz.channel_io import Outlet
+from arpz.messages import Hello, HelloStats, encode
 from arpz.percentiles import Distribution
+
+log = logging.getLogger(__name__)
 
 
 class HelloTracker:
@@ -77,3 +85,58 @@ class HelloTracker:
                 rtt_ms_p99=self.rtt_ms.quantile(99),
                 rtt_ms_max=self.rtt_ms.max,
             )
+
+
+class HelloProbe:
+    """The robot's end of the Hello round trip (seed 001 Fig. 9): it originates a Hello every
+    period, relays a stage-1 hop as stage 2 (when the CEDDP picked this robot as the relay), and
+    records a stage-3 hop of its own as a round trip. Every hop it puts goes out on the robot's
+    ``sensor/hello`` outlet with a seq of its own (one count for originals and relays)."""
+
+    def __init__(self, robot_id: str, writer: str, outlet: Outlet, timeout_s: float) -> None:
+        self.robot_id = robot_id
+        self.writer = writer
+        self.outlet = outlet
+        self.tracker = HelloTracker(timeout_s)
+        self._lock = threading.Lock()
+        self._origin_seq = 0
+        self._writer_seq = 0
+
+    def send(self, _now_s: float) -> None:
+        """A scheduler job: originate one Hello, and expire the ones past their timeout."""
+        with self._lock:
+            self._origin_seq += 1
+            origin_seq = self._origin_seq
+        t0_ns = time.time_ns()
+        self.tracker.on_sent(origin_seq, t0_ns)
+        self._put(Hello(self.writer, 0, 0, self.robot_id, origin_seq, t0_ns, 0))
+        self.tracker.expire(time.time_ns())
+
+    def on_hop(self, hello: Hello) -> bool:
+        """A hop from the CEDDP; False if it is no hop this robot should get (counted by the
+        caller as a bad command)."""
+        if hello.stage == 1:
+            self.tracker.on_relayed()
+            self._put(msgspec.structs.replace(hello, stage=2))
+            return True
+        if hello.stage == 3 and hello.origin == self.robot_id:
+            self.tracker.on_returned(hello.origin_seq, time.time_ns())
+            return True
+        log.warning("unexpected Hello stage %d from %s", hello.stage, hello.writer)
+        return False
+
+    def drain(self, timeout_s: float) -> None:
+        """At shutdown: wait (bounded) for the Hellos in flight, then count the rest lost."""
+        deadline = time.monotonic() + timeout_s
+        while self.tracker.outstanding and time.monotonic() < deadline:
+            time.sleep(0.01)
+        self.tracker.expire(time.time_ns(), all_outstanding=True)
+
+    def _put(self, hello: Hello) -> None:
+        with self._lock:
+            self._writer_seq += 1
+            seq = self._writer_seq
+        stamped = msgspec.structs.replace(
+            hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns()
+        )
+        self.outlet.send(encode(stamped), stamped.stamp_ns)

@@ -36,6 +36,11 @@ class LocalCache:
         self._last_sent_s = 0.0
         self._has_last = False
 
+    @property
+    def holding(self) -> bool:
+        """A last value is cached (the next equal reading would be held back)."""
+        return self.enabled and self._has_last
+
     def forget(self) -> None:
         """The last value offered could not be sent after all: send the next reading anyway."""
         self._has_last = False

@@ -1,6 +1,6 @@
 """A simulated body inside the robot process: what ``--sim hallway`` runs instead of hardware.
 
-The body (arpz.sim) is stepped by the agent's scheduler thread, the only thread that touches it;
+The body (arpz.mission) is stepped by the agent's scheduler thread, the only thread that touches it;
 velocity commands reach it through a queue filled by the actuation worker. Its 8 LIDAR beams are
 ordinary sensors to the rest of the agent (local cache, publishing, QoS), read from the ranges of
 the last step, quantised to 1 cm as a real LIDAR's output is. The true pose goes out on the
@@ -10,15 +10,16 @@ telemetry key for the judge and the dashboard only.
 from __future__ import annotations
 
 import queue
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
 from arpz.config import SensorConfig, SimConfig
 from arpz.messages import Command
+from arpz.mission import BEAM_ANGLES_DEG, Lidar, RobotBody, SimClock, World, beam_topic
+from arpz.mission.world import BUILTIN_MAPS
 from arpz.robot.actuation import Actuator
 from arpz.robot.sensors.base import SensorDriver
-from arpz.sim import BEAM_ANGLES_DEG, Lidar, RobotBody, SimClock, World, beam_topic
-from arpz.sim.world import BUILTIN_MAPS
 
 
 class SimHost:
@@ -73,7 +74,7 @@ class BeamDriver(SensorDriver):
 class SimActuator(Actuator):
     """Velocity commands ``[v_m_s, omega_rad_s]`` on ``cmd/velocity`` drive the simulated body."""
 
-    commands: ClassVar[list[str]] = ["velocity"]
+    commands: Sequence[str] = ("velocity",)
 
     def __init__(self, host: SimHost) -> None:
         self.host = host
@@ -89,4 +90,8 @@ class SimActuator(Actuator):
         self.host.commands.put((float(value[0]), float(value[1])))
 
     def stop(self) -> None:
+        self.host.commands.put((0.0, 0.0))
+
+    def safe_stop(self) -> None:
+        """Zero velocity, as ``stop`` (the queue is thread-safe; the next step applies it)."""
         self.host.commands.put((0.0, 0.0))

@@ -144,9 +144,17 @@ def _rule(rule_id: str, messages: list[str], flow: str, key_exprs: list[str]) ->
 def access_control(
     fleet: str, robots: list[str], *, by: str, observers: list[str]
 ) -> dict[str, object]:
-    """Deny by default; each robot may send only under its own subtree (not ``cmd``) and receive
-    only its own ``cmd`` (plus the reliable channel's control traffic under its own sensor keys)
-    and the fleet-wide ``ceddp`` keys.
+    """Deny by default; each robot may send only under its own subtree and receive only its own
+    ``cmd`` keys, the reliable channel's control traffic of its own keys and the fleet-wide
+    ``ceddp`` keys.
+
+    Commands travel through the reliable channel, so a robot's command readers must send their
+    ACKNACKs (``cmd/{name}/rel/an/**``) and reader tokens (``cmd/{name}/rel/r/**``), and its
+    reader of the QoS assignment does the same under ``ceddp/qos/rel/``. A robot is allowed
+    exactly the keys it writes, so a wildcard put (``robot/robotN/*/velocity``) is included in no
+    allow rule and falls to the default deny. What only the CEDDP may send is also denied
+    explicitly: the command data (``cmd/*``) and the command writers' own traffic (writer
+    tokens, heartbeats, resends and GAPs).
 
     The CEDDP's own session lives inside the router and is not a remote subject, so no rule
     applies to it: it sees and may send everything. ``by`` is ``cert_common_names`` (mTLS) or
@@ -158,14 +166,39 @@ def access_control(
     fleet_root = f"arpz/{fleet}"
     for robot in robots:
         own = f"{fleet_root}/robot/{robot}"
-        # Zenoh's `**` also matches nothing, so `{own}/**` covers every key of the robot
-        sends = [f"{own}/**"]
-        receives = [f"{own}/cmd/**", f"{own}/sensor/*/rel/**", f"{fleet_root}/ceddp/**"]
+        qos_reader = f"{fleet_root}/ceddp/qos/rel"
+        # Exactly the keys a robot writes (docs/protocol.md), not its whole subtree: an allow
+        # applies to a put whose key expression it includes, so with `{own}/**` a wildcard put
+        # such as `{own}/*/velocity` was allowed while the `cmd/*` deny (which does not include
+        # it) did not apply. Zenoh's `**` also matches nothing: `{own}/stats/**` covers `stats`
+        # and its reliable-channel traffic below it.
+        sends = [
+            *(f"{own}/{kind}/**" for kind in ("sensor", "stats", "announce", "telemetry", "qos")),
+            f"{own}/presence",
+            f"{own}/mode/*",
+            # the command readers' ACKNACKs and tokens; the QoS assignment reader's
+            f"{own}/cmd/*/rel/an/**",
+            f"{own}/cmd/*/rel/r/**",
+            f"{qos_reader}/an/**",
+            f"{qos_reader}/r/**",
+        ]
+        receives = [
+            f"{own}/cmd/**",
+            f"{own}/*/rel/**",
+            f"{own}/*/*/rel/**",
+            f"{fleet_root}/ceddp/**",
+        ]
+        commands_only_from_the_ceddp = [
+            f"{own}/cmd/*",
+            f"{own}/cmd/*/rel/w/**",
+            f"{own}/cmd/*/rel/hb/**",
+            f"{own}/cmd/*/rel/rx/**",
+        ]
         own_rules = [
             _rule(f"{robot}-send", ROBOT_SENDS, "ingress", sends),
             # an explicit deny wins over an allow: only the CEDDP commands a robot
             {
-                **_rule(f"{robot}-no-cmd", ROBOT_SENDS, "ingress", [f"{own}/cmd/**"]),
+                **_rule(f"{robot}-no-cmd", ROBOT_SENDS, "ingress", commands_only_from_the_ceddp),
                 "permission": "deny",
             },
             # the CEDDP's subscriptions (wildcards over the whole fleet, so not inside the robot's

@@ -2,79 +2,51 @@
 
 from __future__ import annotations
 
-import os
+import dataclasses
 import signal
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from tests.support import free_port, wait_until
+from arpz.launch import Proc
+from arpz.netem import Impairments, NetemProxy
+from tests.support import free_port, free_udp_port
 
 
 class Process:
+    """A ``python -m arpz...`` child for the tests: arpz.launch's Proc, without a log file
+    (a failure's message carries the whole output instead)."""
+
     def __init__(self, name: str, args: list[str], cwd: Path) -> None:
         self.name = name
-        self.lines: list[str] = []
-        self.popen = subprocess.Popen(
-            [sys.executable, *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            text=True,
-            cwd=cwd,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
-        )
-        self._reader = threading.Thread(target=self._pump, daemon=True)
-        self._reader.start()
+        self._proc = Proc.spawn(name, args, cwd, log=False)
 
-    def _pump(self) -> None:
-        assert self.popen.stdout is not None
-        with self.popen.stdout:
-            for line in self.popen.stdout:
-                self.lines.append(line)
+    @property
+    def popen(self) -> subprocess.Popen[str]:
+        return self._proc.popen
 
-    def _reap(self) -> None:
-        self._reader.join(timeout=10)
+    @property
+    def lines(self) -> list[str]:
+        return self._proc.lines
 
     def output(self) -> str:
-        return "".join(self.lines)
+        return self._proc.output()
 
     def wait_for(self, needle: str, timeout_s: float = 30) -> None:
-        try:
-            wait_until(
-                lambda: needle in self.output() or self.popen.poll() is not None,
-                timeout_s=timeout_s,
-                what=f"{self.name} to print {needle!r}",
-            )
-        finally:
-            pass
-        assert needle in self.output(), f"{self.name} exited early:\n{self.output()}"
+        self._proc.wait_line(needle, timeout_s)
 
     def interrupt(self, timeout_s: float = 20, sig: int = signal.SIGINT) -> int:
-        if self.popen.poll() is None:
-            self.popen.send_signal(sig)
+        """Stop with ``sig`` and return the exit code; raises LaunchError (after a stack dump and
+        a kill) if it does not stop within ``timeout_s``. The output is complete on return."""
         try:
-            code = self.popen.wait(timeout=timeout_s)
-        except subprocess.TimeoutExpired:
-            # every thread's stack into the output (arpz.cli registers SIGUSR1), then fail
-            self.popen.send_signal(signal.SIGUSR1)
-            time.sleep(0.5)
-            self.kill()
-            raise AssertionError(
-                f"{self.name} did not stop within {timeout_s} s of {sig!r}:\n{self.output()}"
-            ) from None
+            return self._proc.stop(timeout_s, sig=sig)
         finally:
-            self.kill()
-        return code
+            self._proc.kill()
 
     def kill(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait(timeout=10)
-        self._reap()
+        self._proc.kill()
 
 
 def write_robot(
@@ -87,11 +59,13 @@ def write_robot(
     hello: bool = False,
     fleet: str = "itest",
     extra: str = "",
+    top: str = "",
 ) -> Path:
+    """``top``: top-level keys (before any table); ``extra``: tables, appended at the end."""
     path = tmp / f"{robot}.toml"
     text = (
         f'robot_id = "{robot}"\nfleet = "{fleet}"\nconnect = ["{endpoint}"]\n'
-        f'preset = "{preset}"\npreset_rate_hz = {rate_hz}\nstats_period_s = 0.2\n'
+        f'preset = "{preset}"\npreset_rate_hz = {rate_hz}\nstats_period_s = 0.2\n{top}'
         f"[local_cache]\nmax_silence_s = 0.5\n"
     )
     if hello:
@@ -143,3 +117,27 @@ def robots(tmp: Path, configs: list[Path]) -> Iterator[list[Process]]:
 def settle(seconds: float) -> None:
     """Let a fleet run for a while (the one place a fixed wait is the point of the test)."""
     time.sleep(seconds)
+
+
+@dataclasses.dataclass
+class UdpLink:
+    """An emulated radio: a UDP endpoint for the CEDDP to listen on, and a clean ``arpz.netem``
+    proxy in front of it that a robot connects to (start it, then ``impair`` it once the Zenoh
+    session is up: a lost handshake is not what a test is about)."""
+
+    ceddp_endpoint: str
+    robot_endpoint: str
+    proxy: NetemProxy
+
+    def impair(self, impairments: Impairments) -> None:
+        """Both directions impaired from now on (the time so far counts as clean)."""
+        now = dataclasses.replace(impairments, clean_s=self.proxy.elapsed_s)
+        self.proxy.set_impairments(now, now)
+
+
+def udp_link() -> UdpLink:
+    ceddp_endpoint = f"udp/127.0.0.1:{free_udp_port()}"
+    robot_endpoint = f"udp/127.0.0.1:{free_udp_port()}"
+    return UdpLink(
+        ceddp_endpoint, robot_endpoint, NetemProxy(robot_endpoint, ceddp_endpoint, Impairments())
+    )

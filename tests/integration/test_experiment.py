@@ -60,6 +60,12 @@ def test_quick_preset(tmp_path: Path) -> None:
         assert int(row["samples_sent"]) > 0 and int(row["hello_sent"]) > 0
         assert int(row["final_reports"]) == 3, row  # the shutdown runs over clean links
         assert (out / row["rrd"]).stat().st_size > 0
+        # the CEDDP's staleness and the reliable downlink made it into the row
+        p50, p99, top = (float(row[f"staleness_ms_{q}"]) for q in ("p50", "p99", "max"))
+        assert 0 < p50 <= top and p99 <= top, row
+        assert int(row["hello_hops_written"]) > 0, row  # the relay's and the origin's hops
+        assert row["downlink_reconciled"] == "yes", row["downlink_unreconciled"]
+        assert int(row["incompatible_qos"]) == 0 and int(row["samples_refused"]) == 0, row
     by = {(r["network"], r["depth"], r["config"]): r for r in rows}
 
     clean = by[("lan", "1000", "baseline")]
@@ -83,7 +89,7 @@ def test_quick_preset(tmp_path: Path) -> None:
 
     report = (out / "REPORT.md").read_text(encoding="utf-8")
     assert "Every ok row reconciles" in report
-    for metric in ("latency", "loss", "sample_loss"):
+    for metric in ("latency", "loss", "sample_loss", "staleness"):
         assert (out / "figures" / f"experiment_{metric}_lan.png").stat().st_size > 1000
 
     # one recording per cell, side by side in all_runs.rrd, indexed by cell

@@ -11,7 +11,8 @@ import time
 import pytest
 
 from arpz.netem.process import netem_process
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 from tests.support import free_port, free_udp_port, wait_until
 
 pytestmark = pytest.mark.integration

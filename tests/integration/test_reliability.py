@@ -155,7 +155,7 @@ def test_incompatible_qos_pairs_do_not_match_and_both_sides_get_the_event() -> N
         assert sorted(seen) == ["r:reliability", "w:reliability"]
         for _ in range(5):
             w.write(b"x")
-        time.sleep(0.2)
+        time.sleep(0.2)  # deliberately: a while in which nothing may arrive
         assert sink.items == [] and reader.matched_count == 0 and w.matched_count == 0
 
 
@@ -182,14 +182,18 @@ def test_deadline_events_count_the_missed_periods_when_the_writer_pauses() -> No
         ) as w,
     ):
         wait_until(lambda: synced(w), what="match")
-        longest_gap, last = 0.0, time.monotonic()
+        gaps, last = [], time.monotonic()
         for call in [w.write] * 25 + [lambda _: w.assert_unchanged()] * 25:
             call(b"x")  # 50 Hz, then held-back readings: no miss
             time.sleep(0.02)
-            longest_gap, last = max(longest_gap, time.monotonic() - last), time.monotonic()
-        if longest_gap < 0.07:  # a host starved for a whole period would miss for real
-            # without assert_unchanged the reader would miss 5; allow one for a late delivery
-            assert missed_w == [] and sum(missed_r) <= 1
+            gaps.append(time.monotonic() - last)
+            last = time.monotonic()
+        # a host starved for a whole period misses for real: at most one miss per period between
+        # two calls, less 30 ms for the worker to see a call late (so none at all while every
+        # gap is under 70 ms, the usual case); without assert_unchanged the reader would miss 5;
+        # it is allowed one more for a late delivery
+        starved = sum(int((gap + 0.03) / 0.1) for gap in gaps)
+        assert sum(missed_w) <= starved and sum(missed_r) <= starved + 1, (gaps, missed_w, missed_r)
         base_w, base_r = sum(missed_w), sum(missed_r)
         paused_at = time.monotonic()
         time.sleep(0.55)  # a pause of 5.5 periods
@@ -205,7 +209,8 @@ def test_deadline_events_count_the_missed_periods_when_the_writer_pauses() -> No
 _WRITER_PROCESS = textwrap.dedent(
     """
     import sys, time
-    from arpz.transport import SessionSettings, ZenohTransport
+    from arpz.transport import SessionSettings
+    from arpz.zenoh_transport import ZenohTransport
     from arpz.reliability import Writer, QosProfile
     with ZenohTransport.open(SessionSettings(connect=[sys.argv[1]]), timeout_s=5) as t:
         with Writer(t, "arpz/f/robot/r9/sensor/imu", QosProfile()) as w:

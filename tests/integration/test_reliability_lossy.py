@@ -20,7 +20,8 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     Writer,
 )
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 from tests.support import free_port, free_udp_port, wait_until
 
 pytestmark = pytest.mark.integration

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
-from tests.integration.fleet import Process, robots, settle, write_robot
-from tests.support import free_port
+from tests.integration.fleet import Process, robots, write_robot
+from tests.support import free_port, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -21,6 +22,8 @@ def ceddp_config(
         f'fleet = "mesh"\nlisten = ["{endpoint}"]\npartition = "{partition}"\n'
         f'rrd = "{(tmp / f"{name}.rrd").as_posix()}"\n'
         f'summary_json = "{(tmp / f"{name}.json").as_posix()}"\nmetrics_period_s = 0.2\n'
+        # written this often while running too: the test polls it
+        "summary_period_s = 0.2\n"
     )
     if connect:
         text += f'connect = ["{connect}"]\n'
@@ -30,7 +33,28 @@ def ceddp_config(
     return path
 
 
+def _summary(path: Path) -> dict[str, Any]:
+    """A CEDDP's latest summary (written atomically); empty before the first."""
+    try:
+        summary: dict[str, Any] = json.loads(path.read_text())
+    except FileNotFoundError:
+        return {}
+    return summary
+
+
 def test_two_ceddps_share_the_fleet_by_key_space(tmp_path: Path) -> None:
+    def each_ceddp_has_its_robots_and_all_applied_the_qos() -> bool:
+        east, west = _summary(tmp_path / "east.json"), _summary(tmp_path / "west.json")
+        if not east or not west:
+            return False
+        arrived = all(
+            summary["robots"].get(robot, {}).get("received", 0) > 0
+            for summary, robot in ((east, "e1"), (east, "e2"), (west, "w1"))
+        )
+        acks = (east["qos"] or {}).get("acks", {})
+        applied = {robot for robot, ack in acks.items() if ack["status"] == "applied"}
+        return arrived and applied == {"e1", "e2", "w1"}
+
     east = f"tcp/127.0.0.1:{free_port()}"
     west = f"tcp/127.0.0.1:{free_port()}"
     a = Process(
@@ -63,7 +87,10 @@ def test_two_ceddps_share_the_fleet_by_key_space(tmp_path: Path) -> None:
             write_robot(tmp_path, "e2", west, preset="machine3", fleet="mesh"),
         ]
         with robots(tmp_path, configs) as procs:
-            settle(2.0)
+            wait_until(
+                each_ceddp_has_its_robots_and_all_applied_the_qos,
+                what="each CEDDP to receive its robots' samples and all three to apply the QoS",
+            )
             for proc in procs:
                 assert proc.interrupt() == 0, proc.output()
         assert b.interrupt() == 0, b.output()

@@ -15,13 +15,17 @@ import shutil
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
-import msgspec
 import pytest
 
 from arpz.messages import DECODE_ERRORS, STATS_DECODER, Command, RobotStats, Sample, encode
+from arpz.protocol import wire
+from arpz.reliability import Writer
+from arpz.traffic import SENSOR_QOS
 from arpz.transport import TransportError
+from arpz.zenoh_transport import ZenohTransport
 from tests.integration.fleet import robots, settle
 from tests.integration.secure_fleet import (
     SCRIPT,
@@ -207,9 +211,9 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
             forger.declare_token(f"arpz/{FLEET}/robot/robot9/presence")
             for key, payload in _forge(r1).items():  # the observer certificate is read-only
                 observer_writes.put(key, payload)
-            # the positive control on the same link, sent last: it must arrive
-            for seq in (1, 2, 3):
-                forger.put(f"{r2}/sensor/probe", encode(Sample("robot2:0000000probe", seq, 1, 2.0)))
+            # the positive control on the same link, sent last: it must arrive (through the
+            # channel, as everything robot2 may send; a plain put would be refused)
+            _probe(forger, f"{r2}/sensor/probe", 3)
             wait_until(
                 lambda: any(
                     (stats := _stats(p)) is not None and stats.commands_received > 3
@@ -225,7 +229,7 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
                 ),
                 what="the spy to get what robot2 may get",
             )
-            settle(1.0)
+            settle(1.0)  # deliberately: a second more in which robot1's keys must not reach it
             for proc in procs:
                 assert proc.interrupt() == 0, proc.output()
             robot1_out = procs[0].output()
@@ -254,6 +258,15 @@ def test_robot2_cannot_act_as_robot1_and_strangers_cannot_connect(tmp_path: Path
     assert hello["received"] > 0 and hello["sent"] == hello["received"] + hello["lost"]
 
 
+def _probe(session: ZenohTransport, key: str, count: int) -> None:
+    """``count`` samples through a reliable-channel writer, once the CEDDP's reader matched."""
+    with Writer(session, key, SENSOR_QOS) as writer:
+        wait_until(lambda: writer.matched_count > 0, what=f"the CEDDP's reader of {key}")
+        for seq in range(1, count + 1):
+            writer.write(encode(Sample("robot2:0000000probe", seq, 1, 2.0)))
+        assert writer.wait_for_acknowledgments(10.0), f"{key}: probes not acknowledged"
+
+
 def test_user_password_variant_keeps_strangers_out(tmp_path: Path) -> None:
     tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"], usrpwd=True)
     r1 = f"arpz/{FLEET}/robot/robot1"
@@ -280,12 +293,8 @@ def test_user_password_variant_keeps_strangers_out(tmp_path: Path) -> None:
             wait_until(lambda: "robot robot1 joined" in server.output(), what="robot1 joined")
             for key, payload in _forge(r1).items():
                 forger.put(key, payload)
-            for seq in (1, 2):
-                forger.put(
-                    f"arpz/{FLEET}/robot/robot2/sensor/probe",
-                    msgspec.msgpack.encode(["robot2:0000000probe", seq, 1, 2.0]),
-                )
-            settle(1.0)
+            _probe(forger, f"arpz/{FLEET}/robot/robot2/sensor/probe", 2)
+            settle(1.0)  # deliberately: a second in which robot1 must not act on a forged command
             assert procs[0].interrupt() == 0, procs[0].output()
             assert "undecodable command" not in procs[0].output()
         assert server.interrupt() == 0, server.output()
@@ -313,7 +322,7 @@ def test_the_reliable_channel_works_through_the_access_control(tmp_path: Path) -
             for robot, preset in (("robot1", "machine1"), ("robot2", "machine3"))
         ]  # fmt: skip
         with robots(tmp_path, configs) as procs:
-            settle(2.0)
+            settle(2.0)  # deliberately: 2 s of the fleet running through the access control
             for proc in procs:
                 assert proc.interrupt() == 0, proc.output()
         assert server.interrupt() == 0, server.output()
@@ -341,3 +350,96 @@ def test_the_systemd_units_verify(tmp_path: Path) -> None:
     )
     # it exits 0 even for an unknown directive or value, which it only prints
     assert done.returncode == 0 and not (done.stdout + done.stderr).strip(), done.stderr
+
+
+def test_robot2_cannot_speak_as_robot1_through_its_own_keys(tmp_path: Path) -> None:
+    """Issue 15, item 1: robot 2's certificate may put on robot 2's keys only, but the writer guids
+    of robot 1 are in liveliness tokens an observer can read. DATA, heartbeats and GAPs that
+    carry robot 1's guids on robot 2's own keys (allowed by the access control) are refused by
+    the CEDDP's reader as impersonations: robot 1's counts stay exact."""
+    tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"], observers=("operator",))
+    r1 = f"arpz/{FLEET}/robot/robot1"
+    r2 = f"arpz/{FLEET}/robot/robot2"
+    with secure_ceddp(tmp_path, tls, fleet=FLEET, extra=CHANNEL) as (server, endpoint):
+        configs = [
+            write_secure_robot(
+                tmp_path, robot, endpoint, client_config(tls, robot),
+                fleet=FLEET, preset=preset, extra=CHANNEL,
+            )
+            for robot, preset in (("robot1", "machine2"), ("robot2", "machine3"))
+        ]  # fmt: skip
+        writers: list[str] = []
+        readers: list[str] = []
+        with (
+            robots(tmp_path, configs) as procs,
+            open_client(endpoint, client_config(tls, "operator")) as observer,
+            open_client(endpoint, client_config(tls, "robot2")) as forger,
+        ):
+            observer.watch_liveliness(f"{r1}/sensor/*/rel/w/*/*", lambda k, _a: writers.append(k))
+            observer.watch_liveliness(f"{r1}/sensor/*/rel/r/*/*", lambda k, _a: readers.append(k))
+            wait_until(lambda: len(writers) >= 5 and len(readers) >= 5, what="robot1's tokens")
+            forged = 0
+            for token in list(writers):
+                split = wire.split_control_key(token, "w", 2)
+                assert split is not None, token
+                topic, (writer_hex, _qos) = split
+                own = topic.replace(r1, r2, 1)  # the same topic name, under robot 2's keys
+                guid = bytes.fromhex(writer_hex)
+                ceddp_reader = next(
+                    s[1][0]
+                    for k in readers
+                    if (s := wire.split_control_key(k, "r", 2)) is not None and s[0] == topic
+                )
+                stamp = time.time_ns()
+                for seq in (10**6, 10**6 + 1):
+                    forger.put(own, b"\xc1", attachment=wire.encode_data(0, guid, seq, stamp))
+                forger.put(
+                    wire.heartbeat_key(own, writer_hex),
+                    wire.encode_heartbeat(0, guid, 1, 10**12, 1),
+                )
+                gap = wire.encode_gap(guid, bytes.fromhex(ceddp_reader), [(1, 10**6)])
+                for _ in range(5):
+                    forger.put(wire.directed_key(own, ceddp_reader), gap)
+                forged += 8
+            # deliberately 2 s of the robot's stream alongside the forged messages, each to be
+            # refused as it comes
+            settle(2.0)
+            for proc in procs:
+                assert proc.interrupt() == 0, proc.output()
+        assert server.interrupt() == 0, server.output()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    _reconciles(summary, "robot1")
+    channel = summary["ingest"]["channel"]
+    assert channel["impersonations"] == forged, channel
+    assert channel["lost"] == 0 and channel["implausible"] == 0, channel
+
+
+def test_a_wildcard_put_cannot_reach_a_robots_commands(tmp_path: Path) -> None:
+    """Issue 15, item 7: robot 2's certificate puts on key expressions that intersect its own
+    ``cmd/**`` (``robot2/*/velocity``, ``robot2/**``): the access control allows a robot exactly
+    the keys it writes, so these fall to the default deny and no subscriber of robot 2's
+    commands receives them, while its plain sensor put (the positive control) arrives."""
+    tls = make_fleet_tls(tmp_path / "tls", FLEET, ["robot1", "robot2"], observers=("operator",))
+    r2 = f"arpz/{FLEET}/robot/robot2"
+    with secure_ceddp(tmp_path, tls, fleet=FLEET) as (server, endpoint):
+        commands, sensors = Seen(), Seen()
+        with (
+            open_client(endpoint, client_config(tls, "operator")) as observer,
+            open_client(endpoint, client_config(tls, "robot2")) as robot2,
+        ):
+            observer.subscribe(f"{r2}/cmd/**", commands)
+            observer.subscribe(f"{r2}/sensor/**", sensors)
+            # the positive control first: once robot2's own sensor put arrives, the observer's
+            # subscriptions are in place, so a forged command that got through would be seen
+            wait_until(
+                lambda: bool(sensors.seen_keys()) or robot2.put(f"{r2}/sensor/probe", b"x"),
+                timeout_s=10,
+                what="robot2's own sensor put (the positive control)",
+            )
+            payload = encode(Command("ceddp:forged", 1, 1, [9.0, 9.0]))
+            for key in (f"{r2}/*/velocity", f"{r2}/**", f"{r2}/c$*/velocity"):
+                robot2.put(key, payload)
+            settle(0.5)  # deliberately: the time a forged command would take to arrive
+        assert server.interrupt() == 0, server.output()
+    assert set(sensors.seen_keys()) == {f"{r2}/sensor/probe"}
+    assert commands.seen_keys() == [], commands.seen_keys()

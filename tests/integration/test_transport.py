@@ -2,7 +2,9 @@ import threading
 
 import pytest
 
-from arpz.transport import SessionSettings, ZenohTransport
+from arpz.errors import ArpzError
+from arpz.transport import SessionSettings, TransportError
+from arpz.zenoh_transport import ZenohTransport
 from tests.support import client, free_port, router, wait_until
 
 pytestmark = pytest.mark.integration
@@ -64,3 +66,19 @@ def test_undeclaring_a_pull_subscriber_ends_a_recv_blocked_in_another_thread() -
         thread.join(2.0)
         assert not thread.is_alive()
         assert isinstance(got[-1], Exception)
+
+
+def test_zenoh_errors_come_out_of_the_seam_as_transport_errors() -> None:
+    """Callers catch ``TransportError`` (an ``ArpzError``), never ``zenoh.ZError`` or
+    ``Exception``: each call that Zenoh refuses says what was being done."""
+    with router() as (_, endpoint), client(endpoint) as a:
+        for call, what in [
+            (lambda: a.put("bad//key", b"x"), "put on bad//key"),
+            (lambda: a.publisher("bad//key"), "declare a publisher on bad//key"),
+            (lambda: a.subscribe("bad//key", lambda k, p, att: None), "subscribe to bad//key"),
+            (lambda: a.declare_token("bad//key"), "liveliness token bad//key"),
+        ]:
+            with pytest.raises(TransportError, match=what) as caught:
+                call()
+            assert isinstance(caught.value, ArpzError)
+            assert type(caught.value.__cause__).__module__.startswith("zenoh"), caught.value

@@ -58,9 +58,11 @@ def test_missing_file_and_ceddp_config(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="file not found"):
         load_toml(tmp_path / "nope.toml", RobotConfig)
     path = tmp_path / "ceddp.toml"
-    path.write_text("listen = []\n")
-    with pytest.raises(ConfigError, match="listen must list"):
+    path.write_text('listen = ["tcp/0.0.0.0"]\n')
+    with pytest.raises(ConfigError, match=r"listen\[0\] 'tcp/0.0.0.0': needs HOST:PORT"):
         load_toml(path, CeddpConfig)
+    path.write_text("listen = []\n")  # empty: zenoh_config's endpoints, or the default
+    assert load_toml(path, CeddpConfig).listen == []
 
 
 def test_robot_cli_exits_2_with_the_message(tmp_path: Path) -> None:

@@ -4,7 +4,6 @@ The same flows go through a real router and real processes in tests/integration/
 """
 
 import threading
-import time
 
 from arpz.ceddp.server import CeddpServer
 from arpz.config import CeddpConfig, HelloConfig, RobotConfig
@@ -43,7 +42,19 @@ def test_counts_reconcile_and_hello_round_trips() -> None:
     for t in threads:
         t.start()
     wait_until(lambda: agents[0].hello.received >= 10, what="10 Hello round trips")
-    time.sleep(0.3)
+
+    def every_robot_held_back_and_reported() -> bool:
+        return all(
+            sum(c.held_back for c in agent.counters().values()) > 0
+            and (record := server.robots.get(agent.config.robot_id)) is not None
+            and record.stats is not None
+            for agent in agents
+        )
+
+    wait_until(
+        every_robot_held_back_and_reported,
+        what="each robot to hold a reading back and the CEDDP to hold a stats report of each",
+    )
     stop.set()
     for t in threads:
         t.join(5)
@@ -90,8 +101,20 @@ def test_qos_is_assigned_whether_the_announcement_or_the_presence_comes_first() 
         commands=["hello"],
         sensors=[TopicInfo(topic="pir", kind="pir", rate_hz=10, value_type="str")],
     )
-    robot.put("arpz/f/robot/r1/announce", encode(announce))  # before its presence
-    time.sleep(0.2)
+    # through the channel, as a robot reports (a plain put would be refused as INCOMPATIBLE)
+    from arpz.reliability import Writer
+    from arpz.traffic import REPORT_QOS
+
+    writer = Writer(robot, "arpz/f/robot/r1/announce", REPORT_QOS)
+    writer.write(encode(announce))  # before its presence
+
+    def announcement_handled() -> bool:
+        record = server.robots.get("r1")
+        return record is not None and record.announce is not None
+
+    wait_until(announcement_handled, what="the CEDDP to handle r1's announcement")
+    assert not server.robots["r1"].alive  # the announcement did come first
     robot.declare_token("arpz/f/robot/r1/presence")
     wait_until(lambda: {"r1"} in seen, what="an assignment for r1")
+    writer.close()
     server.shutdown()

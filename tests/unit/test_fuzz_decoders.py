@@ -10,6 +10,7 @@ where those bytes land, must count every payload in exactly one place and never 
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 import msgspec
@@ -22,14 +23,14 @@ from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import HelloRelay
 from arpz.messages import DECODE_ERRORS, Hello, Sample, encode
-from arpz.reliability import wire
+from arpz.protocol import wire
+from tests.unit.reliability.test_wire import decoded_again
 
 DECODERS: dict[str, msgspec.msgpack.Decoder[Any]] = {
     name: value
     for name, value in vars(messages).items()
     if isinstance(value, msgspec.msgpack.Decoder)
 }
-WIRE_DECODERS = [wire.decode_heartbeat, wire.decode_acknack, wire.decode_gap]
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 # msgpack-encodable values of every shape: what a client that uses the right format with the
@@ -133,21 +134,57 @@ def test_every_message_decoder_raises_only_decode_errors(payload: bytes) -> None
 @FUZZ
 @given(payload=st.one_of(st.binary(max_size=600), mutated()))
 def test_reliable_channel_wire_decoders_return_none_for_bad_input(payload: bytes) -> None:
-    for decode in WIRE_DECODERS:
-        decode(payload)
-    wire.decode_data(payload)
-    wire.control_kind(payload)
+    # a decoder that does not return None must have read a well-formed message: encoded again,
+    # it is the input itself
+    for kind, again in decoded_again(payload).items():
+        assert again == payload, kind
+    kind = wire.control_kind(payload)
+    assert kind is None or (payload[0] == wire.VERSION and kind == payload[1])
+
+
+@st.composite
+def batches(draw: st.DrawFn) -> tuple[bytes, bytes, wire.Batch | None]:
+    """(payload, attachment, what it must decode to): a batch as a writer encodes it, or one
+    whose lengths were made not to add up (None: it must be refused)."""
+    n = draw(st.integers(1, 40))
+    if draw(st.booleans()):  # one size for all (the decoder's fast path)
+        size = draw(st.integers(0, 8))
+        payloads = draw(st.lists(st.binary(min_size=size, max_size=size), min_size=n, max_size=n))
+    else:
+        payloads = draw(st.lists(st.binary(max_size=20), min_size=n, max_size=n))
+    stamps = draw(st.lists(st.integers(-(2**63), 2**63 - 1), min_size=n, max_size=n))
+    first = draw(st.integers(1, wire.MAX_SEQ - n + 1))
+    writer = draw(st.binary(min_size=8, max_size=8))
+    payload, attachment = wire.encode_batch(0, writer, first, payloads, stamps)
+    expected: wire.Batch | None = wire.Batch(wire.F_BATCH, writer, first, tuple(stamps), payloads)
+    tamper = draw(st.sampled_from(["none", "longer", "shorter", "length"]))
+    if tamper == "longer" or (tamper == "shorter" and not payload):
+        payload += draw(st.binary(min_size=1, max_size=4))
+        expected = None
+    elif tamper == "shorter":
+        payload = payload[: draw(st.integers(0, len(payload) - 1))]
+        expected = None
+    elif tamper == "length":  # one sample's length one more than it is
+        at = wire.BATCH.size + 8 * n + 4 * draw(st.integers(0, n - 1))
+        (length,) = struct.unpack_from("!I", attachment, at)
+        attachment = attachment[:at] + struct.pack("!I", length + 1) + attachment[at + 4 :]
+        expected = None
+    return payload, attachment, expected
+
+
+@FUZZ
+@given(batch=batches())
+def test_the_batch_decoder_accepts_only_batches_whose_lengths_add_up(
+    batch: tuple[bytes, bytes, wire.Batch | None],
+) -> None:
+    payload, attachment, expected = batch
+    assert wire.decode_batch(payload, attachment) == expected
 
 
 @FUZZ
 @given(payload=st.binary(max_size=300), attachment=st.binary(max_size=200))
-def test_the_batch_decoder_accepts_only_batches_whose_lengths_add_up(
-    payload: bytes, attachment: bytes
-) -> None:
-    batch = wire.decode_batch(payload, attachment)
-    if batch is not None:
-        assert b"".join(data for _, data in batch.samples) == payload
-        assert 1 <= len(batch.samples) <= wire.MAX_BATCH and batch.first >= 1
+def test_the_batch_decoder_refuses_random_bytes(payload: bytes, attachment: bytes) -> None:
+    assert wire.decode_batch(payload, attachment) is None
 
 
 class _KeySink:
@@ -160,8 +197,8 @@ class _KeySink:
         self.sent.append(keys.command_key("f", robot, name))
 
 
-def _ingest() -> Ingest:
-    relay = HelloRelay(_KeySink(), "ceddp:0123456789ab", relay="r2")
+def _ingest(sink: _KeySink | None = None) -> Ingest:
+    relay = HelloRelay(sink or _KeySink(), "ceddp:0123456789ab", relay="r2")
     relay.on_robot("r2", True)
     return Ingest("f", relay, CacheControl(enabled=True))
 
@@ -183,15 +220,20 @@ def test_ingest_counts_every_payload_once_and_never_raises(
     m = ingest.topics[("r1", topic)]
     assert m.received + m.decode_errors == len(payloads)
     cc = ingest.cache_counters("r1", topic)
-    if topic != "hello":
-        assert cc.hits + cc.misses == m.received
+    # cache control sees every sensor reading received and no Hello (they are probes)
+    assert cc.hits + cc.misses == (0 if topic == "hello" else m.received)
     assert math.isfinite(m.lost) and m.lost >= 0
 
 
 @pytest.mark.parametrize("origin", ["Robot1", "robot1/cmd", "*", ""])
 def test_a_hello_with_an_invalid_origin_is_counted_not_raised(origin: str) -> None:
-    ingest = _ingest()
+    sink = _KeySink()
+    ingest = _ingest(sink)
     payload = encode(Hello("r1:0123456789ab", 1, 1, origin, 1, 1, 2))
     ingest.handle_sensor("arpz/f/robot/r1/sensor/hello", payload, 2)
     m = ingest.topics[("r1", "hello")]
-    assert m.received + m.decode_errors == 1
+    assert (m.received, m.decode_errors) == (1, 0)  # a well-formed Hello, received
+    relay = ingest.planner
+    assert isinstance(relay, HelloRelay)
+    assert relay.counters.bad_origin == 1  # counted where the origin is checked
+    assert sink.sent == []  # and dropped: no command key built from the bad origin

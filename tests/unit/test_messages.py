@@ -45,8 +45,11 @@ def test_hello_round_trip(
 
 
 def test_sample_is_a_plain_msgpack_array_as_docs_protocol_md_says() -> None:
-    raw = msgspec.msgpack.decode(encode(Sample("robot1:abc", 7, 123, "detect")))
-    assert raw == ["robot1:abc", 7, 123, "detect"]
+    raw = msgspec.msgpack.decode(encode(Sample("robot1:abc", 7, 123, "detect", 100, 90)))
+    assert raw == ["robot1:abc", 7, 123, "detect", 100, 90]
+    # a client that writes the four first fields only is still understood
+    old = SAMPLE_DECODER.decode(msgspec.msgpack.encode(["robot1:abc", 7, 123, "detect"]))
+    assert old == Sample("robot1:abc", 7, 123, "detect", 0, 0)
 
 
 @given(

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from typing import Any, ClassVar
 
+from arpz.errors import ArpzError
 from arpz.messages import SensorValue
 
 #: the Python type of each kind's value, as Table 1 of seed 001 gives it
@@ -60,7 +61,7 @@ class SensorDriver:
         """Release the device; called once when the agent stops."""
 
 
-class DriverValueError(TypeError):
+class DriverValueError(ArpzError, TypeError):
     """A driver returned a value of the wrong type for its kind."""
 
 

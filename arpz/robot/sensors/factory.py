@@ -7,12 +7,13 @@ import zlib
 from pathlib import Path
 
 from arpz.config import SensorConfig
+from arpz.errors import ArpzError
 from arpz.robot.sensors.base import SensorDriver
 from arpz.robot.sensors.replay import ReplayDriver
 from arpz.robot.sensors.simulated import SIMULATED
 
 
-class DriverError(ValueError):
+class DriverError(ArpzError, ValueError):
     """A driver that cannot be created; the message names the sensor and the cause."""
 
 

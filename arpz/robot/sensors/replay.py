@@ -13,11 +13,12 @@ import json
 from pathlib import Path
 from typing import Any, ClassVar
 
+from arpz.errors import ArpzError
 from arpz.messages import SensorValue
 from arpz.robot.sensors.base import VALUE_TYPES, SensorDriver, check_value
 
 
-class TraceError(ValueError):
+class TraceError(ArpzError, ValueError):
     """A trace file that cannot be replayed; the message names the file and the line."""
 
 

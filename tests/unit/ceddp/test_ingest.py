@@ -1,5 +1,5 @@
 from arpz.ceddp.cache_control import CacheControl
-from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.ingest import MAX_WRITERS_PER_TOPIC, Ingest
 from arpz.ceddp.planner import HelloRelay, Planner, Reading
 from arpz.messages import HELLO_DECODER, Hello, Sample, encode
 
@@ -100,3 +100,58 @@ def test_hello_relay_routes_origin_to_relay_and_back() -> None:
     relay.on_robot("r1", True)
     relay.on_hello("r1", Hello("r1:a", 2, 8, "r1", 2, 8, 0))
     assert relay.counters.no_relay == 2 and relay.counters.bad_stage == 1
+
+
+def feed_at(ingest: Ingest, seq: int, arrival_s: float, writer: str = "r1:a") -> None:
+    sample = Sample(writer, seq, 1000, "detect")  # type: ignore[arg-type]
+    ingest.handle_sensor(KEY, encode(sample), int(arrival_s * 1e9))
+
+
+def test_implausible_seqs_are_refused_as_bad_input_not_loss() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=False))
+    for seq in range(1, 6):
+        feed_at(ingest, seq, 10 + seq * 0.01)
+    feed_at(ingest, 10**6, 10.06)  # 10 ms after the last: at most ~10 000 seqs can follow
+    feed_at(ingest, 2**64 - 1, 10.07)  # out of range
+    feed_at(ingest, 0, 10.08)
+    feed_at(ingest, 6, 10.09)
+    feed_at(ingest, 6 + 20_000, 20.09)  # 10 s of silence (an outage): a real jump, real loss
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.lost, m.implausible_seq) == (7, 19_999, 3)
+
+
+def test_a_writer_id_per_sample_is_bounded_per_topic() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=False))
+    for i in range(100):
+        feed_at(ingest, 1, 10 + i * 0.001, writer=f"r1:{i}")
+    m = ingest.topics[("r1", "pir")]
+    assert m.received == MAX_WRITERS_PER_TOPIC and len(m.others) == MAX_WRITERS_PER_TOPIC - 1
+    assert m.writers_over_limit == 100 - MAX_WRITERS_PER_TOPIC
+
+
+def test_samples_larger_than_their_kinds_bound_are_refused_undecoded() -> None:
+    ingest = Ingest(
+        "f", Collect(), CacheControl(enabled=False), max_sample_bytes={"default": 100, "pir": 40}
+    )
+    small, big = (
+        encode(Sample("r1:a", 1, 1000, "detect")),
+        encode(Sample("r1:a", 2, 1000, "x" * 60)),
+    )
+    ingest.handle_sensor(KEY, small, 2_000_000)
+    ingest.handle_sensor(KEY, big, 2_000_000)  # 60+ bytes: within the default bound
+    ingest.set_kinds("r1", {"pir": "pir"})  # announced: its kind's bound applies
+    ingest.handle_sensor(KEY, encode(Sample("r1:a", 3, 1000, "x" * 60)), 2_000_000)
+    ingest.handle_sensor(KEY, b"\xc1" * 101, 2_000_000)
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.oversize, m.decode_errors, m.max_bytes) == (2, 2, 0, 40)
+
+
+def test_samples_the_previous_run_received_are_flagged_not_planned_again() -> None:
+    planner = Collect()
+    ingest = Ingest("f", planner, CacheControl(enabled=False))
+    ingest.load_previous_run({("r1", "pir"): {"r1:a": 6}, ("r1", "x"): {"r1:z": 3}})
+    feed(ingest, KEY, list(range(1, 11)))  # the TRANSIENT_LOCAL history from seq 1 again
+    feed(ingest, KEY, [1, 2], writer="r1:b")  # another incarnation: nothing seen before
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.lost, m.repeated_from_previous_run) == (12, 0, 6)
+    assert [r.seq for r in planner.readings] == [7, 8, 9, 10, 1, 2]

@@ -6,16 +6,27 @@ from pathlib import Path
 
 import pytest
 
+from arpz.ceddp.optimiser import QosLimits, solve_closed
 from arpz.config import CeddpConfig, RobotConfig, from_dict
-from arpz.experiment.fleet import cell_fleet, start_rate, topic_counts
+from arpz.experiment.fleet import (
+    INITIAL_OPT_DEPTH,
+    cell_fleet,
+    check_cells,
+    configured_qos,
+    start_rate,
+    topic_counts,
+)
 from arpz.experiment.presets import PRESETS
 from arpz.experiment.spec import (
     OPT_DEPTH,
+    Cell,
     ExperimentSpec,
     SpecError,
     config_label,
     load_spec,
     normalise_config,
+    opt_depth,
+    opt_rate,
     spec_from_dict,
 )
 
@@ -59,9 +70,104 @@ def test_config_names_normalise() -> None:
     assert normalise_config("OPT+lc") == "lc+opt"
     assert normalise_config("cc+lc+cc") == "lc+cc"
     assert normalise_config("none") == "baseline"
+    assert normalise_config("OptR+LC") == "lc+optr"
+    assert normalise_config("optd+cc+lc") == "lc+cc+optd"
     assert config_label("lc+opt") == "LC + OPT"
+    assert config_label("lc+optr") == "LC + OPT R-only"
+    assert config_label("optd") == "OPT D-only"
     with pytest.raises(ValueError, match="unknown configuration feature 'lcc'"):
         normalise_config("lcc+opt")
+    for both in ("opt+optr", "optr+optd", "lc+opt+optd"):
+        with pytest.raises(ValueError, match="not several"):
+            normalise_config(both)
+
+
+def test_opt_variants_rate_and_depth() -> None:
+    assert [opt_rate(c) for c in ("opt", "lc+optr", "optd", "lc")] == [True, True, False, False]
+    assert [opt_depth(c) for c in ("opt", "optr", "lc+optd", "cc")] == [True, False, True, False]
+
+
+def test_optr_and_optd_cells() -> None:
+    """optr runs at every fixed depth, optd (like opt) at the optimiser's depth only."""
+    cells = _spec(configs=["optr", "lc+optr", "optd", "lc+cc+optd"], repeats=3).cells()
+    for config in ("optr", "lc+optr"):
+        mine = [c for c in cells if c.config == config]
+        assert {c.depth for c in mine} == {1, 10} and len(mine) == 2 * 2 * 3
+    for config in ("optd", "lc+cc+optd"):
+        mine = [c for c in cells if c.config == config]
+        assert {c.depth for c in mine} == {OPT_DEPTH} and len(mine) == 2 * 3
+    # optd alone needs no fixed depth; optr does
+    assert _spec(configs=["optd"], depths=[]).cells()
+    with pytest.raises(SpecError, match="need at least one fixed depth"):
+        _spec(configs=["optr"], depths=[])
+
+
+def _fleet(spec: ExperimentSpec, cell: Cell) -> tuple[CeddpConfig, list[RobotConfig]]:
+    fleet = cell_fleet(
+        spec,
+        cell,
+        listen=["udp/127.0.0.1:7447"],
+        robot_connect={r: "udp/127.0.0.1:7450" for r in spec.robot_names},
+        rrd="x.rrd",
+    )
+    robots = [from_dict(c, RobotConfig, source=r) for r, c in fleet.robots.items()]
+    return from_dict(fleet.ceddp, CeddpConfig, source="ceddp"), robots
+
+
+@pytest.mark.parametrize("preset", ["paper-machines", "paper-simulation"])
+def test_optr_robots_run_at_the_optimisers_rate_with_the_cells_depth(preset: str) -> None:
+    spec = PRESETS[preset]()
+    for rmax in spec.rmax_hz:
+        best = solve_closed(
+            QosLimits(rmax_hz=rmax, rmin_hz=spec.rmin_hz, dmax=spec.dmax), topic_counts(spec)
+        )
+        for depth in spec.depths:
+            ceddp, robots = _fleet(spec, Cell(rmax, depth, "lc+optr", 1, "wifi-bad"))
+            assert not ceddp.qos.enabled  # nothing assigned: the robots keep what they start at
+            assert ceddp.sensor_qos.depth == depth
+            for robot in robots:
+                rate = robot.sim.beam_rate_hz if robot.sim else robot.preset_rate_hz
+                assert rate == pytest.approx(best.rate_hz) and rate < rmax
+                assert robot.sensor_qos is not None and robot.sensor_qos.depth == depth
+                assert robot.local_cache.enabled
+
+
+@pytest.mark.parametrize("preset", ["paper-machines", "paper-simulation"])
+def test_optd_robots_run_at_rmax_with_the_optimisers_depth(preset: str) -> None:
+    spec = PRESETS[preset]()
+    for rmax in spec.rmax_hz:
+        best = solve_closed(
+            QosLimits(rmax_hz=rmax, rmin_hz=spec.rmin_hz, dmax=spec.dmax), topic_counts(spec)
+        )
+        ceddp, robots = _fleet(spec, Cell(rmax, OPT_DEPTH, "optd", 1, "wifi-bad"))
+        assert not ceddp.qos.enabled
+        assert ceddp.sensor_qos.depth == best.depth
+        assert best.depth not in (INITIAL_OPT_DEPTH, *spec.depths)  # really the optimiser's
+        for robot in robots:
+            rate = robot.sim.beam_rate_hz if robot.sim else robot.preset_rate_hz
+            assert rate == rmax
+            assert robot.sensor_qos is not None and robot.sensor_qos.depth == best.depth
+            assert not robot.local_cache.enabled
+        assert configured_qos(spec, Cell(rmax, OPT_DEPTH, "optd", 1, "x")) == (rmax, best.depth)
+
+
+def test_opt_cells_keep_the_ceddps_assignment() -> None:
+    spec = PRESETS["paper-machines"]()
+    ceddp, robots = _fleet(spec, Cell(100.0, OPT_DEPTH, "opt", 1, "wifi-bad"))
+    assert ceddp.qos.enabled and ceddp.qos.rmax_hz == 100.0
+    assert all(r.sensor_qos is not None and r.sensor_qos.depth == INITIAL_OPT_DEPTH for r in robots)
+
+
+def test_infeasible_optimiser_is_a_spec_error_for_optr_and_optd() -> None:
+    # Rmax 5 Hz over T_avg 19/3 topics leaves less than Rmin = 1 Hz: no Opt(R), no Opt(D)
+    for config in ("optr", "optd"):
+        spec = _spec(rmax_hz=[5], configs=[config])
+        with pytest.raises(SpecError, match="no Opt"):
+            check_cells(spec)
+    # OPT itself still runs: the CEDDP reports the optimiser's error and assigns nothing
+    spec = _spec(rmax_hz=[5], configs=["opt"])
+    check_cells(spec)
+    assert start_rate(spec, spec.cells()[0]) == 5.0
 
 
 @pytest.mark.parametrize(
@@ -119,18 +225,23 @@ def test_cell_configs_load_as_real_configs(preset: str) -> None:
             robot_connect={r: "udp/127.0.0.1:7450" for r in spec.robot_names},
             rrd="x.rrd",
         )
+        features = cell.config.split("+")
         ceddp = from_dict(fleet.ceddp, CeddpConfig, source="ceddp")
-        assert ceddp.cache_control == ("cc" in cell.config)
-        assert ceddp.qos.enabled == ("opt" in cell.config)
+        assert ceddp.cache_control == ("cc" in features)
+        assert ceddp.qos.enabled == ("opt" in features)  # not for optr / optd
+        assert ceddp.sensor_qos.depth == configured_qos(spec, cell)[1]
         for robot, conf in fleet.robots.items():
             loaded = from_dict(conf, RobotConfig, source=robot)
-            assert loaded.local_cache.enabled == ("lc" in cell.config)
+            assert loaded.local_cache.enabled == ("lc" in features)
             assert loaded.sensor_qos is not None
             assert loaded.sensor_qos.history.name == "KEEP_LAST"
+            rate = loaded.sim.beam_rate_hz if loaded.sim else loaded.preset_rate_hz
             if cell.depth != OPT_DEPTH:
                 assert loaded.sensor_qos.depth == cell.depth
-                rate = loaded.sim.beam_rate_hz if loaded.sim else loaded.preset_rate_hz
+            if not opt_rate(cell.config):
                 assert rate == cell.rmax_hz  # DEADLINE Rmax: every topic at Rmax
+            else:
+                assert rate < cell.rmax_hz
 
 
 def test_opt_cells_start_at_the_optimisers_rate() -> None:
@@ -141,3 +252,24 @@ def test_opt_cells_start_at_the_optimisers_rate() -> None:
     assert start_rate(spec, opt) == pytest.approx(281 / 19)
     sim = PRESETS["paper-simulation"]()
     assert topic_counts(sim) == [10, 10, 10]
+
+
+def test_traffic_reaches_both_sides_configs() -> None:
+    spec = _spec(traffic={"plain_downlink": True, "command_qos": {"depth": 1, "lifespan_s": 0.1}})
+    check_cells(spec)
+    ceddp, robots = _fleet(spec, spec.cells()[0])
+    assert ceddp.plain_downlink and ceddp.command_qos.depth == 1
+    assert robots and all(r.plain_downlink and r.command_qos.lifespan_s == 0.1 for r in robots)
+
+
+@pytest.mark.parametrize(
+    ("traffic", "message"),
+    [
+        ({"plain_downlnk": True}, "plain_downlnk"),
+        ({"sensor_qos": {"depth": 3}}, "sensor_qos"),
+        ({"command_qos": {"depth": 0}}, "command_qos"),
+    ],
+)
+def test_traffic_errors_name_the_key(traffic: dict[str, object], message: str) -> None:
+    with pytest.raises(SpecError, match=message):
+        check_cells(_spec(traffic=traffic))

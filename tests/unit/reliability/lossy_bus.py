@@ -15,11 +15,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from arpz.memory_transport import key_matches
-from arpz.reliability.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
-from arpz.reliability.events import DataInfo
-from arpz.reliability.reader_machine import ReaderMachine
-from arpz.reliability.timers import FakeClock
-from arpz.reliability.writer_machine import WriterMachine
+from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
+from arpz.protocol.events import DataInfo
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import FakeClock
+from arpz.protocol.writer_machine import WriterMachine
 
 Machine = WriterMachine | ReaderMachine
 

@@ -8,13 +8,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.reliability import Writer, wire
-from arpz.reliability._common import new_guid
-from arpz.reliability.actions import Send
-from arpz.reliability.qos import HistoryPolicy, QosProfile
-from arpz.reliability.reader_machine import ReaderMachine
-from arpz.reliability.timers import FakeClock
-from arpz.reliability.writer_machine import BATCH_MAX_BYTES, WriterMachine
+from arpz.protocol import wire
+from arpz.protocol._common import new_guid
+from arpz.protocol.actions import Send
+from arpz.protocol.qos import HistoryPolicy, QosProfile
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import FakeClock
+from arpz.protocol.writer_machine import BATCH_MAX_BYTES, WriterMachine
+from arpz.reliability import Writer
 from tests.unit.reliability.lossy_bus import Link, LossyBus, publish
 
 G = b"\x07" * 8

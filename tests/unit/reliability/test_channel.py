@@ -9,6 +9,7 @@ import time
 import pytest
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.protocol import wire
 from arpz.reliability import (
     QOS_RELIABLE_ALL,
     DataInfo,
@@ -20,9 +21,9 @@ from arpz.reliability import (
     ReliabilityPolicy,
     Writer,
     WriterEventCallbacks,
-    wire,
 )
 from arpz.reliability._channel import _Turns
+from arpz.transport import TransportError
 from tests.support import wait_until
 
 
@@ -220,7 +221,7 @@ class _BrokenPull:
         return None
 
     def recv(self) -> tuple[str, bytes, bytes | None]:
-        raise RuntimeError("session closed under the reader")
+        raise TransportError("session closed under the reader")
 
     def undeclare(self) -> None:
         pass

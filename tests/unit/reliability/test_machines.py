@@ -7,13 +7,19 @@ import random
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from arpz.reliability import wire
-from arpz.reliability._common import new_guid
-from arpz.reliability.actions import Send
-from arpz.reliability.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
-from arpz.reliability.reader_machine import ReaderMachine
-from arpz.reliability.timers import FakeClock
-from arpz.reliability.writer_machine import WriterMachine
+from arpz.protocol import wire
+from arpz.protocol._common import new_guid
+from arpz.protocol.actions import Send
+from arpz.protocol.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    LivelinessPolicy,
+    QosProfile,
+    ReliabilityPolicy,
+)
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import FakeClock
+from arpz.protocol.writer_machine import WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node, publish
 
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -39,7 +45,7 @@ def check_invariant(reader: Node, writer: Node) -> list[int]:
     assert seqs == sorted(set(seqs)), "delivered out of order or twice"
     start = r.match_start(w.hex)
     assert start is not None, "never synced"
-    proxy = r.writers[w.guid]
+    proxy = r.writers[(w.topic, w.guid)]
     assert proxy.delivered + proxy.lost == w.last_seq - start + 1
     assert all(s >= start for s in seqs)
     for payload, info in reader.delivered:
@@ -202,7 +208,7 @@ def test_a_late_reader_asks_again_for_samples_it_had_to_ignore_before_its_sync()
     assert isinstance(r, ReaderMachine)
     while not r.writers:
         bus.step(0.0005)
-    assert not r.writers[writer.machine.guid].synced
+    assert not r.writers[(writer.machine.topic, writer.machine.guid)].synced
     bus.run(late, r.on_data("t/a", held[1].payload, held[1].attachment))
     assert r.stats().bad_input == 12 - 1 - 5  # beyond the pre-SYNC buffer of depth 5
     bus.run_for(1.0)
@@ -240,6 +246,8 @@ def test_best_effort_counts_a_batch_lost_at_the_end_of_a_stream() -> None:
 
 
 def test_a_forged_heartbeat_skips_a_best_effort_reader_one_window_at_most() -> None:
+    """A heartbeat claiming more than the writer can have written since it was last heard is
+    refused outright; a plausible one is trusted one window past the data, no further."""
     qos = QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5)
     bus, _ = world(3, Link())
     writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
@@ -249,7 +257,11 @@ def test_a_forged_heartbeat_skips_a_best_effort_reader_one_window_at_most() -> N
     bus.run_for(0.1)
     r, w = reader.machine, writer.machine
     assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
-    forged = wire.encode_heartbeat(0, w.guid, 1, 10**12, 999)
+    impossible = wire.encode_heartbeat(0, w.guid, 1, 10**12, 999)
+    bus.run(reader, r.on_heartbeat(wire.heartbeat_key("t/a", w.hex), impossible, None))
+    bus.run_for(0.1)
+    assert r.lost == 0 and r.implausible == 1
+    forged = wire.encode_heartbeat(0, w.guid, 1, 3 + 50_000, 999)  # within 0.1 s at 1 MHz
     for _ in range(5):  # repeated: still one window past what the writer proved it sent
         bus.run(reader, r.on_heartbeat(wire.heartbeat_key("t/a", w.hex), forged, None))
         bus.run_for(0.1)
@@ -301,9 +313,7 @@ def test_deadline_misses_are_counted_per_period_and_unchanged_keeps_the_topic_al
 
 def test_liveliness_changes_when_the_writer_dies_and_when_a_manual_lease_expires() -> None:
     qos = QosProfile(
-        liveliness=__import__(
-            "arpz.reliability.qos"
-        ).reliability.qos.LivelinessPolicy.MANUAL_BY_TOPIC,
+        liveliness=LivelinessPolicy.MANUAL_BY_TOPIC,
         lease_duration_s=0.2,
     )
     bus, _ = world(1, Link())

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.reliability.qos import (
+from arpz.protocol.qos import (
     QOS_DEFAULT,
     QOS_SENSOR_DATA,
     DurabilityPolicy,

@@ -2,9 +2,11 @@
 
 import pytest
 
-from arpz.reliability import QOS_DEFAULT, FakeClock, WriterMachine
-from arpz.reliability.actions import Notify
-from arpz.reliability.events import DeadlineMissedStatus
+from arpz.channel_io import Inlet, Outlet
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.protocol.actions import Notify
+from arpz.protocol.events import DeadlineMissedStatus
+from arpz.reliability import QOS_DEFAULT, FakeClock, QosProfile, WriterMachine
 
 
 def machine() -> tuple[WriterMachine, FakeClock]:
@@ -39,3 +41,24 @@ def test_an_invalid_depth_is_refused() -> None:
     writer, _ = machine()
     with pytest.raises(ValueError):
         writer.retune(depth=0, deadline_s=0.0)
+
+
+def test_the_qos_in_force_lives_in_one_place_and_every_view_of_it_follows_retune() -> None:
+    """Issue 16: ``Writer.qos`` was set once and never updated by ``retune``; the QoS in force
+    now lives in the machine and the Outlet, the Writer and the Inlet, the Reader read it."""
+    bus = MemoryBus()
+    outlet = Outlet(MemoryTransport(bus), "t/x", QosProfile(depth=10))
+    inlet = Inlet(MemoryTransport(bus), "t/x", QosProfile(depth=10), lambda k, p: None)
+    try:
+        outlet.retune(depth=3, deadline_s=0.5)
+        inlet.reader.retune(depth=3)  # type: ignore[union-attr]
+        assert outlet.writer is not None and inlet.reader is not None
+        for qos in (outlet.qos, outlet.writer.qos, inlet.qos, inlet.reader.qos):
+            assert qos is not None and qos.depth == 3, qos
+        assert outlet.qos is not None and outlet.qos.deadline_s == 0.5
+        plain = Outlet(MemoryTransport(bus), "t/y", None)
+        assert plain.qos is None
+        plain.close()
+    finally:
+        outlet.close()
+        inlet.close()

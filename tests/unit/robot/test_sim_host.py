@@ -14,7 +14,12 @@ def test_velocity_commands_drive_the_body_and_beams_are_published() -> None:
     bus = MemoryBus()
     agent = RobotAgent(
         RobotConfig(
-            robot_id="robot1", fleet="f", sim=SimConfig(world="hallway_small", noise_std_m=0.0)
+            robot_id="robot1",
+            fleet="f",
+            sim=SimConfig(world="hallway_small", noise_std_m=0.0),
+            # plain Zenoh on both sides: this test is about the body, not the channel
+            reliability="none",
+            match_timeout_s=0.2,
         ),
         MemoryTransport(bus),
     )

@@ -1,0 +1,331 @@
+"""The CEDDP's control path: what the robots report and whether they are there.
+
+``ControlWorker`` owns the fleet's registry (one ``RobotRecord`` per robot) and the thread that
+keeps it: the robots' reports (stats, announcements, QoS acks, telemetry), their presence and
+mode tokens, INCOMPATIBLE_QOS, and QoS requests. They arrive by callback, wait in a bounded
+``ControlQueue`` (the latest per key), and run one at a time on the control worker, under the
+ingest lock (the summary and the metrics read the registry under it too). What they change in
+the fleet follows from here: a robot's command writers open and close, the cache forgets a robot
+that left, and problem (6) is re-solved when the fleet's topics change.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from arpz import keys
+from arpz.ceddp.control_queue import ControlQueue
+from arpz.ceddp.downlink import Downlink
+from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.planner import Planner
+from arpz.ceddp.qos_control import QosController
+from arpz.ceddp.summary import RobotReport
+from arpz.channel_io import Outlet
+from arpz.config import CeddpConfig
+from arpz.messages import (
+    ANNOUNCE_DECODER,
+    DECODE_ERRORS,
+    QOS_ACK_DECODER,
+    STATS_DECODER,
+    TELEMETRY_DECODER,
+    Announce,
+    RobotStats,
+    encode,
+)
+from arpz.reliability import QosPolicyKind, Reader
+from arpz.throttled_log import ThrottledLog
+
+log = logging.getLogger(__name__)
+#: bad reports, refused items and failures: one line per cause per 10 s, never one per message
+throttled = ThrottledLog(log)
+
+REPORT, PRESENCE, QOS_REQUEST, MODE, INCOMPATIBLE = 1, 2, 3, 4, 5
+KIND_NAMES = {
+    REPORT: "report",
+    PRESENCE: "presence",
+    QOS_REQUEST: "qos_request",
+    MODE: "mode",
+    INCOMPATIBLE: "incompatible",
+}
+_REPORT_KINDS = ("stats", "announce", "qos", "telemetry")
+#: incarnations of one robot reported separately in the summary (the ingest tracks as many)
+MAX_INCARNATIONS = 16
+
+#: (text, level) -> None: a fleet event, for the log, the dashboard and the summary
+EventSink = Callable[[str, str], None]
+
+
+@dataclass
+class RobotRecord:
+    """What the CEDDP knows of one robot beyond its topics."""
+
+    alive: bool = False
+    joins: int = 0
+    leaves: int = 0
+    stats: RobotStats | None = None
+    announce: Announce | None = None
+    #: eq. 1 of seed 001 for this robot's current incarnation (None while it is away)
+    topic_count: int | None = None
+    #: a report that could not be decoded
+    control_decode_errors: int = 0
+    #: INCOMPATIBLE_QOS with this robot ("what: why"); it stays out of the optimiser meanwhile
+    incompatible: list[str] = field(default_factory=list)
+    #: the robot's mode token ("channel" / "none"), None until seen
+    mode: str | None = None
+    #: the last report of each incarnation, at most MAX_INCARNATIONS (the oldest dropped)
+    incarnations: dict[str, RobotStats] = field(default_factory=dict)
+
+    def as_report(self) -> RobotReport:
+        return RobotReport(
+            alive=self.alive,
+            joins=self.joins,
+            leaves=self.leaves,
+            control_decode_errors=self.control_decode_errors,
+            stats=self.stats,
+            incompatible=list(self.incompatible),
+            incarnations=dict(self.incarnations),
+        )
+
+
+@dataclass
+class ControlCounters:
+    unknown_control_keys: int = 0
+    #: reports refused before decoding for exceeding max_report_bytes
+    reports_oversize: int = 0
+    #: reports of robots beyond max_robots (invented ids): refused, no record made
+    reports_over_limit: int = 0
+
+
+class ControlWorker:
+    """Thread: ``run`` is the control worker (``arpz-control``); the ``on_*`` methods are Zenoh
+    callbacks and only queue."""
+
+    def __init__(
+        self,
+        config: CeddpConfig,
+        ingest: Ingest,
+        sink: Downlink,
+        planners: list[Planner],
+        qos: QosController | None,
+        event: EventSink,
+    ) -> None:
+        self.config = config
+        self.ingest = ingest
+        self.sink = sink
+        self.planners = planners
+        self.qos = qos
+        self._event = event
+        self.robots: dict[str, RobotRecord] = {}
+        self.counters = ControlCounters()
+        self.queue = ControlQueue(config.control_queue_limit)
+        #: where assignments go (opened by the server when it runs QoS control)
+        self.qos_out: Outlet | None = None
+        #: the CEDDP's sensor reader, which follows the assigned depth (channel mode)
+        self.sensor_reader: Reader | None = None
+
+    # -- callbacks: only queue ------------------------------------------------------------------
+
+    def on_report(self, key: str, payload: bytes) -> None:
+        cfg = self.config
+        if len(payload) > cfg.max_report_bytes:
+            self.counters.reports_oversize += 1
+            throttled.warning(
+                "oversize report",
+                "report of %d bytes on %s refused (max_report_bytes %d)",
+                len(payload),
+                key,
+                cfg.max_report_bytes,
+            )
+            return
+        parsed = keys.parse_robot_key(key)
+        if parsed is None or parsed[1] not in _REPORT_KINDS or parsed[2]:
+            # counted here, not queued: the queue keeps one item per key
+            self.counters.unknown_control_keys += 1
+            return
+        self.put(REPORT, key, payload)
+
+    def on_presence(self, key: str, alive: bool) -> None:
+        self.put(PRESENCE, key, b"\x01" if alive else b"")
+
+    def on_mode(self, key: str, alive: bool) -> None:
+        self.put(MODE, key, b"\x01" if alive else b"")
+
+    def on_qos_request(self, key: str, payload: bytes, _attachment: bytes | None) -> None:
+        self.put(QOS_REQUEST, key, payload)
+
+    def on_incompatible(self, key: str, policy: QosPolicyKind) -> None:
+        self.put(INCOMPATIBLE, key, policy.value.encode())
+
+    def put(self, kind: int, key: str, payload: bytes) -> None:
+        if not self.queue.put(kind, key, payload):
+            throttled.warning(
+                "control queue full",
+                "%s on %s dropped: %d reports and events already wait (control_queue_limit)",
+                KIND_NAMES[kind],
+                key,
+                self.queue.limit,
+            )
+
+    # -- the worker -----------------------------------------------------------------------------
+
+    def run(self) -> None:
+        """Until the queue is closed and drained."""
+        while (item := self.queue.get()) is not None:
+            kind, key, payload = item
+            with self.ingest.lock:
+                try:
+                    if kind == REPORT:
+                        self._handle_report(key, payload)
+                    elif kind == PRESENCE:
+                        self._handle_presence(key, bool(payload))
+                    elif kind == MODE:
+                        self._handle_mode(key, bool(payload))
+                    elif kind == INCOMPATIBLE:
+                        self.mark_incompatible(key, payload.decode())
+                    else:
+                        self.reassign_qos("requested", force=True)
+                except Exception:  # a bug in one handler must not stop the control worker
+                    throttled.exception(
+                        f"control {kind} failed", "control message failed on %s", key
+                    )
+
+    def _handle_report(self, key: str, payload: bytes) -> None:
+        parsed = keys.parse_robot_key(key)
+        if parsed is None or parsed[1] not in _REPORT_KINDS or parsed[2]:
+            self.counters.unknown_control_keys += 1
+            return
+        robot, kind, _ = parsed
+        record = self.robots.get(robot)
+        if record is None:
+            if len(self.robots) >= self.config.max_robots:
+                self.counters.reports_over_limit += 1
+                return
+            record = self.robots.setdefault(robot, RobotRecord())
+        try:
+            if kind == "stats":
+                stats = STATS_DECODER.decode(payload)
+                if record.stats is None or not record.stats.final or stats.final:
+                    record.stats = stats
+                known = record.incarnations.get(stats.incarnation)
+                if known is None or not known.final or stats.final:
+                    record.incarnations[stats.incarnation] = stats
+                    while len(record.incarnations) > MAX_INCARNATIONS:
+                        del record.incarnations[next(iter(record.incarnations))]
+            elif kind == "announce":
+                record.announce = ANNOUNCE_DECODER.decode(payload)
+                self.ingest.set_kinds(robot, {t.topic: t.kind for t in record.announce.sensors})
+                if record.alive:
+                    self.sink.open_robot(robot, list(record.announce.commands))
+                count = len(record.announce.sensors) + len(record.announce.commands)
+                if count != record.topic_count:
+                    record.topic_count = count
+                    self.reassign_qos(f"robot {robot} uses {count} topics")
+            elif kind == "telemetry":
+                telemetry = TELEMETRY_DECODER.decode(payload)
+                for planner in self.planners:
+                    planner.on_telemetry(robot, telemetry)
+            elif self.qos is not None:
+                self._event(self.qos.on_ack(QOS_ACK_DECODER.decode(payload)), "INFO")
+        except DECODE_ERRORS as exc:
+            record.control_decode_errors += 1
+            throttled.warning(
+                f"undecodable {kind} from {robot}",
+                "undecodable %s report from %s (%d so far): %s",
+                kind,
+                robot,
+                record.control_decode_errors,
+                exc,
+            )
+
+    def _handle_mode(self, key: str, alive: bool) -> None:
+        """A robot's mode token: INCOMPATIBLE_QOS when it is not this CEDDP's mode."""
+        parsed = keys.parse_robot_key(key)
+        if parsed is None or not alive or len(self.robots) >= self.config.max_robots:
+            return
+        robot, _, mode = parsed
+        record = self.robots.setdefault(robot, RobotRecord())
+        record.mode = mode
+        if mode != self.config.reliability:
+            self.mark_incompatible(
+                key,
+                f"mode: robot '{mode}', CEDDP '{self.config.reliability}' (set reliability the "
+                "same on both sides)",
+            )
+
+    def mark_incompatible(self, key: str, why: str) -> None:
+        """INCOMPATIBLE_QOS with the robot of ``key``: reported, and out of the optimiser."""
+        parsed = keys.parse_robot_key(key)
+        if parsed is None:
+            return
+        robot = parsed[0]
+        record = self.robots.get(robot)
+        if record is None:
+            if len(self.robots) >= self.config.max_robots:
+                return
+            record = self.robots.setdefault(robot, RobotRecord())
+        what = "/".join(key.split("/")[4:]) or "mode"
+        text = f"{what}: {why}"
+        if text in record.incompatible or len(record.incompatible) >= 16:
+            return
+        record.incompatible.append(text)
+        self._event(f"robot {robot}: INCOMPATIBLE_QOS {text}; its data is refused", "ERROR")
+        if record.topic_count is not None and len(record.incompatible) == 1:
+            self.reassign_qos(f"robot {robot} is incompatible")
+
+    def _handle_presence(self, key: str, alive: bool) -> None:
+        parsed = keys.parse_robot_key(key)
+        if parsed is None:
+            return
+        robot = parsed[0]
+        record = self.robots.setdefault(robot, RobotRecord())
+        if record.alive == alive:
+            return
+        record.alive = alive
+        if alive:
+            record.joins += 1
+        else:
+            record.leaves += 1
+        self._event(f"robot {robot} {'joined' if alive else 'left'}", "INFO" if alive else "WARN")
+        if alive and record.announce is not None:
+            self.sink.open_robot(robot, list(record.announce.commands))
+        if not alive:
+            self.sink.close_robot(robot)
+            self.ingest.cache_control.forget(robot)
+            if record.topic_count is not None:
+                record.topic_count = None
+                self.reassign_qos(f"robot {robot} left")
+        elif record.topic_count is not None:
+            # its announcement came first (reports and presence travel separately)
+            self.reassign_qos(f"robot {robot} joined with {record.topic_count} topics")
+        for planner in self.planners:
+            planner.on_robot(robot, alive)
+
+    def reassign_qos(self, reason: str, *, force: bool = False) -> None:
+        """Re-solve problem (6) for the robots present now; publish if the answer changed."""
+        if self.qos is None:
+            return
+        topics = {
+            robot: record.topic_count
+            for robot, record in self.robots.items()
+            if record.alive and record.topic_count is not None and not record.incompatible
+        }
+        before = len(self.qos.errors)
+        message = self.qos.update(topics, reason, force=force)
+        if message is None:
+            if len(self.qos.errors) > before:
+                self._event(self.qos.errors[-1], "ERROR")
+            return
+        assert self.qos_out is not None, "the server opens the assignment writer at start"
+        self.qos_out.send(encode(message), message.stamp_ns)
+        if self.sensor_reader is not None and message.robots:
+            # both ends of every sensor topic use the assigned depth (the reader's window holds
+            # the deepest writer's history)
+            self.sensor_reader.retune(depth=max(q.depth for q in message.robots.values()))
+        rates = ", ".join(
+            f"{robot} {q.rate_hz:.2f} Hz D={q.depth}" for robot, q in message.robots.items()
+        )
+        self._event(
+            f"QoS epoch {message.epoch} ({reason}): T_avg={message.t_avg:.3f}, {rates}", "INFO"
+        )

@@ -1,0 +1,164 @@
+"""CEDDP -> robot: one reliable-channel writer per robot and command key, and the QoS assignment.
+
+Why one writer per (robot, command) rather than one per command family: a writer's history, its
+acknowledgements and its sequence numbers are per key, so a robot that is slow, far or gone
+affects only its own writer (KEEP_LAST overwrites and GAPs are its own), and the robot's reader
+reconciles exactly against what was written for it. The writers are opened when the robot
+announces the commands it acts on, and closed when it leaves, so state stays bounded by the
+robots present.
+
+Every command either reaches the robot's reader or is counted: written with no matched reader
+(``unmatched``), refused because the robot never announced the command (``refused``), a KEEP_ALL
+history full (``write_failures``); the robot reports what it delivered, lost and dropped past the
+lifespan, and the summary reconciles the two (arpz/ceddp/summary.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from dataclasses import dataclass
+
+from arpz import keys
+from arpz.channel_io import Outlet
+from arpz.config import TrafficQos
+from arpz.transport import Transport
+
+log = logging.getLogger(__name__)
+
+#: the Hello hop goes down on ``cmd/hello`` with the Hello profile (one more topic in seed 001)
+
+
+@dataclass
+class DownlinkCounters:
+    """One robot's command key, as the CEDDP wrote it."""
+
+    #: messages written (with or without a matched reader)
+    written: int = 0
+    #: written while no reader of the robot was matched: reached no one
+    unmatched: int = 0
+    #: refused because the robot does not act on this command (it never announced it)
+    refused: int = 0
+    write_failures: int = 0
+    #: answered by GAP (a reader asked for what KEEP_LAST had overwritten)
+    gapped: int = 0
+    retransmitted: int = 0
+    #: the channel writer's guid and its last seq (what the robot's reader reconciles against)
+    guid: str = ""
+    last_seq: int = 0
+
+    @property
+    def sent_matched(self) -> int:
+        """What the robot's reader must account for: delivered + lost + lifespan expired."""
+        return self.written - self.unmatched - self.write_failures
+
+
+class Downlink:
+    """The ``CommandSink`` of the planners: ``send(robot, name, payload)``, thread-safe."""
+
+    def __init__(
+        self, transport: Transport, fleet: str, traffic: TrafficQos, *, max_per_robot: int = 64
+    ) -> None:
+        self._transport = transport
+        #: writers one robot may make the CEDDP open (each is a thread and a token): a robot
+        #: announcing thousands of command names must not exhaust the CEDDP
+        self._max_per_robot = max_per_robot
+        #: command names refused per robot because of that bound
+        self.over_limit: dict[str, int] = {}
+        self._fleet = fleet
+        self._traffic = traffic
+        self._lock = threading.Lock()
+        self._outlets: dict[tuple[str, str], Outlet] = {}
+        #: per (robot, command); kept after a robot leaves, for the summary
+        self.counters: dict[tuple[str, str], DownlinkCounters] = {}
+
+    def open_robot(self, robot: str, commands: list[str]) -> None:
+        """The robot acts on ``commands`` (its announcement): open a writer for each new one."""
+        for name in commands:
+            try:
+                key = keys.command_key(self._fleet, robot, name)
+            except keys.KeyExprError:
+                log.warning("robot %s announced an invalid command name %r", robot, name)
+                continue
+            with self._lock:
+                if (robot, name) in self._outlets:
+                    continue
+                if sum(1 for r, _ in self._outlets if r == robot) >= self._max_per_robot:
+                    seen = self.over_limit.get(robot, 0)
+                    self.over_limit[robot] = seen + 1
+                    if not seen:
+                        log.warning(
+                            "robot %s announced more than %d commands: the rest are refused",
+                            robot,
+                            self._max_per_robot,
+                        )
+                    continue
+            kind = "hello" if name == keys.HELLO else "command"
+            qos = self._traffic.profile(kind, downlink=True)
+            outlet = Outlet(self._transport, key, qos, block=False)
+            with self._lock:
+                if (robot, name) in self._outlets:  # opened meanwhile by another thread
+                    stale = outlet
+                else:
+                    self._outlets[(robot, name)] = outlet
+                    self.counters.setdefault((robot, name), DownlinkCounters())
+                    stale = None
+            if stale is not None:
+                stale.close(0.0)
+
+    def close_robot(self, robot: str) -> None:
+        """The robot left: close its writers (a returning robot announces again)."""
+        with self._lock:
+            mine = [k for k in self._outlets if k[0] == robot]
+            outlets = [self._outlets.pop(k) for k in mine]
+            for k, outlet in zip(mine, outlets, strict=True):
+                self._settle(k, outlet)
+        for outlet in outlets:
+            outlet.close(0.0)
+
+    def send(self, robot: str, name: str, payload: bytes) -> None:
+        with self._lock:
+            outlet = self._outlets.get((robot, name))
+            counters = self.counters.setdefault((robot, name), DownlinkCounters())
+            if outlet is None:
+                counters.refused += 1
+                if counters.refused in (1, 100) or counters.refused % 10_000 == 0:
+                    log.warning(
+                        "command %s for robot %s refused (#%d): the robot has not announced it",
+                        name,
+                        robot,
+                        counters.refused,
+                    )
+                return
+            counters.written += 1
+        before = outlet.unmatched
+        ok = outlet.send(payload, time.time_ns(), count_unmatched=True)
+        with self._lock:
+            counters.unmatched += outlet.unmatched - before
+            if not ok:
+                counters.write_failures += 1
+
+    def _settle(self, key: tuple[str, str], outlet: Outlet) -> None:
+        """Copy the writer's own counters into the summary's (call with the lock held)."""
+        c = self.counters[key]
+        stats = outlet.stats()
+        if stats is None or outlet.writer is None:
+            return
+        c.gapped, c.retransmitted = stats.lost, stats.retransmitted
+        c.guid, c.last_seq = outlet.writer.guid, stats.sent
+
+    def snapshot(self) -> dict[tuple[str, str], DownlinkCounters]:
+        with self._lock:
+            for key, outlet in self._outlets.items():
+                self._settle(key, outlet)
+            return {k: DownlinkCounters(**vars(v)) for k, v in self.counters.items()}
+
+    def close(self) -> None:
+        with self._lock:
+            items = list(self._outlets.items())
+            for key, outlet in items:
+                self._settle(key, outlet)
+            self._outlets.clear()
+        for _, outlet in items:
+            outlet.close(0.2)

@@ -1,0 +1,183 @@
+"""The CEDDP's sensor path: the robots' samples into ``Ingest``, by one of two roads.
+
+Through the reliable channel (``reliability = "channel"``), one wildcard ``Reader`` delivers the
+samples in order per writer on its own thread and reports what it lost, what was held back
+unchanged and which peers disagree on the mode. Raw (``"none"``), the samples wait in a
+Zenoh-owned FIFO of ``ingest_queue_limit`` (no Python callback per sample); when it is full
+Zenoh stops reading the link and the robots' publishers (congestion control BLOCK) wait, so a
+slow CEDDP delays samples but never drops them. The ingest worker pulls them in batches;
+"arrival" is when it takes a sample, so the latency figure includes any wait in the CEDDP.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from arpz import keys
+from arpz.ceddp.control import ControlWorker, EventSink
+from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.planner import Planner
+from arpz.config import CeddpConfig
+from arpz.reliability import (
+    PLAIN_PEER,
+    DataInfo,
+    IncompatibleQosStatus,
+    MessageLostStatus,
+    QosPolicyKind,
+    Reader,
+    ReaderEventCallbacks,
+    UnchangedStatus,
+)
+from arpz.transport import PullSubscriber, Transport
+
+log = logging.getLogger(__name__)
+
+#: samples the raw ingest worker takes from the FIFO at most per pass
+_RAW_BATCH = 2000
+
+
+class SensorIntake:
+    """Thread: the Reader's own threads (channel) or ``run_raw`` (``arpz-ingest``, raw) call
+    ``Ingest`` under its lock."""
+
+    def __init__(
+        self,
+        config: CeddpConfig,
+        transport: Transport,
+        ingest: Ingest,
+        fanout: Planner,
+        control: ControlWorker,
+        event: EventSink,
+    ) -> None:
+        self.config = config
+        self.transport = transport
+        self.ingest = ingest
+        #: every planner at once (the server's fan-out)
+        self.fanout = fanout
+        self.control = control
+        self._event = event
+        self.reader: Reader | None = None
+        self.raw: PullSubscriber | None = None
+        self.processed = 0
+        #: samples the reliable channel reported irrecoverably lost (GAP, timeout, writer gone)
+        self.channel_lost = 0
+        #: raw path: channel-headed sensor samples refused per (robot, topic) (INCOMPATIBLE_QOS)
+        self.raw_refused: dict[tuple[str, str], int] = {}
+        self._wake_key = keys.sensor_key(config.fleet, "ceddp-wake", "wake")
+        self._stopping = threading.Event()
+
+    def open(self) -> None:
+        cfg = self.config
+        sensor_qos = cfg.profile("sensor")
+        expr = keys.all_sensors(cfg.fleet, cfg.partition)
+        if sensor_qos is None:
+            self.raw = self.transport.subscribe_pull(expr, cfg.ingest_queue_limit)
+            return
+        self.reader = Reader(
+            self.transport,
+            expr,
+            sensor_qos,
+            self._on_channel_data,
+            events=ReaderEventCallbacks(
+                message_lost=self._on_channel_lost,
+                unchanged=self._on_channel_unchanged,
+                incompatible_qos=self._on_incompatible,
+            ),
+            max_writers=cfg.max_robots * cfg.max_topics_per_robot,
+        )
+        self.control.sensor_reader = self.reader
+
+    def stop(self) -> None:
+        """Stop taking samples: what is already queued is ingested first (raw: the wake sample
+        queues behind everything received)."""
+        self._stopping.set()
+        if self.raw is not None:
+            self.transport.put(self._wake_key, b"")
+        if self.reader is not None:
+            self.reader.close()
+
+    def refused(self) -> dict[str, int]:
+        """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
+        if self.reader is not None:
+            return self.reader.plain_samples()
+        with self.ingest.lock:  # the raw ingest worker adds to it under this lock
+            raw = list(self.raw_refused.items())
+        return {keys.sensor_key(self.config.fleet, r, t): n for (r, t), n in raw}
+
+    def run_raw(self) -> None:
+        """The raw ingest worker: pull in batches; block in ``recv`` (no GIL held) when there
+        are none."""
+        sensors, ingest, stopping, wake = self.raw, self.ingest, self._stopping, self._wake_key
+        assert sensors is not None, "open() declares the subscriber before the worker runs"
+        try_recv = sensors.try_recv
+        while True:
+            item = try_recv()
+            if item is None:
+                item = sensors.recv()
+            batch = [item]
+            while len(batch) < _RAW_BATCH and (item := try_recv()) is not None:
+                batch.append(item)
+            arrival_ns = time.time_ns()
+            with ingest.lock:
+                for key, payload, att in batch:
+                    if key == wake and stopping.is_set():
+                        return
+                    if att is not None:
+                        self._refuse_channel_sample(key)
+                        continue
+                    try:
+                        ingest.handle_sensor(key, payload, arrival_ns)
+                    except Exception:  # a bad sample or a planner bug must not stop the CEDDP
+                        log.exception("ingest failed on %s", key)
+                self.processed += len(batch)
+
+    def _on_channel_data(self, payload: bytes, info: DataInfo) -> None:
+        """A sample delivered by the reliable channel (in order per writer, on its worker)."""
+        with self.ingest.lock:
+            try:
+                self.ingest.handle_sensor(info.key, payload, time.time_ns())
+            except Exception:  # a bad sample or a planner bug must not stop the CEDDP
+                log.exception("ingest failed on %s", info.key)
+            self.processed += 1
+
+    def _refuse_channel_sample(self, key: str) -> None:
+        """Raw path (``reliability = "none"``): a sample with a channel header comes from a robot
+        in channel mode. Refused and counted, so the pair's disagreement is never silent."""
+        parsed = keys.parse_robot_key(key)
+        if parsed is None:
+            self.ingest.counters.unknown_keys += 1
+            return
+        slot = (parsed[0], parsed[2])
+        seen = self.raw_refused.get(slot, 0)
+        if not seen and len(self.raw_refused) >= self.config.max_robots * 4:
+            self.ingest.counters.over_limit += 1
+            return
+        self.raw_refused[slot] = seen + 1
+        if not seen:
+            self.control.on_incompatible(key, QosPolicyKind.RELIABILITY)
+
+    def _on_incompatible(self, status: IncompatibleQosStatus) -> None:
+        """The sensor reader refused a writer or plain puts (``plain:{key}``): tell the control
+        worker, which marks the robot INCOMPATIBLE_QOS."""
+        key = status.peer[len(PLAIN_PEER) :] if status.peer.startswith(PLAIN_PEER) else ""
+        if not key:
+            self._event(
+                f"reliable channel: incompatible QoS ({status.last_policy_kind.value}) with "
+                f"writer {status.peer}",
+                "ERROR",
+            )
+            return
+        self.control.on_incompatible(key, status.last_policy_kind)
+
+    def _on_channel_unchanged(self, status: UnchangedStatus) -> None:
+        """A robot's local cache held a repeat back: planners judging freshness must know."""
+        if not self.fanout.wants_unchanged:
+            return
+        parsed = keys.parse_robot_key(status.key)
+        if parsed is not None and parsed[1] == "sensor":
+            self.fanout.on_unchanged(parsed[0], parsed[2], status.stamp_ns)
+
+    def _on_channel_lost(self, status: MessageLostStatus) -> None:
+        self.channel_lost += status.total_count_change

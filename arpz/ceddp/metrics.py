@@ -1,0 +1,153 @@
+"""The CEDDP's metrics ticker: every ``metrics_period_s``, the counters of the interval.
+
+One thread turns the ingest's per-topic counters and the robots' last reports into a
+``MetricsFrame`` for the dashboard (rates, latency and staleness percentiles of the interval,
+loss, cache control, the downlink), publishes ``CeddpStats`` (what any client can read of the
+CEDDP's load), ticks the planners, and every ``summary_period_s`` persists the summary so that a
+CEDDP killed with -9 leaves one to reconcile against.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+from arpz.ceddp.control import RobotRecord
+from arpz.ceddp.downlink import Downlink
+from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.planner import Planner
+from arpz.channel_io import Outlet
+from arpz.config import CeddpConfig
+from arpz.errors import ArpzError
+from arpz.frames import DashboardLike, MetricsFrame
+from arpz.messages import CeddpStats, TopicRate, encode
+from arpz.percentiles import percentile
+from arpz.throttled_log import ThrottledLog
+
+log = logging.getLogger(__name__)
+throttled = ThrottledLog(log)
+
+
+class MetricsTicker:
+    """Thread: ``run`` is the metrics ticker (``arpz-metrics``); ``tick`` also runs once more at
+    shutdown, on the caller's thread, after the workers stopped."""
+
+    def __init__(
+        self,
+        config: CeddpConfig,
+        ingest: Ingest,
+        robots: dict[str, RobotRecord],
+        sink: Downlink,
+        planners: list[Planner],
+        dashboard: DashboardLike | None,
+        *,
+        refused: Callable[[], dict[str, dict[str, int]]],
+        persist_partial: Callable[[], None],
+    ) -> None:
+        self.config = config
+        self.ingest = ingest
+        self.robots = robots
+        self.sink = sink
+        self.planners = planners
+        self.dashboard = dashboard
+        self._refused = refused
+        self._persist_partial = persist_partial
+        #: where CeddpStats go (opened by the server at start)
+        self.stats_out: Outlet | None = None
+        self._last: tuple[float, float, dict[tuple[str, str], tuple[int, int]]] = (
+            time.monotonic(),
+            time.process_time(),
+            {},
+        )
+
+    def run(self, stop: threading.Event) -> None:
+        period_s = self.config.summary_period_s
+        next_persist = time.monotonic() + period_s
+        while not stop.wait(self.config.metrics_period_s):
+            try:
+                self.tick()
+                if period_s and time.monotonic() >= next_persist:
+                    # a CEDDP killed with -9 leaves this one: "complete": false, at most
+                    # summary_period_s old, reconcilable against the next run's
+                    next_persist = time.monotonic() + period_s
+                    self._persist_partial()
+            except Exception:  # a bug in one tick must not stop the reporting
+                throttled.exception("metrics tick", "metrics tick failed")
+
+    def tick(self) -> None:
+        now, cpu = time.monotonic(), time.process_time()
+        last_now, last_cpu, last_counts = self._last
+        interval_s = max(now - last_now, 1e-6)
+        frame_topics: dict[tuple[str, str], dict[str, float]] = {}
+        refused = self._refused()
+        written: dict[str, int] = {}
+        for (robot, _), counters in self.sink.snapshot().items():
+            written[robot] = written.get(robot, 0) + counters.written
+        rates: list[TopicRate] = []
+        counts: dict[tuple[str, str], tuple[int, int]] = {}
+        with self.ingest.lock:
+            for slot, m in self.ingest.topics.items():
+                received0, bytes0 = last_counts.get(slot, (0, 0))
+                counts[slot] = (m.received, m.bytes)
+                window = m.latency_ms.take_window()
+                stale = m.staleness_ms.take_window()
+                row = {
+                    "rate_hz": (m.received - received0) / interval_s,
+                    "bytes_per_s": (m.bytes - bytes0) / interval_s,
+                    "lost": float(m.lost),
+                    "cc_discarded": float(self.ingest.cache_counters(*slot).hits),
+                    "decode_errors": float(m.decode_errors),
+                }
+                if window:
+                    row["latency_ms_p50"] = percentile(window, 50) or 0.0
+                    row["latency_ms_p99"] = percentile(window, 99) or 0.0
+                if stale:
+                    row["staleness_ms_p99"] = percentile(stale, 99) or 0.0
+                stats = self.robots.get(slot[0], RobotRecord()).stats
+                if stats is not None and slot[1] in stats.topics:
+                    row["held_back"] = float(stats.topics[slot[1]].held_back)
+                frame_topics[slot] = row
+                rates.append(
+                    TopicRate(
+                        robot=slot[0],
+                        topic=slot[1],
+                        rate_hz=row["rate_hz"],
+                        bytes_per_s=row["bytes_per_s"],
+                    )
+                )
+            robots: dict[str, dict[str, float]] = {}
+            for robot, record in self.robots.items():
+                if record.stats is None:
+                    continue
+                row = {"cpu_percent": record.stats.cpu_percent}
+                if record.stats.qos_rate_hz is not None:
+                    row["qos_rate_hz"] = record.stats.qos_rate_hz
+                if record.stats.qos_depth is not None:
+                    row["qos_depth"] = float(record.stats.qos_depth)
+                hello = record.stats.hello
+                if hello is not None and hello.rtt_ms_p50 is not None:
+                    row["hello_rtt_ms_p50"] = hello.rtt_ms_p50
+                inbound = record.stats.inbound.values()
+                row["downlink_lost"] = float(sum(c.lost + c.lifespan_expired for c in inbound))
+                row["watchdog_stops"] = float(sum(record.stats.watchdog_stops.values()))
+                row["downlink_written"] = float(written.get(robot, 0))
+                robots[robot] = row
+            for robot, per_key in refused.items():
+                robots.setdefault(robot, {})["refused"] = float(sum(per_key.values()))
+        self._last = (now, cpu, counts)
+        cpu_percent = 100.0 * (cpu - last_cpu) / interval_s
+        if self.dashboard is not None:
+            robots.setdefault("ceddp", {})["cpu_percent"] = cpu_percent
+            self.dashboard.submit(MetricsFrame(time.time_ns(), frame_topics, robots))
+        try:
+            if self.stats_out is not None:
+                report = CeddpStats(
+                    stamp_ns=time.time_ns(), cpu_percent=round(cpu_percent, 2), topics=rates
+                )
+                self.stats_out.send(encode(report), report.stamp_ns)
+        except ArpzError as exc:  # the session may be closing, or a full history refused it
+            log.debug("could not publish CEDDP stats: %s", exc)
+        for planner in self.planners:
+            planner.tick(now)

@@ -1,0 +1,235 @@
+"""Both ends of one key, in either direction: a reliable-channel endpoint, or plain Zenoh.
+
+Robots and the CEDDP write every key through an ``Outlet`` and read every key through an
+``Inlet``. With a profile each is an ``arpz.reliability`` ``Writer`` / ``Reader`` (heartbeats,
+ACKNACK recovery, bounded history, deadline, lifespan); with ``None`` (``reliability = "none"``,
+asked for in the config) each is a plain Zenoh publisher / subscriber, and the receiver counts
+loss from the payload's sequence numbers. The payload on the key is the same either way, so a
+plain Zenoh client still decodes it.
+
+A pair that disagrees (one side plain, the other through the channel) never loses data silently:
+a channel ``Inlet`` refuses plain samples and a plain ``Inlet`` refuses samples that carry a
+channel header; both count the refusals per key and report the pair as INCOMPATIBLE_QOS once.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable
+
+from arpz.reliability import (
+    PLAIN_PEER,
+    HistoryFullError,
+    IncompatibleQosStatus,
+    MessageLostStatus,
+    QosPolicyKind,
+    QosProfile,
+    Reader,
+    ReaderEventCallbacks,
+    ReaderStats,
+    Writer,
+    WriterStats,
+)
+from arpz.transport import Handle, Publisher, Transport
+
+log = logging.getLogger(__name__)
+
+#: ``IncompatibleQosStatus.peer`` prefix when a plain Inlet saw a channel-headed sample
+CHANNEL_PEER = "channel:"
+
+
+class Outlet:
+    """Where one key's messages go: a reliable-channel ``Writer`` or a plain publisher.
+
+    A QoS assignment changes the depth and the offered deadline of the writer in place (same
+    guid, history and matches). ``block=False`` (the default here): a stalled receiver never
+    stalls the writing thread; the channel recovers or reports what Zenoh drops.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        key: str,
+        qos: QosProfile | None,
+        *,
+        block: bool = False,
+        express: bool = False,
+    ) -> None:
+        self.transport = transport
+        self.key = key
+        self.writer: Writer | None = (
+            Writer(transport, key, qos, block=block, express=express) if qos is not None else None
+        )
+        self.publisher: Publisher | None = (
+            None if qos is not None else transport.publisher(key, express=express)
+        )
+        #: writes KEEP_ALL refused after max_blocking_time (history full of unacknowledged data)
+        self.write_failures = 0
+        #: messages written while no reader was matched (only counted with ``count_unmatched``)
+        self.unmatched = 0
+
+    def send(self, payload: bytes, stamp_ns: int, *, count_unmatched: bool = False) -> bool:
+        """Publish one message; False (and counted) if a KEEP_ALL history stayed full.
+
+        ``count_unmatched``: count a message written while no reader is matched (it reaches no
+        one: a VOLATILE writer delivers only within a match); for low-rate keys whose receiver
+        reconciles against the sender, such as commands."""
+        if count_unmatched and not self.matched:
+            self.unmatched += 1
+        if self.writer is None:
+            assert self.publisher is not None
+            self.publisher.put(payload)
+            return True
+        try:
+            self.writer.write(payload, stamp_ns=stamp_ns)
+            return True
+        except HistoryFullError as exc:
+            self.write_failures += 1
+            if self.write_failures in (1, 10, 100) or self.write_failures % 1000 == 0:
+                log.error("%s: message not sent (#%d): %s", self.key, self.write_failures, exc)
+            return False
+
+    def unchanged(self) -> None:
+        """The local cache held a repeat back: tell the channel the topic is alive and current."""
+        if self.writer is not None:
+            self.writer.assert_unchanged()
+
+    def acknowledged_through(self) -> int | None:
+        """The channel seq every reliable reader acknowledged so far (None without the channel)."""
+        return self.writer.acknowledged_through() if self.writer is not None else None
+
+    def latest_undeliverable(self) -> bool:
+        """The channel can no longer deliver the last message sent (False without it)."""
+        return self.writer is not None and self.writer.latest_undeliverable()
+
+    def retune(self, *, depth: int, deadline_s: float) -> None:
+        """Apply a QoS assignment's depth and deadline in place (no-op without the channel)."""
+        if self.writer is not None:
+            self.writer.retune(depth=depth, deadline_s=deadline_s)
+
+    @property
+    def qos(self) -> QosProfile | None:
+        """The QoS in force (the writer's), None in plain mode."""
+        return self.writer.qos if self.writer is not None else None
+
+    def stats(self) -> WriterStats | None:
+        return self.writer.stats() if self.writer is not None else None
+
+    def totals(self) -> dict[str, int]:
+        """Channel counters of this key (zeros without the channel)."""
+        stats = self.stats()
+        return {
+            "retransmitted": stats.retransmitted if stats else 0,
+            "history_offered": stats.history_offered if stats else 0,
+            "gapped": stats.lost if stats else 0,
+            "overwritten_unacked": stats.overwritten_unacked if stats else 0,
+            "deadline_missed": stats.deadline_missed if stats else 0,
+            "lifespan_expired": stats.lifespan_expired if stats else 0,
+            "write_failures": self.write_failures,
+        }
+
+    @property
+    def matched(self) -> bool:
+        """A reader is listening: a matched reliable reader, or for a plain publisher any Zenoh
+        subscriber whose declaration has reached this side's router (so the first messages are
+        not put before the route through a router mesh exists)."""
+        if self.writer is not None:
+            return self.writer.matched_count > 0
+        assert self.publisher is not None
+        return self.publisher.matching
+
+    def close(self, wait_s: float = 0.5) -> bool:
+        """Wait (bounded) until every matched reader acknowledged everything, then close; True if
+        it did (always True without the channel)."""
+        if self.writer is None:
+            assert self.publisher is not None
+            self.publisher.undeclare()
+            return True
+        acknowledged = self.writer.wait_for_acknowledgments(wait_s)
+        self.writer.close()
+        return acknowledged
+
+
+class Inlet:
+    """Where one key expression's messages arrive: a reliable-channel ``Reader`` or a plain
+    subscription. ``on_message(key, payload)`` runs on the Reader's own threads (one call at a
+    time, in order per writer) or, plain, on Zenoh's callback thread: it must only queue.
+
+    ``on_incompatible(key, policy)`` is called once per key whose publisher disagrees on the mode
+    (a plain put to a channel Inlet, or a channel-headed sample to a plain one), and once per
+    incompatible channel writer (key ""), from the Inlet's thread; such samples are refused and
+    counted in ``refused`` per key.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        key_expr: str,
+        qos: QosProfile | None,
+        on_message: Callable[[str, bytes], None],
+        *,
+        on_incompatible: Callable[[str, QosPolicyKind], None] | None = None,
+        on_lost: Callable[[MessageLostStatus], None] | None = None,
+    ) -> None:
+        self.key_expr = key_expr
+        self._on_incompatible = on_incompatible
+        self._lock = threading.Lock()
+        self._refused: dict[str, int] = {}
+        self.reader: Reader | None = None
+        self._handle: Handle | None = None
+        if qos is not None:
+            self.reader = Reader(
+                transport,
+                key_expr,
+                qos,
+                lambda payload, info: on_message(info.key, payload),
+                events=ReaderEventCallbacks(
+                    incompatible_qos=self._on_channel_incompatible, message_lost=on_lost
+                ),
+            )
+        else:
+
+            def on_plain(key: str, payload: bytes, attachment: bytes | None) -> None:
+                if attachment is None:
+                    on_message(key, payload)
+                else:
+                    self._refuse(key)
+
+            self._handle = transport.subscribe(key_expr, on_plain)
+
+    def _on_channel_incompatible(self, status: IncompatibleQosStatus) -> None:
+        key = status.peer[len(PLAIN_PEER) :] if status.peer.startswith(PLAIN_PEER) else ""
+        if self._on_incompatible is not None:
+            self._on_incompatible(key, status.last_policy_kind)
+
+    def _refuse(self, key: str) -> None:
+        with self._lock:
+            seen = self._refused.get(key, 0)
+            if not seen and len(self._refused) >= 1024:
+                key, seen = "(other keys)", self._refused.get("(other keys)", 0)
+            self._refused[key] = seen + 1
+        if not seen and self._on_incompatible is not None:
+            self._on_incompatible(key, QosPolicyKind.RELIABILITY)
+
+    @property
+    def refused(self) -> dict[str, int]:
+        """Samples refused per key because their publisher disagrees on the mode."""
+        if self.reader is not None:
+            return self.reader.plain_samples()
+        with self._lock:
+            return dict(self._refused)
+
+    @property
+    def qos(self) -> QosProfile | None:
+        """The QoS in force (the reader's, which follows assignments), None in plain mode."""
+        return self.reader.qos if self.reader is not None else None
+
+    def stats(self) -> ReaderStats | None:
+        return self.reader.stats() if self.reader is not None else None
+
+    def close(self) -> None:
+        if self.reader is not None:
+            self.reader.close()
+        elif self._handle is not None:
+            self._handle.undeclare()

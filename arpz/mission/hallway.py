@@ -1,0 +1,452 @@
+"""The hallway mission planner of seed 001 section 3.2, as pure logic (no Zenoh, no clock).
+
+The planner sees only what reaches the CEDDP: per robot, the latest value of each LIDAR beam topic
+and when it was taken. Robot 1, the leader, follows the corridor and turns at corners on its own
+8 ranges; robots 2 and 3 only watch ahead for obstacles in their lanes; when both are clear every
+robot gets the leader's velocity, so the fleet moves in parallel (seed 001 Figure 17).
+
+Like the robots of the seed, the planner trusts the data it is given. That is the point: when the
+network delivers beams too rarely or too late, it turns late or stops for obstacles that are not
+there, and the judge (``arpz.mission.judge``) says so. The one safety rule is staleness: data older
+than ``max_age_s`` stops the fleet rather than steer it (docs/simulation.md, "Staleness").
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import msgspec
+import numpy as np
+
+from arpz.mission.lidar import BEAM_ANGLES_DEG, DEFAULT_MAX_RANGE_M, beam_of_topic, beam_topic
+from arpz.mission.vocabulary import STOP, EventKind, MissionEvent, VelocityCommand
+from arpz.mission.world import World
+
+Phase = Literal["waiting", "following", "turning", "home"]
+Hold = Literal["stale", "obstacle"]
+
+#: The leader's beams the corridor follower reads (180, straight behind, is never used).
+LEADER_BEAMS_DEG = (0, 45, 90, 135, 225, 270, 315)
+
+
+class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
+    """What the planner knows of the world and how it drives; ``for_world`` fills the map part."""
+
+    leader: str = "robot1"
+    followers: tuple[str, ...] = ("robot2", "robot3")
+    #: Corridor width, for centring on one wall when the other side opens (near a corner).
+    corridor_width_m: float = 4.0
+    #: Direction of every corner: "right" for a clockwise loop.
+    turn: Literal["right", "left"] = "right"
+    corners: int = 4
+    #: The leader's front range at its home pose: after the last corner it stops there.
+    home_front_m: float = 10.0
+    cruise_speed_m_s: float = 0.8
+    turn_radius_m: float = 1.0
+    #: A follower reading closer than this on an obstacle beam stops the fleet.
+    obstacle_range_m: float = 1.0
+    #: ... and it must read this much further again before the fleet moves (no chattering).
+    clear_margin_m: float = 0.2
+    obstacle_beams_deg: tuple[int, ...] = (0,)
+    #: Data older than this stops the fleet: set it to about 3 deadline periods of the beams.
+    max_age_s: float = 0.3
+    max_range_m: float = DEFAULT_MAX_RANGE_M
+    #: After a turn, the next corner counts only once the front has read this much beyond the
+    #: turn point, on a reading taken after the turn: a pre-turn reading cannot trigger a new turn.
+    rearm_margin_m: float = 1.0
+    lateral_gain_rad_m: float = 0.6
+    heading_gain_1_s: float = 1.5
+    max_heading_correction_rad: float = 0.5
+    max_omega_rad_s: float = 1.5
+    #: How far the three beams on one side may disagree about the wall before that side is ignored
+    #: (it then sees through an opening, not along a straight wall).
+    wall_fit_tolerance_m: float = 0.15
+    #: Home counts only while the leader is this parallel to the walls, so that a front beam
+    #: slanting onto a side wall during a correction is not taken for the home mark.
+    home_alignment_rad: float = 0.1
+    #: While the fleet is held for stale data, a change of culprit is reported at most this often.
+    stale_report_interval_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        def need(ok: bool, message: str) -> None:
+            if not ok:
+                raise ValueError(f"PlannerSettings: {message}")
+
+        need(self.leader not in self.followers, f"leader {self.leader!r} is also a follower")
+        need(len(set(self.followers)) == len(self.followers), "followers repeat a name")
+        need(self.corners >= 1, f"corners must be >= 1, got {self.corners}")
+        need(self.max_age_s > 0.0, f"max_age_s must be > 0, got {self.max_age_s}")
+        need(self.cruise_speed_m_s > 0.0, "cruise_speed_m_s must be > 0")
+        need(self.turn_radius_m > 0.0, "turn_radius_m must be > 0")
+        need(
+            0.0 < self.obstacle_range_m < self.turn_point_m,
+            f"obstacle_range_m must be > 0 and below the turn point {self.turn_point_m:.2f} m",
+        )
+        need(
+            self.turn_point_m + self.rearm_margin_m < self.max_range_m,
+            f"turn point {self.turn_point_m:.2f} m + rearm_margin_m must be below max_range_m",
+        )
+        need(
+            0.0 < self.home_front_m < self.max_range_m,
+            f"home_front_m must be > 0 and below max_range_m {self.max_range_m} m "
+            f"(got {self.home_front_m}): the leader cannot see its home mark",
+        )
+        for deg in self.obstacle_beams_deg:
+            need(deg in BEAM_ANGLES_DEG, f"obstacle beam {deg} is not one of {BEAM_ANGLES_DEG}")
+
+    @property
+    def turn_point_m(self) -> float:
+        """Front range at which a turn of ``turn_radius_m`` ends on the next corridor's middle."""
+        return self.corridor_width_m / 2.0 + self.turn_radius_m
+
+    @property
+    def robots(self) -> tuple[str, ...]:
+        return (self.leader, *self.followers)
+
+    @classmethod
+    def for_world(cls, world: World, **overrides: object) -> PlannerSettings:
+        """Settings matching a map: fleet, corridor width, turn direction, the leader's home mark.
+
+        ``home_front_m`` is what the leader's front beam reads at its home pose: the planner's
+        only way to recognise home with a LIDAR and no map matching.
+        """
+        max_range_m = overrides.get("max_range_m", DEFAULT_MAX_RANGE_M)
+        if not isinstance(max_range_m, float | int):
+            raise TypeError(f"max_range_m must be a number, got {max_range_m!r}")
+        home = world.homes[world.leader]
+        front_m = world.ray_ranges_m(
+            home.x_m, home.y_m, np.array([home.theta_rad]), float(max_range_m)
+        )[0]
+        fields: dict[str, object] = {
+            "leader": world.leader,
+            "followers": [r for r in world.robots if r != world.leader],
+            "corridor_width_m": world.corridor_width_m,
+            "turn": "right" if world.direction == "clockwise" else "left",
+            "home_front_m": float(front_m),
+        }
+        fields.update(overrides)
+        return msgspec.convert(fields, type=cls)
+
+
+class HallwayPlanner:
+    """The CEDDP's planning component for the hallway mission.
+
+    Feed it every beam value that passes cache control (``on_range`` / ``on_topic``) and call
+    ``tick(now_s)`` at the command rate; send each returned command to that robot's actuation and
+    ``pop_events()`` to the dashboard and the judge. All times are on one clock (``now_s`` and the
+    stamps); nothing here reads a clock, so tests drive it with any numbers.
+    """
+
+    def __init__(self, settings: PlannerSettings) -> None:
+        self.settings = settings
+        self._latest: dict[tuple[str, int], tuple[float, float]] = {}
+        self._events: list[MissionEvent] = []
+        self._phase: Phase = "waiting"
+        self._hold: Hold | None = None
+        self._hold_since_s = 0.0
+        self._corners_done = 0
+        self._turned_rad = 0.0
+        self._armed = True
+        self._turn_end_s = -math.inf
+        self._last_tick_s: float | None = None
+        self._last_command = STOP
+        self._stale_culprit: tuple[str, int] | None = None
+        self._stale_reported_s = -math.inf
+
+    @property
+    def phase(self) -> Phase:
+        return self._phase
+
+    @property
+    def hold(self) -> Hold | None:
+        """Why the fleet is held still right now, if it is."""
+        return self._hold
+
+    @property
+    def corners_done(self) -> int:
+        return self._corners_done
+
+    def on_range(self, robot: str, beam_deg: int, range_m: float, stamp_s: float) -> bool:
+        """Take one beam value. ``stamp_s`` is when it was measured on the planner's clock (or, if
+        clocks are not shared, when it arrived). Returns False if it was ignored: unknown robot,
+        not a number, or older than the value already held (the network may reorder)."""
+        if beam_deg not in BEAM_ANGLES_DEG:
+            raise ValueError(f"no beam at {beam_deg} degrees; beams: {BEAM_ANGLES_DEG}")
+        if robot not in self.settings.robots or math.isnan(range_m):
+            return False
+        key = (robot, beam_deg)
+        held = self._latest.get(key)
+        if held is not None and held[1] > stamp_s:
+            return False
+        self._latest[key] = (min(max(range_m, 0.0), self.settings.max_range_m), stamp_s)
+        return True
+
+    def on_topic(self, robot: str, topic: str, value: float, stamp_s: float) -> bool:
+        """``on_range`` by topic name (``lidar_45``); other topics are ignored (returns False)."""
+        beam_deg = beam_of_topic(topic)
+        if beam_deg is None:
+            return False
+        return self.on_range(robot, beam_deg, float(value), stamp_s)
+
+    def pop_events(self) -> list[MissionEvent]:
+        events, self._events = self._events, []
+        return events
+
+    def tick(self, now_s: float) -> dict[str, VelocityCommand]:
+        """Decide every robot's command for now: one velocity for all, or STOP for all."""
+        if self._last_tick_s is not None and self._phase == "turning":
+            # The turn is measured by what was commanded since the last tick (dead reckoning on
+            # commands: the leader has no odometry on the wire, only its 8 ranges).
+            self._turned_rad += abs(self._last_command.omega_rad_s) * (now_s - self._last_tick_s)
+        self._last_tick_s = now_s
+        command = self._decide(now_s)
+        self._last_command = command
+        return dict.fromkeys(self.settings.robots, command)
+
+    def _decide(self, now_s: float) -> VelocityCommand:
+        if self._phase == "home" or self._held(now_s):
+            return STOP
+        if self._phase == "waiting":
+            self._phase = "following"
+            self._emit(
+                now_s, "started", self.settings.leader, "lanes clear, data fresh: fleet starts"
+            )
+        return self._navigate(now_s)
+
+    def _held(self, now_s: float) -> bool:
+        """Whether the fleet must stand still now (stale data, an obstacle), with the events."""
+        s = self.settings
+        stale = self._stalest(now_s)
+        if stale is not None:
+            robot, deg, age_s = stale
+            culprit_changed = (
+                self._hold == "stale"
+                and (robot, deg) != self._stale_culprit
+                and now_s - self._stale_reported_s >= s.stale_report_interval_s
+            )
+            if self._hold != "stale" or culprit_changed:
+                what = "no reading yet" if math.isinf(age_s) else f"{age_s:.2f} s old"
+                if self._hold != "stale":
+                    self._enter_hold("stale", now_s)
+                self._stale_culprit = (robot, deg)
+                self._stale_reported_s = now_s
+                self._emit(
+                    now_s,
+                    "stale_stop",
+                    robot,
+                    f"{robot} {beam_topic(deg)}: {what} (max {s.max_age_s:.2f} s): fleet held",
+                    beam_deg=deg,
+                    age_s=None if math.isinf(age_s) else age_s,
+                )
+            return True
+        if self._hold == "stale":
+            self._leave_hold(now_s, "resumed", "data fresh again")
+
+        blocked = self._closest_obstacle()
+        if blocked is not None:
+            robot, deg, range_m = blocked
+            if self._hold != "obstacle":
+                self._enter_hold("obstacle", now_s)
+                self._emit(
+                    now_s,
+                    "obstacle_stop",
+                    robot,
+                    f"{robot} {beam_topic(deg)} reads {range_m:.2f} m "
+                    f"(< {s.obstacle_range_m:.2f} m): fleet stopped",
+                    beam_deg=deg,
+                    range_m=range_m,
+                    age_s=now_s - self._stamp(robot, deg),
+                )
+            return True
+        if self._hold == "obstacle":
+            self._leave_hold(now_s, "clear", "all lanes clear ahead")
+        return False
+
+    def _navigate(self, now_s: float) -> VelocityCommand:
+        """The leader's corridor following, corners and home, on fresh data with clear lanes."""
+        s = self.settings
+        if self._phase == "turning" and self._turned_rad >= math.pi / 2.0 - 1e-9:
+            self._phase = "following"
+            self._corners_done += 1
+            self._armed = False
+            self._turn_end_s = now_s
+            self._emit(
+                now_s,
+                "turn_done",
+                s.leader,
+                f"corner {self._corners_done} done",
+                corner=self._corners_done,
+            )
+
+        if self._phase == "following":
+            front_m, front_stamp_s = self._latest[(s.leader, 0)]
+            if (
+                not self._armed
+                and front_stamp_s >= self._turn_end_s
+                and front_m > s.turn_point_m + s.rearm_margin_m
+            ):
+                self._armed = True
+            corridor = self._corridor_estimate()
+            aligned = corridor is not None and abs(corridor[0]) <= s.home_alignment_rad
+            if (
+                self._armed
+                and self._corners_done >= s.corners
+                and front_m <= s.home_front_m
+                and aligned
+            ):
+                self._phase = "home"
+                self._emit(
+                    now_s,
+                    "home",
+                    s.leader,
+                    f"{s.leader} lidar_0 reads {front_m:.2f} m (home mark {s.home_front_m:.2f} m) "
+                    f"after {self._corners_done} corners: fleet stops",
+                    beam_deg=0,
+                    range_m=front_m,
+                    age_s=now_s - front_stamp_s,
+                )
+                return STOP
+            if self._armed and self._corners_done < s.corners and front_m <= s.turn_point_m:
+                self._phase = "turning"
+                self._turned_rad = 0.0
+                self._emit(
+                    now_s,
+                    "turn_started",
+                    s.leader,
+                    f"corner {self._corners_done + 1}: {s.leader} lidar_0 reads {front_m:.2f} m "
+                    f"(turn point {s.turn_point_m:.2f} m), {now_s - front_stamp_s:.2f} s old",
+                    beam_deg=0,
+                    range_m=front_m,
+                    age_s=now_s - front_stamp_s,
+                    corner=self._corners_done + 1,
+                )
+
+        if self._phase == "turning":
+            sign = -1.0 if s.turn == "right" else 1.0
+            return VelocityCommand(s.cruise_speed_m_s, sign * s.cruise_speed_m_s / s.turn_radius_m)
+        return VelocityCommand(s.cruise_speed_m_s, self._centring_omega(self._corridor_estimate()))
+
+    def _stamp(self, robot: str, deg: int) -> float:
+        return self._latest[(robot, deg)][1]
+
+    def _stalest(self, now_s: float) -> tuple[str, int, float] | None:
+        """The oldest reading the planner needs, if it is older than ``max_age_s``."""
+        s = self.settings
+        needed = [(s.leader, deg) for deg in LEADER_BEAMS_DEG] + [
+            (robot, deg) for robot in s.followers for deg in s.obstacle_beams_deg
+        ]
+        worst: tuple[str, int, float] | None = None
+        for robot, deg in needed:
+            held = self._latest.get((robot, deg))
+            age_s = math.inf if held is None else now_s - held[1]
+            if age_s > s.max_age_s and (worst is None or age_s > worst[2]):
+                worst = (robot, deg, age_s)
+        return worst
+
+    def _closest_obstacle(self) -> tuple[str, int, float] | None:
+        """The closest follower reading inside the obstacle range (wider while already stopped)."""
+        s = self.settings
+        limit_m = s.obstacle_range_m + (s.clear_margin_m if self._hold == "obstacle" else 0.0)
+        closest: tuple[str, int, float] | None = None
+        for robot in s.followers:
+            for deg in s.obstacle_beams_deg:
+                range_m = self._latest[(robot, deg)][0]
+                if range_m < limit_m and (closest is None or range_m < closest[2]):
+                    closest = (robot, deg, range_m)
+        return closest
+
+    def _corridor_estimate(self) -> tuple[float, float] | None:
+        """The leader's (heading, offset) in the corridor from its side beams, None if unknown.
+
+        Heading is positive when the robot points towards its left wall, offset when it is left
+        of the centreline. Each side's three beams (45/90/135 on the left, 315/270/225 on the
+        right) give that wall's angle and distance when they all hit one straight wall; a side
+        that disagrees with itself looks through an opening and is ignored.
+        """
+        s = self.settings
+        ranges = {deg: self._latest[(s.leader, deg)][0] for deg in LEADER_BEAMS_DEG}
+        left = self._wall(ranges[45], ranges[90], ranges[135])
+        right = self._wall(ranges[315], ranges[270], ranges[225])
+        if left is None and right is None:
+            return None
+        if left is not None and right is not None:
+            heading_rad = (left[0] - right[0]) / 2.0
+            offset_m = (right[1] - left[1]) / 2.0  # positive: left of the centreline
+        elif left is not None:
+            heading_rad = left[0]
+            offset_m = s.corridor_width_m / 2.0 - left[1]
+        else:
+            assert right is not None
+            heading_rad = -right[0]
+            offset_m = right[1] - s.corridor_width_m / 2.0
+        return heading_rad, offset_m
+
+    def _centring_omega(self, corridor: tuple[float, float] | None) -> float:
+        """Turn rate that steers the leader onto the centreline, parallel to the walls (with no
+        usable wall on either side, the heading is held)."""
+        s = self.settings
+        if corridor is None:
+            return 0.0
+        heading_rad, offset_m = corridor
+        limit = s.max_heading_correction_rad
+        wanted_rad = min(max(-s.lateral_gain_rad_m * offset_m, -limit), limit)
+        omega = s.heading_gain_1_s * (wanted_rad - heading_rad)
+        return min(max(omega, -s.max_omega_rad_s), s.max_omega_rad_s)
+
+    def _wall(self, ahead_m: float, abeam_m: float, behind_m: float) -> tuple[float, float] | None:
+        """(angle towards the wall, perpendicular distance) from the 45/90/135-degree beams to one
+        side, or None if they do not fit one straight wall.
+
+        For a wall at distance d and a heading turned by psi towards it, the beam at 45 degrees
+        reads d / sin(45 + psi) and the one at 135 reads d / sin(45 - psi), which gives
+        tan(psi) = (behind - ahead) / (behind + ahead).
+        """
+        s = self.settings
+        if max(ahead_m, abeam_m, behind_m) >= s.max_range_m or min(ahead_m, behind_m) <= 0.0:
+            return None
+        psi = math.atan((behind_m - ahead_m) / (behind_m + ahead_m))
+        quarter = math.pi / 4.0
+        d_abeam = abeam_m * math.cos(psi)
+        d_ahead = ahead_m * math.sin(quarter + psi)
+        d_behind = behind_m * math.sin(quarter - psi)
+        tolerance = s.wall_fit_tolerance_m
+        if abs(d_ahead - d_abeam) > tolerance or abs(d_behind - d_abeam) > tolerance:
+            return None
+        if d_abeam > s.corridor_width_m:
+            return None
+        return psi, d_abeam
+
+    def _enter_hold(self, hold: Hold, now_s: float) -> None:
+        self._hold = hold
+        self._hold_since_s = now_s
+
+    def _leave_hold(self, now_s: float, kind: EventKind, why: str) -> None:
+        held_s = now_s - self._hold_since_s
+        self._hold = None
+        self._emit(now_s, kind, self.settings.leader, f"{why} after {held_s:.2f} s: fleet moves")
+
+    def _emit(
+        self,
+        t_s: float,
+        kind: EventKind,
+        robot: str,
+        text: str,
+        *,
+        beam_deg: int | None = None,
+        range_m: float | None = None,
+        age_s: float | None = None,
+        corner: int | None = None,
+    ) -> None:
+        self._events.append(
+            MissionEvent(
+                t_s=t_s,
+                kind=kind,
+                robot=robot,
+                text=text,
+                beam_deg=beam_deg,
+                range_m=range_m,
+                age_s=age_s,
+                corner=corner,
+            )
+        )

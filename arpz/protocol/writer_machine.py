@@ -1,0 +1,654 @@
+"""The writer side of the reliable protocol as a pure state machine: values in, actions out.
+
+The history is contiguous (``first .. last_seq``) because samples only ever leave from the front
+(acknowledged by every reliable reader, overwritten by KEEP_LAST, or past their lifespan), so a
+resend request is answered by index and everything below ``first`` is answered with one GAP.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import msgspec
+
+from arpz.errors import ArpzError
+from arpz.protocol import wire
+from arpz.protocol._common import BadInput, parse_token
+from arpz.protocol.actions import Action, Notify, Send
+from arpz.protocol.events import (
+    DeadlineMissedStatus,
+    IncompatibleQosStatus,
+    LivelinessLostStatus,
+    MatchedStatus,
+    MessageLostStatus,
+)
+from arpz.protocol.qos import (
+    HistoryPolicy,
+    LivelinessPolicy,
+    QosProfile,
+    encode_match_qos,
+    incompatible_policy,
+    rounded,
+)
+from arpz.protocol.timers import Clock, DeadlineTimer, LeaseTimer
+
+#: resends answered per ACKNACK: bounds the work of one (possibly forged) request; the reader
+#: asks again for the rest one NACK period later
+RESEND_BUDGET = 256
+#: a seq NACKed again within this long of its resend to the same reader is not resent: the copy
+#: is still on its way. Short enough that a lost resend on WiFi is repeated within ~2 round
+#: trips; the reader, for its part, does not ask again within one measured answer time
+#: (reader_machine._nack_hold_s)
+RESEND_HOLDOFF_S = 0.01
+#: the holdoff until a first resend to a reader is confirmed: a reader that joins a long history
+#: asks for it again before the first burst is in, as it has no answer time to go by yet (with
+#: 10 ms, the first 256 of each topic's history went out twice: the resends printed by
+#: ``python -m pytest tests/integration/test_faults.py -s -k high_rate``)
+RESEND_FIRST_HOLDOFF_S = 0.05
+#: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
+_PURGE_EVERY = 64
+#: what ``write`` returns when it has no actions (most writes): nothing allocated per write
+_NO_ACTIONS: tuple[Action, ...] = ()
+#: a batch goes out once its payloads reach this size, whatever ``batch_max_samples`` says: with
+#: its attachment (at most 20 + 12 x 1024 bytes) it stays within one Zenoh transport batch
+#: (65 535 bytes), so Zenoh never has to fragment it
+BATCH_MAX_BYTES = 48 * 1024
+
+
+class HistoryFullError(ArpzError, TimeoutError):
+    """KEEP_ALL history full of samples some reader has not acknowledged."""
+
+
+class WriterStats(msgspec.Struct, frozen=True):
+    sent: int
+    retransmitted: int
+    #: sequence numbers NACKed by readers
+    nacks: int
+    #: sequence numbers answered with GAP (no longer held)
+    gaps: int
+    heartbeats: int
+    #: samples a reader asked for that were no longer held (answered by GAP): lost for sure
+    lost: int
+    #: KEEP_LAST overwrote a sample some matched reliable reader had not yet acknowledged
+    #: (an upper bound of the losses: a reader may have it without having acknowledged it yet)
+    overwritten_unacked: int
+    lifespan_expired: int
+    unchanged: int
+    deadline_missed: int
+    liveliness_lost: int
+    matched: int
+    incompatible: int
+    history: int
+    bad_input: int
+    #: refused by the full worker queue (reliable readers get them again by NACK)
+    queue_dropped: int = 0
+    #: exceptions raised by user callbacks (logged, the channel goes on)
+    callback_errors: int = 0
+    #: NACKed seqs not resent because their resend to that reader was still on its way
+    resends_held_off: int = 0
+    #: samples the history held when a reliable TRANSIENT_LOCAL reader matched, summed over
+    #: matches: what late joiners could ask for, so resends can be judged against it
+    history_offered: int = 0
+
+
+class _ReaderProxy:
+    """The writer's view of one matched reader."""
+
+    __slots__ = (
+        "acked",
+        "guid",
+        "hex",
+        "last_sync_s",
+        "lost",
+        "reliable",
+        "requested_deadline_s",
+        "resend_confirmed",
+        "resent",
+        "rx_key",
+        "start",
+        "synced",
+    )
+
+    def __init__(self, guid: bytes, hex_: str, reliable: bool, start: int, rx_key: str) -> None:
+        self.guid, self.hex, self.reliable = guid, hex_, reliable
+        self.start = start
+        #: every seq below this is acknowledged (or outside the match)
+        self.acked = start
+        self.synced = False
+        self.last_sync_s = -math.inf
+        self.lost = 0
+        self.rx_key = rx_key
+        #: the deadline this reader checks (0: none), from its token
+        self.requested_deadline_s = 0.0
+        #: seq -> (when it was first resent to this reader, when last), unacknowledged seqs only
+        self.resent: dict[int, tuple[float, float]] = {}
+        #: a resend to this reader was acknowledged: it has an answer time of its own now
+        self.resend_confirmed = False
+
+    def holdoff_s(self) -> float:
+        return RESEND_HOLDOFF_S if self.resend_confirmed else RESEND_FIRST_HOLDOFF_S
+
+    def confirmed(self, floor: int) -> None:
+        """Every resent seq below ``floor`` is acknowledged: forget it."""
+        done = [s for s in self.resent if s < floor]
+        for seq in done:
+            del self.resent[seq]
+        if done:
+            self.resend_confirmed = True
+
+
+class WriterMachine:
+    def __init__(self, topic: str, qos: QosProfile, guid: bytes, clock: Clock) -> None:
+        self.topic = wire.check_topic_key(topic)
+        self.qos = qos
+        self.guid = guid
+        self.hex = guid.hex()
+        self.clock = clock
+        self.bad = BadInput(f"writer {topic} {self.hex}")
+        self._offered = rounded(qos)
+        self._capacity = qos.capacity
+        self._keep_all = qos.history is HistoryPolicy.KEEP_ALL
+        #: only KEEP_ALL VOLATILE drops acknowledged samples (see ``_purge``)
+        self._purges = self._keep_all and not qos.transient_local
+        self._manual = qos.liveliness is LivelinessPolicy.MANUAL_BY_TOPIC
+        self._ack_interval = self._ack_interval_for(self._capacity)
+        now = clock.monotonic_s()
+        #: seq -> (payload, stamp_ns); holds exactly first .. last_seq
+        self.history: dict[int, tuple[bytes, int]] = {}
+        self.first = 1
+        self.last_seq = 0
+        self._last_ack_request = 0
+        self.proxies: dict[bytes, _ReaderProxy] = {}
+        self._incompatible: set[bytes] = set()
+        self._hb_count = 0
+        self._next_hb_s = now
+        self._last_unchanged_hb_s = -math.inf
+        self._last_live_hb_s = -math.inf
+        self._asserted_since_hb = True
+        self._deadline = DeadlineTimer(qos.deadline_s, now)
+        self._lease = LeaseTimer(qos.lease_duration_s if self._manual else 0.0, now)
+        self._hb_key = wire.heartbeat_key(topic, self.hex)
+        self._mono = clock.monotonic_s
+        self._wall_ns = clock.wall_ns
+        self._pack = wire.DATA.pack
+        #: deadline or manual liveliness: only then does a write need the time
+        self._timed = qos.deadline_s > 0 or self._manual
+        self._n_reliable = 0
+        #: write batching: payloads written but not yet sent (seq from ``last_seq - len(batch) +
+        #: 1``) and their stamps; kept apart from the history, which may overwrite them
+        self.batch: list[bytes] = []
+        self._batch_stamps: list[int] = []
+        self._batch_max = qos.batch_max_samples
+        self._batch_delay_s = qos.batch_max_delay_s
+        self._batch_flags = 0
+        self._batch_bytes = 0
+        self._batch_opened_s = 0.0
+        self._last_put_s = -math.inf
+        self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
+        self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
+        #: NACKed seqs not resent because their resend to that reader was still on its way
+        self.resends_held_off = 0
+        self.history_offered = 0
+        self.lost = self.lifespan_expired = self.unchanged = self.overwritten_unacked = 0
+        self.liveliness_lost = self.incompatible = 0
+        self.matched_total = 0
+
+    def _ack_interval_for(self, capacity: int) -> int:
+        """Samples between two ACK_REQUESTs: often enough that the history never fills while
+        acknowledgements are on their way, rarely enough to cost little at high rates."""
+        if self._keep_all:
+            return max(1, min(1024, capacity // 4))
+        return max(1, min(64, capacity // 2))
+
+    # ------------------------------------------------------------------ routing
+    def subscriptions(self) -> list[tuple[str, str]]:
+        """(key expression, handler name) pairs the driver must subscribe."""
+        return [(wire.acknack_key(self.topic, self.hex, "*"), "on_acknack")]
+
+    def watch_expr(self) -> str:
+        return wire.reader_token(self.topic, "*", "*")
+
+    # ------------------------------------------------------------------ writing
+    def _min_acked(self) -> int:
+        acked = self.last_seq + 1
+        for p in self.proxies.values():
+            if p.reliable and p.acked < acked:
+                acked = p.acked
+        return acked
+
+    def _purge(self) -> None:
+        """KEEP_ALL VOLATILE: drop what every reliable reader acknowledged, to make room.
+
+        KEEP_LAST keeps its last ``depth`` samples whatever the acknowledgements say (as DDS
+        does): they cost nothing more than the bound already allows, a reader whose ACKNACK was
+        optimistic (or forged) can still get them again, and no purge runs per ACKNACK."""
+        if self.qos.transient_local or not self._keep_all:
+            return
+        limit = self._min_acked()
+        if limit > self.last_seq:
+            self.history.clear()
+            self.first = self.last_seq + 1
+            return
+        while self.first < limit:
+            del self.history[self.first]
+            self.first += 1
+
+    def all_acknowledged(self) -> bool:
+        return self._min_acked() > self.last_seq and all(p.synced for p in self.proxies.values())
+
+    def acknowledged_through(self) -> int:
+        """The highest seq every matched reliable reader acknowledged, and all before it."""
+        return self._min_acked() - 1
+
+    def latest_undeliverable(self) -> bool:
+        """The last sample written is gone from the history (lifespan, a purge) while some
+        reliable reader has not acknowledged it: that reader can never get the newest value.
+        Overwrites and GAPs never do this alone: they only drop samples a newer one superseded,
+        and the newest stays held until it is acknowledged or expires."""
+        last = self.last_seq
+        return last > 0 and last not in self.history and self._min_acked() <= last
+
+    def has_room(self) -> bool:
+        if len(self.history) < self._capacity or not self._keep_all:
+            return True
+        return self.first < self._min_acked()
+
+    def write(
+        self, payload: bytes, stamp_ns: int | None = None
+    ) -> tuple[int, tuple[bytes, bytes] | None, Sequence[Action]]:
+        """Assign the next seq, keep the sample, and return (seq, (payload, attachment) to
+        publish on the topic key now or None, actions). Raises HistoryFullError if KEEP_ALL has no
+        room (the driver waits for acknowledgements and retries up to max_blocking_time).
+
+        Without batching every sample is published at once. With batching, a sample written
+        ``batch_max_delay_s`` or more after the last message went out is published at once and
+        alone; otherwise it joins the open batch, which is returned when full or when its oldest
+        sample has waited ``batch_max_delay_s`` (here or from ``tick``), else None.
+
+        This is the hot path of a publisher: everything that can be decided once is decided in
+        ``__init__`` or on (un)matching, not here."""
+        history = self.history
+        actions: Sequence[Action] = _NO_ACTIONS
+        if len(history) >= self._capacity:
+            if self._keep_all:
+                if self.first >= self._min_acked():
+                    raise HistoryFullError(self._full_message())
+                self._drop_front()
+            else:
+                overwritten: list[Action] = []
+                self._overwrite_front(overwritten)
+                actions = overwritten
+        if stamp_ns is None:
+            stamp_ns = self._wall_ns()
+        seq = self.last_seq = self.last_seq + 1
+        history[seq] = (payload, stamp_ns)
+        flags = 0
+        if self._n_reliable and seq - self._last_ack_request >= self._ack_interval:
+            flags = wire.F_ACK_REQUEST
+            self._last_ack_request = seq
+        if self._timed:  # deadline or manual liveliness: only then does a write need the time
+            timed: list[Action] = list(actions)
+            actions = timed
+            now = self._mono()
+            self._asserted_since_hb = True
+            self._deadline_met(now, timed)
+            self._lease.assert_alive(now)
+        if not self._n_reliable and self._purges and len(history) >= _PURGE_EVERY:
+            self._purge()  # nobody needs these; amortised, not on every write
+        if self._batch_max == 1:
+            return (
+                seq,
+                (payload, self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)),
+                actions,
+            )
+        now = self._mono()
+        batch = self.batch
+        if not batch:
+            if now - self._last_put_s >= self._batch_delay_s:
+                self._last_put_s = now
+                attachment = self._pack(wire.VERSION, flags, self.guid, seq, stamp_ns)
+                return seq, (payload, attachment), actions
+            self._batch_opened_s = now
+        elif self._batch_bytes + len(payload) > BATCH_MAX_BYTES:
+            # the open batch goes out without this sample, which opens the next one: one large
+            # sample never makes a message outgrow a Zenoh batch (and get fragmented)
+            ready = self._take_batch(now, held_back=1)
+            self._batch_opened_s = now
+            self.batch.append(payload)
+            self._batch_stamps.append(stamp_ns)
+            self._batch_flags = flags
+            self._batch_bytes = len(payload)
+            return seq, ready, actions
+        batch.append(payload)
+        self._batch_stamps.append(stamp_ns)
+        if flags:
+            self._batch_flags |= flags
+        self._batch_bytes += len(payload)
+        if (
+            len(batch) >= self._batch_max
+            or self._batch_bytes >= BATCH_MAX_BYTES
+            or now - self._batch_opened_s >= self._batch_delay_s
+        ):
+            return seq, self._take_batch(now), actions
+        return seq, None, actions
+
+    def flush_batch(self, force: bool) -> tuple[bytes, bytes] | None:
+        """The open batch as (payload, attachment) if it is due (or ``force``), else None."""
+        if not self.batch:
+            return None
+        now = self._mono()
+        if not force and now - self._batch_opened_s < self._batch_delay_s:
+            return None
+        return self._take_batch(now)
+
+    def _take_batch(self, now: float, held_back: int = 0) -> tuple[bytes, bytes]:
+        """The open batch as one message; ``held_back`` samples written after it (the newest
+        seqs) are not in it."""
+        batch, stamps, flags = self.batch, self._batch_stamps, self._batch_flags
+        first = self.last_seq - held_back - len(batch) + 1
+        self.batch, self._batch_stamps = [], []
+        self._batch_flags = self._batch_bytes = 0
+        self._last_put_s = now
+        if len(batch) == 1:
+            return batch[0], self._pack(wire.VERSION, flags, self.guid, first, stamps[0])
+        return wire.encode_batch(flags, self.guid, first, batch, stamps)
+
+    @property
+    def batch_due_s(self) -> float:
+        """When the open batch must go out (monotonic s)."""
+        return self._batch_opened_s + self._batch_delay_s
+
+    @property
+    def _last_sent(self) -> int:
+        """The last seq put on the wire (written samples still in the open batch are not)."""
+        return self.last_seq - len(self.batch)
+
+    def retune(self, *, depth: int, deadline_s: float) -> list[Action]:
+        """Apply a new KEEP_LAST depth and offered deadline in place (the CEDDP's QoS balancing),
+        keeping the guid, the history and the matches: replacing the writer instead would make
+        readers drop what it sends until they match it again. A smaller depth overwrites the
+        oldest samples exactly as a write would, and counts them the same way. The deadline
+        changes the writer's own timer; readers already matched stay matched (arpz's fleet
+        reader requests no deadline, so no offer can become incompatible with it)."""
+        self.qos = msgspec.structs.replace(self.qos, depth=depth, deadline_s=deadline_s)
+        QosProfile.__post_init__(self.qos)  # the same validation as a profile built from TOML
+        self._capacity = self.qos.capacity
+        self._ack_interval = self._ack_interval_for(self._capacity)
+        actions: list[Action] = []
+        while not self._keep_all and len(self.history) > self._capacity:
+            self._overwrite_front(actions)
+        now = self._mono()
+        self._deadline = DeadlineTimer(deadline_s, now)
+        self._timed = deadline_s > 0 or self._manual
+        return actions
+
+    def _full_message(self) -> str:
+        waiting = [p.hex for p in self.proxies.values() if p.reliable and p.acked <= self.first]
+        return (
+            f"KEEP_ALL history of {self.topic} is full ({len(self.history)} samples = max_samples) "
+            f"and reader(s) {', '.join(waiting) or '?'} have not acknowledged seq {self.first} "
+            f"within max_blocking_time_s={self.qos.max_blocking_time_s}: the link is too slow or "
+            "down; raise max_samples/max_blocking_time_s, lower the rate, or use KEEP_LAST"
+        )
+
+    def _drop_front(self) -> None:
+        del self.history[self.first]
+        self.first += 1
+
+    def _overwrite_front(self, actions: list[Action]) -> None:
+        """KEEP_LAST is full: the oldest goes. Whether a reader still needed it is known only
+        when it NACKs it (then it gets a GAP and both sides count it lost); until then it is
+        counted as ``overwritten_unacked``, an upper bound of the losses this write causes."""
+        seq = self.first
+        self._drop_front()
+        for p in self.proxies.values():
+            if p.reliable and seq >= p.acked:
+                self.overwritten_unacked += 1
+                p.acked = seq + 1
+
+    def _assert(self, now: float) -> None:
+        self._asserted_since_hb = True
+        self._lease.assert_alive(now)  # regaining liveliness has no ROS 2 writer event
+
+    def assert_unchanged(self) -> list[Action]:
+        """The local cache held back a reading equal to the last one sent: the topic is alive and
+        its value current. Resets the offered deadline here and, through a heartbeat flagged
+        UNCHANGED (at most one per third of the shortest deadline a reader requests, else one per
+        heartbeat period), the requested deadline at every reader."""
+        now = self.clock.monotonic_s()
+        self.unchanged += 1
+        actions: list[Action] = []
+        self._deadline_met(now, actions)
+        self._assert(now)
+        # a reader checks at most the deadline it requested, so UNCHANGED heartbeats go at a third
+        # of the shortest requested deadline (a third, not a half: margin for a loaded host or a
+        # lost heartbeat); with no reader checking one, at the heartbeat period (one every
+        # held-back reading would cost more than sending the data the cache saved)
+        requested = [
+            p.requested_deadline_s for p in self.proxies.values() if p.requested_deadline_s
+        ]
+        interval = min(requested) / 3 if requested else self.qos.heartbeat_period_s
+        if self.proxies and self._min_acked() <= self.last_seq:
+            # the last value sent is not acknowledged yet and the cache now holds its repeats
+            # back: if it was lost, only a heartbeat reveals it, and the reader would plan on the
+            # value before it until then. Announce it at the held-back readings until it is
+            # acknowledged, at most once per NACK delay (the reader's own reaction time): about a
+            # round trip's worth of small messages per change, and a burst costs one
+            interval = min(interval, self.qos.nack_delay_s)
+        if now - self._last_unchanged_hb_s < interval:
+            return actions
+        self._last_unchanged_hb_s = now
+        actions.append(self._heartbeat(now, wire.HB_UNCHANGED))
+        return actions
+
+    def _deadline_met(self, now: float, actions: list[Action]) -> None:
+        missed = self._deadline.reset(now)
+        if missed:
+            actions.append(Notify("deadline", DeadlineMissedStatus(self._deadline.total, missed)))
+
+    def assert_liveliness(self) -> list[Action]:
+        """MANUAL_BY_TOPIC: prove the writer alive without writing."""
+        now = self.clock.monotonic_s()
+        self._assert(now)
+        lease = self.qos.lease_duration_s
+        if lease > 0 and now - self._last_live_hb_s >= lease / 4:
+            return [self._heartbeat(now, 0)]
+        return []
+
+    def _heartbeat(self, now: float, extra: int) -> Send:
+        flags = extra
+        if not self._manual or self._asserted_since_hb:
+            flags |= wire.HB_LIVELINESS
+            self._last_live_hb_s = now
+        self._asserted_since_hb = False
+        if self._min_acked() > self.last_seq:
+            flags |= wire.HB_FINAL
+        self._hb_count += 1
+        self.heartbeats += 1
+        last = self._last_sent
+        # with a batch open, KEEP_LAST may hold nothing already sent: announce an empty range
+        payload = wire.encode_heartbeat(
+            flags, self.guid, min(self.first, last + 1), last, self._hb_count
+        )
+        return Send(self._hb_key, payload)
+
+    def _sync(self, p: _ReaderProxy, now: float) -> Send:
+        """Tell one reader where its match starts (VOLATILE: the next seq; TRANSIENT_LOCAL: the
+        oldest held), repeated until the reader's first ACKNACK proves it knows."""
+        p.last_sync_s = now
+        payload = wire.encode_heartbeat(
+            wire.HB_SYNC | wire.HB_LIVELINESS,
+            self.guid,
+            p.start,
+            max(self._last_sent, p.start - 1),  # matched while a batch was open: empty so far
+            self._hb_count,
+        )
+        return Send(p.rx_key, payload)
+
+    # ------------------------------------------------------------------ matching
+    def on_reader_token(self, key: str, alive: bool) -> list[Action]:
+        parsed = parse_token(key, "r", self.topic)
+        if parsed is None:
+            self.bad("malformed reader token", key)
+            return []
+        _, guid, hex_, mq = parsed
+        if not alive:
+            self._incompatible.discard(guid)
+            p = self.proxies.pop(guid, None)
+            if p is None:
+                return []
+            self._n_reliable -= p.reliable
+            self._purge()
+            return [self._matched(-1, hex_)]
+        if guid in self.proxies or guid in self._incompatible:
+            return []
+        policy = incompatible_policy(self._offered, mq.as_profile())
+        if policy is not None:
+            self._incompatible.add(guid)
+            self.incompatible += 1
+            return [
+                Notify(
+                    "incompatible_qos", IncompatibleQosStatus(self.incompatible, 1, policy, hex_)
+                )
+            ]
+        start = (
+            self.first if (self.qos.transient_local and mq.transient_local) else self.last_seq + 1
+        )
+        p = _ReaderProxy(guid, hex_, mq.reliable, start, wire.directed_key(self.topic, hex_))
+        p.requested_deadline_s = mq.as_profile().deadline_s
+        self.proxies[guid] = p
+        self._n_reliable += p.reliable
+        if p.reliable:
+            self.history_offered += max(self.last_seq - start + 1, 0)
+        self.matched_total += 1
+        now = self.clock.monotonic_s()
+        return [self._matched(1, hex_), self._sync(p, now)]
+
+    def _matched(self, change: int, peer: str) -> Notify:
+        return Notify(
+            "matched",
+            MatchedStatus(self.matched_total, max(change, 0), len(self.proxies), change, peer),
+        )
+
+    # ------------------------------------------------------------------ reliability
+    def on_acknack(self, key: str, payload: bytes, attachment: bytes | None) -> list[Action]:
+        an = wire.decode_acknack(payload)
+        if an is None or an.writer != self.guid:
+            self.bad("malformed ACKNACK", key)
+            return []
+        if not key.endswith(f"/{an.reader.hex()}"):
+            # a reader's ACKNACKs go on its own key: another reader's guid there is forged
+            self.bad("ACKNACK with another guid than its key's reader", key)
+            return []
+        p = self.proxies.get(an.reader)
+        if p is None:
+            self.bad("ACKNACK from an unmatched reader", an.reader.hex(), race=True)
+            return []
+        now = self.clock.monotonic_s()
+        p.synced = True
+        base = min(an.base, self.last_seq + 1)
+        if base > p.acked:
+            p.acked = base
+        if p.resent:
+            p.confirmed(max(p.acked, self.first))
+        # A seq resent less than the holdoff ago is still on its way (a burst of resends to a
+        # reader that just joined takes longer than its NACK repeat): not resent again, so a
+        # TRANSIENT_LOCAL history goes out about once per reader, not once per NACK.
+        holdoff = now - p.holdoff_s()
+        actions: list[Action] = []
+        budget = RESEND_BUDGET
+        lost_ranges: list[tuple[int, int]] = []
+        for lo_, hi_ in an.missing:
+            lo, hi = max(lo_, base, p.start), min(hi_, self.last_seq)
+            if lo > hi:
+                continue
+            self.nacks += hi - lo + 1
+            if lo < self.first:
+                lost_ranges.append((lo, min(hi, self.first - 1)))
+                lo = self.first
+            seq = lo
+            resent = p.resent
+            while seq <= hi and budget > 0:
+                times = resent.get(seq)
+                if times is not None and times[1] > holdoff:
+                    self.resends_held_off += 1
+                    seq += 1
+                    continue
+                data, stamp = self.history[seq]
+                att = wire.encode_resend(self.guid, seq, stamp, an.counter)
+                actions.append(Send(p.rx_key, data, att))
+                resent[seq] = (times[0] if times is not None else now, now)
+                self.retransmitted += 1
+                budget -= 1
+                seq += 1
+        if lost_ranges:
+            n_lost = sum(hi - lo + 1 for lo, hi in lost_ranges)
+            self.gaps += n_lost
+            p.lost += n_lost
+            self.lost += n_lost
+            actions.append(Send(p.rx_key, wire.encode_gap(self.guid, p.guid, lost_ranges)))
+            actions.append(Notify("message_lost", MessageLostStatus(self.lost, n_lost, p.hex)))
+        self._purge()
+        return actions
+
+    def tick(self, backlog: int = 0) -> list[Action]:
+        now = self.clock.monotonic_s()
+        actions: list[Action] = []
+        if self.batch:
+            due = self.flush_batch(force=False)
+            if due is not None:
+                actions.append(Send(self.topic, due[0], due[1]))
+        if self.qos.lifespan_s > 0:
+            self._expire(self.clock.wall_ns())
+        if now >= self._next_hb_s:
+            self._next_hb_s = now + self.qos.heartbeat_period_s
+            actions.append(self._heartbeat(now, 0))
+        for p in self.proxies.values():
+            if not p.synced and now - p.last_sync_s >= self.qos.nack_period_s:
+                actions.append(self._sync(p, now))
+        missed = self._deadline.poll(now)
+        if missed:
+            actions.append(Notify("deadline", DeadlineMissedStatus(self._deadline.total, missed)))
+        if self._lease.poll(now):
+            self.liveliness_lost += 1
+            actions.append(Notify("liveliness", LivelinessLostStatus(self.liveliness_lost, 1)))
+        return actions
+
+    def busy(self) -> bool:
+        """A batch waits to go out, or one went out within the batch delay (the topic is
+        streaming: the next batch opens any moment, and a driver that went idle in between
+        would have to be woken for it), or a reader has not yet confirmed where its match
+        starts (SYNC is being repeated): the driver ticks at its fine period."""
+        return (
+            bool(self.batch)
+            or self._mono() - self._last_put_s < self._batch_delay_s
+            or any(not p.synced for p in self.proxies.values())
+        )
+
+    def _expire(self, wall_ns: int) -> None:
+        limit_ns = wall_ns - int(self.qos.lifespan_s * 1e9)
+        while self.first <= self.last_seq and self.history[self.first][1] < limit_ns:
+            self._drop_front()
+            self.lifespan_expired += 1
+
+    def stats(self) -> WriterStats:
+        return WriterStats(
+            sent=self.last_seq,
+            retransmitted=self.retransmitted,
+            resends_held_off=self.resends_held_off,
+            history_offered=self.history_offered,
+            nacks=self.nacks,
+            gaps=self.gaps,
+            heartbeats=self.heartbeats,
+            lost=self.lost,
+            overwritten_unacked=self.overwritten_unacked,
+            lifespan_expired=self.lifespan_expired,
+            unchanged=self.unchanged,
+            deadline_missed=self._deadline.total,
+            liveliness_lost=self.liveliness_lost,
+            matched=len(self.proxies),
+            incompatible=self.incompatible,
+            history=len(self.history),
+            bad_input=self.bad.total(),
+        )

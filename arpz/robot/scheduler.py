@@ -1,0 +1,72 @@
+"""The robot's periodic jobs on one thread: a heap of due times.
+
+A robot with many sensors (each at its own rate), a Hello probe, a simulated body, a command
+watchdog and periodic reports needs no thread per job: one loop sleeps until the earliest job is
+due, runs it, and schedules its next run. A job that fell more than a period behind (a slow
+driver, an overloaded CPU) is re-aligned instead of bursting to catch up, and the skipped
+periods are reported to ``on_late`` with the job.
+"""
+
+from __future__ import annotations
+
+import heapq
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+
+@dataclass(order=True)
+class Job:
+    due_s: float
+    order: int
+    period_s: float = field(compare=False)
+    run: Callable[[float], None] = field(compare=False)
+    name: str = field(compare=False)
+
+
+class Scheduler:
+    """Owns the jobs; ``run`` is the robot's scheduler thread."""
+
+    def __init__(self) -> None:
+        self._jobs: list[Job] = []
+
+    def every(
+        self, period_s: float, run: Callable[[float], None], name: str, *, first_s: float = 0.0
+    ) -> Job:
+        """Run ``run(now_s)`` every ``period_s``, first at ``first_s`` (seconds since start).
+        The job returned is the handle to change its period by (a QoS assignment's rate; a float
+        assignment, picked up at its next run, so any thread may do it): names are for logs only
+        and need not be unique (a sensor may be called "stats")."""
+        job = Job(first_s, len(self._jobs), period_s, run, name)
+        self._jobs.append(job)
+        return job
+
+    def run(
+        self,
+        stop: threading.Event,
+        clock: Callable[[], float],
+        *,
+        end_s: float = float("inf"),
+        on_late: Callable[[Job, int], None] | None = None,
+    ) -> None:
+        """Run the jobs until ``stop`` is set or ``clock()`` reaches ``end_s``."""
+        jobs = self._jobs
+        heapq.heapify(jobs)
+        while not stop.is_set():
+            now_s = clock()
+            if now_s >= end_s:
+                break
+            if not jobs:
+                stop.wait(min(end_s - now_s, 0.05))
+                continue
+            job = jobs[0]
+            if job.due_s > now_s:
+                stop.wait(min(job.due_s - now_s, 0.05))
+                continue
+            job.run(now_s)
+            job.due_s += job.period_s
+            if job.due_s < now_s - job.period_s:
+                if on_late is not None:
+                    on_late(job, int((now_s - job.due_s) / job.period_s))
+                job.due_s = now_s + job.period_s
+            heapq.heapreplace(jobs, job)

@@ -1,0 +1,167 @@
+"""One sensor of a robot, from its driver through the local cache to its channel writer.
+
+``SensorChannel`` holds what the robot keeps per sensor (driver, local cache, outlet, counters);
+``sense`` is one scheduler tick of it: read, let the local cache decide, and either send the
+sample or tell the channel the value is unchanged (an UNCHANGED heartbeat keeps the CEDDP fresh).
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from arpz import keys
+from arpz.channel_io import Outlet
+from arpz.config import RobotConfig, SensorConfig
+from arpz.messages import Sample, TopicCounters, encode, same_value
+from arpz.robot.local_cache import LocalCache
+from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors
+from arpz.robot.sensors.base import check_value
+from arpz.robot.sim_host import BeamDriver, SimHost
+from arpz.transport import Transport
+
+log = logging.getLogger(__name__)
+
+
+def effective_sensors(config: RobotConfig) -> list[SensorConfig]:
+    """The preset's sensors, then the explicit ones (an explicit sensor replaces a preset one
+    of the same name)."""
+    explicit = {s.name: s for s in config.sensors}
+    base = preset_sensors(config.preset, config.preset_rate_hz) if config.preset else []
+    merged = [explicit.pop(s.name, s) for s in base]
+    return merged + [s for s in config.sensors if s.name in explicit]
+
+
+@dataclass
+class SensorChannel:
+    config: SensorConfig
+    driver: SensorDriver
+    cache: LocalCache
+    output: Outlet
+    seq: int = 0
+    bytes_sent: int = 0
+    driver_errors: int = 0
+    late_ticks: int = 0
+    sent_at_last_report: int = 0
+    produced_at_last_report: int = 0
+    #: the rate the scheduler runs this sensor at (the config's, until a QoS assignment)
+    rate_hz: float = 0.0
+    #: times the local cache forgot its last value because the channel lost the newest one
+    cache_forgets: int = 0
+    #: the last value read and when it was first read (staleness is measured from it)
+    last_read: object = None
+    changed_ns: int = 0
+    #: (seq, changed_ns) of the samples sent and not yet acknowledged (channel seq == seq: one
+    #: write per sample), so a sample can say since when the CEDDP may be stale if they are lost
+    unacked: collections.deque[tuple[int, int]] = field(
+        default_factory=lambda: collections.deque(maxlen=100_000)
+    )
+
+    def counters(self) -> TopicCounters:
+        c = self.cache.counters
+        channel = self.output.totals()
+        return TopicCounters(
+            produced=c.produced,
+            # a reading the cache passed but a full KEEP_ALL history refused was not sent
+            sent=c.sent - channel["write_failures"],
+            held_back=c.held_back,
+            last_seq=self.seq,
+            bytes_sent=self.bytes_sent,
+            write_failures=channel["write_failures"],
+            retransmitted=channel["retransmitted"],
+            history_offered=channel["history_offered"],
+            gapped=channel["gapped"],
+            overwritten_unacked=channel["overwritten_unacked"],
+            deadline_missed=channel["deadline_missed"],
+            cache_forgets=self.cache_forgets,
+        )
+
+    def close(self) -> None:
+        self.driver.close()
+        self.output.close()
+
+
+def build_sensors(
+    config: RobotConfig, transport: Transport, sim: SimHost | None, base_dir: Path
+) -> list[SensorChannel]:
+    """Every sensor of the config (a simulated body's beams first), each with its driver, local
+    cache and channel writer."""
+    sensor_configs = effective_sensors(config)
+    if sim is not None and config.sim is not None:
+        sensor_configs = sim.beam_sensors(config.sim.beam_rate_hz) + sensor_configs
+    if not sensor_configs:
+        log.warning("robot %s has no sensors: it will only act on commands", config.robot_id)
+    sensors: list[SensorChannel] = []
+    for sensor in sensor_configs:
+        silence = sensor.max_silence_s or config.local_cache.max_silence_s
+        driver = (
+            BeamDriver(sim, sensor.name)
+            if sim is not None and sensor.driver == "sim-body"
+            else make_driver(
+                sensor, robot_id=config.robot_id, robot_seed=config.seed, base_dir=base_dir
+            )
+        )
+        sensors.append(
+            SensorChannel(
+                config=sensor,
+                driver=driver,
+                cache=LocalCache(
+                    enabled=config.local_cache.enabled,
+                    tolerance=sensor.tolerance,
+                    max_silence_s=silence,
+                ),
+                output=Outlet(
+                    transport,
+                    keys.sensor_key(config.fleet, config.robot_id, sensor.name),
+                    config.profile("sensor"),
+                ),
+                rate_hz=sensor.rate_hz,
+            )
+        )
+    return sensors
+
+
+def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
+    """One tick: read the driver, hold an unchanged reading back, send a changed one."""
+    try:
+        value = check_value(sensor.config.kind, sensor.driver.read(now_s))
+    except Exception as exc:  # a driver bug or a device error must not stop the robot
+        sensor.driver_errors += 1
+        if sensor.driver_errors in (1, 10, 100) or sensor.driver_errors % 1000 == 0:
+            log.error(
+                "sensor %s: driver error #%d: %s", sensor.config.name, sensor.driver_errors, exc
+            )
+        return
+    stamp_ns = time.time_ns()
+    if sensor.last_read is None or not same_value(
+        value,
+        sensor.last_read,  # type: ignore[arg-type]
+        sensor.config.tolerance,
+    ):
+        sensor.last_read, sensor.changed_ns = value, stamp_ns
+    if sensor.cache.holding and sensor.output.latest_undeliverable():
+        # the last value sent can never arrive (it expired unacknowledged): the CEDDP still
+        # holds the one before, so this reading must not be held back as "unchanged"
+        sensor.cache.forget()
+        sensor.cache_forgets += 1
+    if not sensor.cache.offer(value, now_s):
+        sensor.output.unchanged()
+        return
+    unacked = sensor.unacked
+    acked = sensor.output.acknowledged_through()
+    if acked is not None:
+        while unacked and unacked[0][0] <= acked:
+            unacked.popleft()
+    since_ns = unacked[0][1] if unacked else sensor.changed_ns
+    seq = sensor.seq + 1
+    payload = encode(Sample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns))
+    if sensor.output.send(payload, stamp_ns):
+        sensor.seq = seq
+        sensor.bytes_sent += len(payload)
+        if acked is not None:
+            unacked.append((seq, sensor.changed_ns))
+    else:
+        sensor.cache.forget()

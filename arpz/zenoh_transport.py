@@ -1,0 +1,321 @@
+"""The Zenoh seam: the only module of arpz's runtime that imports zenoh.
+
+``ZenohTransport`` implements ``arpz.transport.Transport`` over a Zenoh session, and every
+Zenoh error that crosses the seam comes out as ``TransportError`` (or ``ConfigError`` for a
+configuration Zenoh refuses), so callers never need ``except Exception``. The rest of the module
+reads Zenoh JSON5 configs into sentences that name the file and the field.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import re
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import zenoh
+
+from arpz.endpoints import check_endpoints
+from arpz.errors import ConfigError
+from arpz.transport import (
+    DataCallback,
+    Handle,
+    LivelinessCallback,
+    Publisher,
+    PullSubscriber,
+    Received,
+    SessionSettings,
+    TransportError,
+)
+
+log = logging.getLogger(__name__)
+
+
+@contextlib.contextmanager
+def _translated(what: str) -> Iterator[None]:
+    """Zenoh's errors as ``TransportError``, saying what was being done."""
+    try:
+        yield
+    except zenoh.ZError as exc:
+        raise TransportError(f"{what}: {zenoh_message(exc)}") from exc
+
+
+_RUST_LOCATION = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+
+
+def zenoh_message(exc: BaseException) -> str:
+    """A Zenoh error without the Rust source location it ends with."""
+    return _RUST_LOCATION.sub("", str(exc)).strip()
+
+
+def config_value(conf: zenoh.Config, key: str) -> object:
+    """One entry of a Zenoh config as a Python value (None if absent)."""
+    try:
+        return json.loads(conf.get_json(key))
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+def tls_identity(conf: zenoh.Config) -> str:
+    """Who a session claims to be over TLS, for an error message: its certificate file."""
+    cert = config_value(conf, "transport/link/tls/connect_certificate")
+    return f"TLS identity {cert}" if isinstance(cert, str) else "no TLS client certificate"
+
+
+#: the file-valued keys of Zenoh's ``transport/link/tls`` section
+TLS_FILE_KEYS = (
+    "root_ca_certificate",
+    "connect_certificate",
+    "connect_private_key",
+    "listen_certificate",
+    "listen_private_key",
+)
+
+
+def load_zenoh_config(path: str, *, source: str) -> zenoh.Config:
+    """The JSON5 file ``zenoh_config`` names, checked: it exists, parses, its TLS files exist
+    and its endpoints are well formed. ``source``: the TOML that names it, for the message."""
+    where = f"{source}: field 'zenoh_config'"
+    file = Path(path)
+    if not file.is_file():
+        raise ConfigError(f"{where}: {path}: no such file")
+    try:
+        conf = zenoh.Config.from_file(path)
+    except zenoh.ZError as exc:
+        message = zenoh_message(exc)
+        raise ConfigError(f"{where}: {path} is not a valid Zenoh config: {message}") from None
+    for key in TLS_FILE_KEYS:
+        value = config_value(conf, f"transport/link/tls/{key}")
+        if isinstance(value, str) and not Path(value).is_file():
+            raise ConfigError(f"{path}: transport.link.tls.{key}: {value}: no such file")
+    for section in ("connect", "listen"):
+        endpoints = config_value(conf, f"{section}/endpoints")
+        if isinstance(endpoints, list):
+            try:
+                check_endpoints([str(e) for e in endpoints], field=f"{section}.endpoints")
+            except ValueError as exc:
+                raise ConfigError(f"{path}: {exc}") from None
+    return conf
+
+
+def uses_tls(conf: zenoh.Config) -> bool:
+    """Whether a Zenoh config sets up TLS (any certificate or key file)."""
+    return any(
+        isinstance(config_value(conf, f"transport/link/tls/{key}"), str) for key in TLS_FILE_KEYS
+    )
+
+
+def config_endpoints(conf: zenoh.Config, section: str) -> list[str]:
+    """The ``connect`` or ``listen`` endpoints a Zenoh config file lists (empty if none)."""
+    endpoints = config_value(conf, f"{section}/endpoints")
+    return [str(e) for e in endpoints] if isinstance(endpoints, list) else []
+
+
+def build_config(settings: SessionSettings) -> zenoh.Config:
+    if settings.mode not in ("client", "peer", "router"):
+        raise TransportError(f"mode must be client, peer or router, not {settings.mode!r}")
+    try:
+        conf = (
+            zenoh.Config.from_file(settings.config_file) if settings.config_file else zenoh.Config()
+        )
+        conf.insert_json5("mode", json.dumps(settings.mode))
+        conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+        if settings.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
+        if settings.connect:
+            conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
+        for key, value in settings.extra.items():
+            conf.insert_json5(key, json.dumps(value))
+    except zenoh.ZError as exc:
+        raise TransportError(f"invalid Zenoh configuration: {zenoh_message(exc)}") from exc
+    return conf
+
+
+class _Declared:
+    def __init__(self, inner: object) -> None:
+        self._inner = inner
+        self._lock = threading.Lock()
+        self._done = False
+
+    def undeclare(self) -> None:
+        with self._lock:
+            if self._done:
+                return
+            self._done = True
+        try:
+            self._inner.undeclare()  # type: ignore[attr-defined]
+        except (zenoh.ZError, RuntimeError) as exc:  # closed session, or a receiver still blocked
+            log.debug("undeclare failed: %s", exc)
+
+
+class _ZenohPublisher:
+    def __init__(self, inner: zenoh.Publisher) -> None:
+        self._inner = inner
+
+    def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
+        with _translated("put"):
+            if attachment is None:
+                self._inner.put(payload)
+            else:
+                self._inner.put(payload, attachment=attachment)
+
+    @property
+    def matching(self) -> bool:
+        try:
+            status = self._inner.matching_status
+        except zenoh.ZError as exc:  # closed session
+            log.debug("matching status after close: %s", exc)
+            return False
+        # the stubs say bool; zenoh-python 1.x returns a MatchingStatus with ``.matching``
+        return bool(getattr(status, "matching", status))
+
+    def undeclare(self) -> None:
+        try:
+            self._inner.undeclare()  # type: ignore[no-untyped-call]
+        except zenoh.ZError as exc:
+            log.debug("undeclare after close: %s", exc)
+
+
+class _ZenohPullSubscriber(_Declared):
+    def __init__(self, inner: zenoh.Subscriber) -> None:  # type: ignore[type-arg]
+        super().__init__(inner)
+        # the handler's own methods, not the subscriber's: a thread blocked in the subscriber's
+        # recv keeps it borrowed and undeclare fails ("Already borrowed"); blocked in the
+        # handler's, undeclare closes the channel and that recv raises ZError
+        self._try_recv = inner.handler.try_recv
+        self._recv = inner.handler.recv
+
+    @staticmethod
+    def _received(sample: zenoh.Sample) -> Received:
+        att = sample.attachment
+        return (
+            str(sample.key_expr),
+            sample.payload.to_bytes(),
+            att.to_bytes() if att is not None else None,
+        )
+
+    def try_recv(self) -> Received | None:
+        with _translated("receive"):
+            sample = self._try_recv()
+        return None if sample is None else self._received(sample)
+
+    def recv(self) -> Received:
+        """Blocks; raises ``TransportError`` once the subscriber is undeclared and drained."""
+        with _translated("receive"):
+            sample = self._recv()
+        return self._received(sample)
+
+
+class ZenohTransport:
+    """A Zenoh session behind the ``Transport`` protocol."""
+
+    def __init__(self, session: zenoh.Session, settings: SessionSettings) -> None:
+        self._session = session
+        self.settings = settings
+        self._declared: list[_Declared | _ZenohPublisher] = []
+        self._lock = threading.Lock()
+        self._closed = False
+
+    @classmethod
+    def open(cls, settings: SessionSettings, *, timeout_s: float = 0.0) -> ZenohTransport:
+        """Open a session, retrying for ``timeout_s`` (a robot may start before its server)."""
+        conf = build_config(settings)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                return cls(zenoh.open(conf), settings)
+            except zenoh.ZError as exc:
+                if time.monotonic() >= deadline:
+                    where = ", ".join(settings.connect or settings.listen) or "(no endpoint)"
+                    tried = f" for {timeout_s:g} s" if timeout_s else ""
+                    raise TransportError(
+                        f"cannot open a Zenoh {settings.mode} session on {where} "
+                        f"({tls_identity(conf)}), tried{tried or ' once'}: {zenoh_message(exc)}"
+                    ) from exc
+                time.sleep(0.1)
+                conf = build_config(settings)
+
+    @property
+    def zid(self) -> str:
+        return str(self._session.info.zid())
+
+    def _keep(self, item: _Declared | _ZenohPublisher) -> None:
+        with self._lock:
+            self._declared.append(item)
+
+    def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
+        congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        with _translated(f"declare a publisher on {key}"):
+            inner = self._session.declare_publisher(
+                key, congestion_control=congestion, express=express
+            )
+        pub = _ZenohPublisher(inner)
+        self._keep(pub)
+        return pub
+
+    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+        with _translated(f"put on {key}"):
+            if attachment is None:
+                self._session.put(key, payload)
+            else:
+                self._session.put(key, payload, attachment=attachment)
+
+    def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
+        def on_sample(sample: zenoh.Sample) -> None:
+            att = sample.attachment
+            callback(
+                str(sample.key_expr),
+                sample.payload.to_bytes(),
+                att.to_bytes() if att is not None else None,
+            )
+
+        with _translated(f"subscribe to {key_expr}"):
+            handle = _Declared(self._session.declare_subscriber(key_expr, on_sample))
+        self._keep(handle)
+        return handle
+
+    def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber:
+        with _translated(f"subscribe to {key_expr}"):
+            inner = self._session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
+        handle = _ZenohPullSubscriber(inner)
+        self._keep(handle)
+        return handle
+
+    def declare_token(self, key: str) -> Handle:
+        with _translated(f"declare the liveliness token {key}"):
+            handle = _Declared(self._session.liveliness().declare_token(key))
+        self._keep(handle)
+        return handle
+
+    def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Handle:
+        def on_change(sample: zenoh.Sample) -> None:
+            callback(str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+        with _translated(f"watch liveliness on {key_expr}"):
+            inner = self._session.liveliness().declare_subscriber(key_expr, on_change, history=True)
+        handle = _Declared(inner)
+        self._keep(handle)
+        return handle
+
+    def close(self) -> None:
+        with self._lock:
+            if self._closed:
+                return
+            self._closed = True
+            declared, self._declared = self._declared, []
+        for item in reversed(declared):
+            item.undeclare()
+        try:
+            self._session.close()  # type: ignore[no-untyped-call]
+        except zenoh.ZError as exc:
+            log.debug("session close: %s", exc)
+
+    def __enter__(self) -> ZenohTransport:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

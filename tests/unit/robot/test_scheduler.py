@@ -1,0 +1,68 @@
+"""The robot's scheduler: jobs are addressed by the handle ``every`` returns, never by name (a
+sensor may be called "stats" like the stats job), and a late job is reported as itself."""
+
+from __future__ import annotations
+
+import threading
+
+from arpz.robot.scheduler import Job, Scheduler
+
+
+class StepClock:
+    """Seconds since start, a microsecond further at every reading; ``stop`` waits on it, so
+    the scheduler's sleeps take no real time."""
+
+    def __init__(self) -> None:
+        self.now_s = 0.0
+        clock = self
+
+        class Stop(threading.Event):
+            def wait(self, timeout: float | None = None) -> bool:
+                clock.now_s += timeout or 0.0
+                return self.is_set()
+
+        self.stop = Stop()
+
+    def __call__(self) -> float:
+        self.now_s += 1e-6
+        return self.now_s
+
+
+def test_jobs_of_the_same_name_keep_their_own_periods() -> None:
+    scheduler = Scheduler()
+    runs = {"sensor": 0, "report": 0}
+
+    def sensor(_now: float) -> None:
+        runs["sensor"] += 1
+
+    def report(_now: float) -> None:
+        runs["report"] += 1
+
+    fast = scheduler.every(0.01, sensor, "stats")  # a sensor named like the stats job
+    scheduler.every(0.1, report, "stats", first_s=0.1)
+    fast.period_s = 0.02  # a QoS assignment retunes the sensor through its handle
+    clock = StepClock()
+    scheduler.run(clock.stop, clock, end_s=1.0)
+    assert 45 <= runs["sensor"] <= 51, runs  # every 20 ms for 1 s
+    assert 9 <= runs["report"] <= 10, runs  # the other "stats" still every 100 ms
+
+
+def test_the_job_that_fell_behind_is_reported_as_itself_and_realigned() -> None:
+    """Two jobs of one name; one blocks for half a second, so the other falls five periods
+    behind: that one is reported (by its handle, not its name) and re-aligned, not burst."""
+    scheduler = Scheduler()
+    clock = StepClock()
+    late: list[tuple[Job, int]] = []
+    runs = [0]
+
+    def slow(_now: float) -> None:
+        clock.now_s += 0.5  # a driver that blocked for half a second
+
+    def counted(_now: float) -> None:
+        runs[0] += 1
+
+    scheduler.every(1.0, slow, "pir")
+    other = scheduler.every(0.1, counted, "pir")
+    scheduler.run(clock.stop, clock, end_s=1.0, on_late=lambda j, n: late.append((j, n)))
+    assert late and all(job is other and n >= 3 for job, n in late), late
+    assert runs[0] <= 7, runs  # re-aligned: about 0.5 s of periods, not the 5 it missed as well
