@@ -1,6 +1,6 @@
 """A user-space lossy-link emulator (the kernel's netem qdisc is not available): docs/netem.md."""
 
-from arpz.netem.model import Counters, GilbertElliott, Impairments, Outage
+from arpz.netem.model import Counters, GilbertElliott, Impairments, Outage, frames_of
 from arpz.netem.proxy import NetemProxy, ProxyReport, parse_udp_endpoint
 
 __all__ = [
@@ -10,5 +10,6 @@ __all__ = [
     "NetemProxy",
     "Outage",
     "ProxyReport",
+    "frames_of",
     "parse_udp_endpoint",
 ]

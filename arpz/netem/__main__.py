@@ -49,6 +49,15 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--forward", required=True, help="udp/HOST:PORT of the router")
     ap.add_argument("--loss", type=float, default=0.0, help="random loss in %% (each direction)")
     ap.add_argument(
+        "--per-frame",
+        action="store_true",
+        help="--loss applies to each radio frame of --frame-bytes: a datagram IP fragments into "
+        "k frames is lost with probability 1 - (1 - loss)^k (large datagrams, as on WiFi)",
+    )
+    ap.add_argument(
+        "--frame-bytes", type=int, default=1500, help="MTU of one radio frame (--per-frame)"
+    )
+    ap.add_argument(
         "--burst", type=_burst, help="Gilbert-Elliott P,R[,LOSS_GOOD,LOSS_BAD] (fractions)"
     )
     ap.add_argument("--delay-ms", type=float, default=0.0)
@@ -96,6 +105,8 @@ def impairments_from(args: argparse.Namespace) -> Impairments:
         reorder_gap_s=args.reorder_gap_ms / 1000,
         outages=tuple(args.outage),
         clean_s=args.clean_s,
+        per_frame=args.per_frame,
+        frame_bytes=args.frame_bytes,
     )
 
 
@@ -126,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
             f"arpz.netem {name}: received {c['received']} forwarded {c['forwarded']} "
             f"dropped {c['dropped']} (loss {c['dropped_loss']}, burst {c['dropped_burst']}, "
             f"outage {c['dropped_outage']}, queue {c['dropped_queue']}) duplicated "
-            f"{c['duplicated']} reordered {c['reordered']}",
+            f"{c['duplicated']} reordered {c['reordered']} bytes in {c['bytes_in']} out "
+            f"{c['bytes_out']} frames {c['frames_in']} largest datagram {c['largest_datagram']}",
             file=sys.stderr,
         )
     line = json.dumps(data)

@@ -194,6 +194,7 @@ class NetemProxy:
         except OSError:  # a full socket buffer or a vanished peer: lost, as on a real link
             counters.send_errors += 1
             counters.forwarded -= 1
+            counters.bytes_out -= len(data)
 
     def _close(self) -> None:
         for sock in [self._listen, *self._upstream.values(), self._wake_r, self._wake_w]:

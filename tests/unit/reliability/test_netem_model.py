@@ -7,7 +7,7 @@ import random
 
 import pytest
 
-from arpz.netem.model import Direction, GilbertElliott, Impairments, Outage
+from arpz.netem.model import Direction, GilbertElliott, Impairments, Outage, frames_of
 
 
 def run(
@@ -65,3 +65,39 @@ def test_bad_settings_are_refused(kwargs: dict[str, float]) -> None:
         Impairments(**kwargs)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="r must be > 0"):
         GilbertElliott(p=0.1, r=0.0)
+
+
+@pytest.mark.parametrize(
+    ("size", "frames"), [(0, 1), (1, 1), (1472, 1), (1473, 2), (2952, 2), (2953, 3), (8192, 6)]
+)
+def test_a_datagram_takes_the_frames_ip_fragmentation_gives_it(size: int, frames: int) -> None:
+    assert frames_of(size) == frames
+    assert frames_of(size, frame_bytes=9000) == 1
+
+
+@pytest.mark.parametrize(("size", "loss"), [(1000, 0.1), (8192, 0.1), (921_600 // 64, 0.01)])
+def test_per_frame_loss_loses_a_datagram_when_any_of_its_frames_is_lost(
+    size: int, loss: float
+) -> None:
+    d, fates = run(Impairments(loss=loss, per_frame=True), n=20000, size=size)
+    expected = 1 - (1 - loss) ** frames_of(size)
+    lost = sum(1 for f in fates if not f)
+    assert abs(lost / 20000 - expected) < 4 * (expected * (1 - expected) / 20000) ** 0.5 + 1e-3
+    c = d.counters
+    assert c.dropped_loss == lost and c.frames_in == 20000 * frames_of(size)
+    assert c.bytes_in == 20000 * size and c.bytes_out == (20000 - lost) * size
+    assert c.largest_datagram == size
+
+
+def test_per_frame_loss_leaves_one_frame_datagrams_as_per_datagram_loss_decides_them() -> None:
+    _, per_datagram = run(Impairments(loss=0.2), size=1472)
+    _, per_frame = run(Impairments(loss=0.2, per_frame=True), size=1472)
+    assert per_frame == per_datagram
+    # without per_frame a large datagram is lost at the datagram rate, whatever its size
+    _, fates = run(Impairments(loss=0.2), size=60_000)
+    assert abs(sum(1 for f in fates if not f) / 20000 - 0.2) < 0.015
+
+
+def test_a_frame_smaller_than_an_ipv4_mtu_is_refused() -> None:
+    with pytest.raises(ValueError, match="frame_bytes"):
+        Impairments(frame_bytes=20)
