@@ -52,14 +52,23 @@ class Proc:
     _reader: threading.Thread | None = None
 
     @classmethod
-    def spawn(cls, name: str, args: list[str], workdir: Path, *, log: bool = True) -> Proc:
+    def spawn(
+        cls,
+        name: str,
+        args: list[str],
+        workdir: Path,
+        *,
+        log: bool = True,
+        env: dict[str, str] | None = None,
+    ) -> Proc:
+        """Start ``python args...``; ``env`` adds to (or overrides) this process's environment."""
         popen = subprocess.Popen(
             [sys.executable, *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             text=True,
             cwd=workdir,
-            env=dict(os.environ, PYTHONUNBUFFERED="1"),
+            env=dict(os.environ, PYTHONUNBUFFERED="1", **(env or {})),
         )
         proc = cls(name, popen, workdir / f"{name}.log" if log else None)
         log_file = proc.log_path.open("w", encoding="utf-8") if proc.log_path else None

@@ -23,7 +23,7 @@ from arpz.ceddp.ingest import MAX_WRITERS_PER_TOPIC
 from arpz.messages import CEDDP_STATS_DECODER, Hello, Sample, encode
 from arpz.protocol import wire
 from arpz.zenoh_transport import ZenohTransport
-from tests.integration.fleet import ceddp, robots, settle, write_robot
+from tests.integration.fleet import STEADY_MALLOC, ceddp, robots, settle, write_robot
 from tests.integration.secure_fleet import rss_mb
 from tests.support import client, wait_until
 
@@ -121,7 +121,7 @@ def _abuse(raw: ZenohTransport, round_no: int) -> None:
 
 
 def test_bad_input_is_counted_and_the_fleet_keeps_flowing(tmp_path: Path) -> None:
-    with ceddp(tmp_path, extra=PLAIN) as (server, endpoint):
+    with ceddp(tmp_path, extra=PLAIN, env=STEADY_MALLOC) as (server, endpoint):
         pid = server.popen.pid
         rates = Rates()
         config = write_robot(
@@ -208,7 +208,10 @@ def test_undecodable_reports_are_in_the_summary(tmp_path: Path) -> None:
 
 
 def test_invented_topic_names_cannot_grow_the_ceddp_without_bound(tmp_path: Path) -> None:
-    with ceddp(tmp_path, extra=PLAIN) as (server, endpoint), client(endpoint) as raw:
+    with (
+        ceddp(tmp_path, extra=PLAIN, env=STEADY_MALLOC) as (server, endpoint),
+        client(endpoint) as raw,
+    ):
         pid = server.popen.pid
         settle(1.0)  # deliberately: the CEDDP idles a second after start-up before memory is read
         rss_before = rss_mb(pid)
@@ -351,7 +354,10 @@ def test_a_report_flood_from_one_robot_is_bounded_and_others_still_get_through(
     log within 64 kB (one line per cause per 10 s), and a robot that joins during the flood is
     seen within 2 s (the control queue keeps the latest report per key, so a flood waits behind
     nothing and nothing waits behind it)."""
-    with ceddp(tmp_path, extra=PLAIN) as (server, endpoint), client(endpoint) as raw:
+    with (
+        ceddp(tmp_path, extra=PLAIN, env=STEADY_MALLOC) as (server, endpoint),
+        client(endpoint) as raw,
+    ):
         pid = server.popen.pid
         settle(1.5)  # deliberately: warm-up before the first memory reading
         rss = [rss_mb(pid)]

@@ -26,7 +26,7 @@ from typing import Any
 import pytest
 
 from arpz.messages import CEDDP_STATS_DECODER
-from tests.integration.fleet import ceddp, robots
+from tests.integration.fleet import STEADY_MALLOC, ceddp, robots
 from tests.integration.secure_fleet import rss_mb
 from tests.support import client
 
@@ -98,7 +98,7 @@ def soak(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SoakRun]:
         with lock:
             run.rates.append((time.monotonic() - start, sum(t.rate_hz for t in stats.topics)))
 
-    with ceddp(tmp) as (server, endpoint):
+    with ceddp(tmp, env=STEADY_MALLOC) as (server, endpoint):
         configs = [_robot_config(tmp, robot, endpoint) for robot in ROBOTS]
         with robots(tmp, configs) as procs, client(endpoint) as raw:
             raw.subscribe("arpz/itest/ceddp/stats", on_stats)
