@@ -24,7 +24,10 @@ from typing import Any
 import msgspec
 import numpy as np
 
+from arpz.config import ConfigError
+from arpz.perf import fleet
 from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
+from arpz.perf.fleet import add_fleet_parser
 from arpz.perf.report import HEADER, Recorder, build_report, payload_maker
 from arpz.perf.zenoh_baselines import AdvancedPub, AdvancedSub, ZenohPub, ZenohSub, open_session
 from arpz.protocol.qos import (
@@ -37,7 +40,7 @@ from arpz.protocol.qos import (
 )
 from arpz.reliability import HistoryFullError
 from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport
+from arpz.zenoh_transport import ZenohTransport, load_zenoh_config
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:
@@ -101,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("router", help="a bare Zenoh router")
     r.add_argument("--listen", required=True, help="ENDPOINT[,ENDPOINT...]")
     r.add_argument("--duration", type=float, default=0.0)
+    add_zenoh_config_flag(r)
     for name in ("pub", "sub", "ping", "pong"):
         p = sub.add_parser(name)
         p.add_argument("--connect", required=True, help="ENDPOINT[,ENDPOINT...]")
@@ -141,17 +145,35 @@ def build_parser() -> argparse.ArgumentParser:
             help="sub/ping: stop this long after the last sample once the end is known",
         )
         add_qos_flags(p)
+        add_zenoh_config_flag(p)
+    add_fleet_parser(sub)
+    for name in ("fleet", "fleet-worker"):
+        add_zenoh_config_flag(sub.choices[name])
     return ap
 
 
+def add_zenoh_config_flag(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument(
+        "--zenoh-config",
+        metavar="FILE",
+        help="a Zenoh JSON5 config applied to every session first (arpz's settings on top), "
+        "e.g. to turn shared memory off: { transport: { shared_memory: { enabled: false } } }",
+    )
+
+
+def _settings(args: argparse.Namespace, **kwargs: Any) -> SessionSettings:
+    """The session this command opens: ``--zenoh-config`` first, then ``kwargs`` on top."""
+    return SessionSettings(config_file=args.zenoh_config, **kwargs)
+
+
 def _transport(args: argparse.Namespace) -> ZenohTransport:
-    return ZenohTransport.open(SessionSettings(connect=_endpoints(args.connect)), timeout_s=10)
+    return ZenohTransport.open(_settings(args, connect=_endpoints(args.connect)), timeout_s=10)
 
 
 def make_pub(args: argparse.Namespace, key: str) -> Pub:
     if args.transport == "arpz":
         return ArpzPub(_transport(args), key, qos_from_args(args), args.express)
-    session = open_session(SessionSettings(connect=_endpoints(args.connect)))
+    session = open_session(_settings(args, connect=_endpoints(args.connect)))
     if args.transport == "zenoh":
         return ZenohPub(session, key, args.express)
     return AdvancedPub(session, key, args.express, args.cache)
@@ -160,7 +182,7 @@ def make_pub(args: argparse.Namespace, key: str) -> Pub:
 def make_sub(args: argparse.Namespace, key: str, on_payload: OnPayload) -> Sub:
     if args.transport == "arpz":
         return ArpzSub(_transport(args), key, qos_from_args(args), on_payload, args.inline)
-    session = open_session(SessionSettings(connect=_endpoints(args.connect)))
+    session = open_session(_settings(args, connect=_endpoints(args.connect)))
     if args.transport == "zenoh":
         return ZenohSub(session, key, on_payload)
     return AdvancedSub(session, key, on_payload)
@@ -386,7 +408,7 @@ def run_ping(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def run_router(args: argparse.Namespace) -> dict[str, Any]:
-    settings = SessionSettings(mode="router", listen=_endpoints(args.listen))
+    settings = _settings(args, mode="router", listen=_endpoints(args.listen))
     with ZenohTransport.open(settings):
         print(f"arpz.perf router: listening on {args.listen}", file=sys.stderr, flush=True)
         t0 = time.monotonic()
@@ -406,10 +428,23 @@ def _check_writable(path: str | None, option: str) -> None:
         raise ValueError(f"--{option.replace('_', '-')} {path}: {exc.strerror}") from exc
 
 
+def _check_zenoh_config(path: str | None) -> None:
+    """Refuse a Zenoh config that cannot be used before any session opens (exit 2)."""
+    if path:
+        load_zenoh_config(path, source="--zenoh-config")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     signal.signal(signal.SIGINT, _on_signal)
     signal.signal(signal.SIGTERM, _on_signal)
+    try:
+        _check_zenoh_config(args.zenoh_config)
+    except ConfigError as exc:
+        print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)
+        return 2
+    if args.command in ("fleet", "fleet-worker"):
+        return fleet.main(args)
     if args.command != "router" and args.size < HEADER.size:
         print(f"arpz.perf: --size must be at least {HEADER.size}", file=sys.stderr)
         return 2

@@ -1,0 +1,596 @@
+"""``python -m arpz.perf fleet``: a fleet load generator that measures the CEDDP.
+
+N real robot agents (``RobotAgent``: local cache, channel writers, reports, each with its own
+Zenoh client session) packed into P worker processes (``arpz.perf.fleet_worker``), against K real
+CEDDP processes (``python -m arpz.ceddp``: ingest, cache control, planner, dashboard), started
+and stopped by pid with ``arpz.launch``. Packing robots into a few processes is what lets 50-200
+robots run on a 2-core machine; the CEDDP's own CPU and memory are read from /proc, so its cost
+is measured apart from the robots'.
+
+With K > 1 the CEDDPs form one Zenoh router mesh (each connects to the first) with key-space
+partitions (docs/operations.md): robot ``c{k}-r{i}`` belongs to partition ``c{k}-$*`` and
+connects to CEDDP k. docs/performance.md has the results and the definitions of every figure
+(see also ``arpz.perf.fleet_report``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, TextIO
+
+import tomli_w
+
+from arpz.cli import stop_on_signals
+from arpz.config import CeddpConfig, RobotConfig, from_dict
+from arpz.errors import ArpzError
+from arpz.launch import LaunchError, Proc, free_port
+from arpz.perf.fleet_report import (
+    P99_BOUND_MS,
+    CeddpFigures,
+    FleetPoint,
+    ProcessFigures,
+    ceddp_figures,
+    ceddp_knees,
+    fleet_knee,
+    fleet_point,
+    format_run,
+    plot_sweep,
+    result_dict,
+    robot_rows,
+    write_robot_csv,
+    write_sweep_csv,
+)
+
+#: the kinds of seed 001 Table 1, cycled over a robot's topics (a mixed, realistic fleet)
+TOPIC_KINDS = ("lidar", "imu", "ultrasonic", "dht11", "flame", "pir", "light")
+FLEET = "perf"
+
+
+class FleetArgumentError(ArpzError, ValueError):
+    """A fleet option that cannot work; the message says which and why (exit code 2)."""
+
+
+@dataclass(frozen=True)
+class FleetOptions:
+    robots: int = 10
+    topics: int = 8
+    rate_hz: float = 100.0
+    processes: int = 2
+    duration_s: float = 10.0
+    ceddps: int = 1
+    local_cache: bool = False
+    history: str = "keep_all"
+    depth: int = 10
+    zenoh_config: str | None = None
+    p99_bound_ms: float = P99_BOUND_MS
+
+
+def check_options(o: FleetOptions) -> None:
+    """Refuse what cannot run, before any process starts."""
+    if o.robots < 1:
+        raise FleetArgumentError(f"--robots must be >= 1, got {o.robots}")
+    if o.topics < 1 or o.topics > 64:
+        raise FleetArgumentError(f"--topics must be 1..64 (the CEDDP's limit), got {o.topics}")
+    if not 0 < o.rate_hz <= 10_000:
+        raise FleetArgumentError(f"--rate must be in (0, 10000] Hz, got {o.rate_hz:g}")
+    if o.processes < 1:
+        raise FleetArgumentError(f"--processes must be >= 1, got {o.processes}")
+    if o.duration_s <= 0:
+        raise FleetArgumentError(f"--duration must be > 0 s, got {o.duration_s:g}")
+    if o.ceddps < 1 or o.ceddps > 8:
+        raise FleetArgumentError(f"--ceddps must be 1..8, got {o.ceddps}")
+    if o.ceddps > o.robots:
+        raise FleetArgumentError(
+            f"--ceddps {o.ceddps} > --robots {o.robots}: a CEDDP would serve nobody"
+        )
+    if o.depth < 1:
+        raise FleetArgumentError(f"--depth must be >= 1, got {o.depth}")
+    if o.zenoh_config is not None and not Path(o.zenoh_config).is_file():
+        raise FleetArgumentError(f"--zenoh-config {o.zenoh_config}: no such file")
+
+
+def parse_sweep(text: str) -> list[int]:
+    """``1,5,10,25`` -> [1, 5, 10, 25]: ascending, distinct, each >= 1."""
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise FleetArgumentError(
+            f"--sweep wants robot counts like 1,5,10,25, got {text!r}"
+        ) from None
+    if not sizes or any(n < 1 for n in sizes) or sizes != sorted(set(sizes)):
+        raise FleetArgumentError(
+            f"--sweep wants ascending distinct robot counts >= 1, got {text!r}"
+        )
+    return sizes
+
+
+# ---------------------------------------------------------------------------------- the plan
+def robot_name(ceddp: int, index: int) -> str:
+    return f"c{ceddp}-r{index:03d}"
+
+
+def placement(o: FleetOptions) -> dict[str, tuple[int, int]]:
+    """Robot -> (CEDDP, worker process): round robin over both, so every CEDDP and every worker
+    gets the same share (within one)."""
+    out: dict[str, tuple[int, int]] = {}
+    for i in range(o.robots):
+        ceddp = i % o.ceddps
+        out[robot_name(ceddp, i // o.ceddps + 1)] = (ceddp, i % min(o.processes, o.robots))
+    return out
+
+
+def sensor_qos(o: FleetOptions) -> dict[str, Any]:
+    qos: dict[str, Any] = {"reliability": "reliable", "history": o.history}
+    if o.history == "keep_last":
+        qos["depth"] = o.depth
+    return qos
+
+
+def ceddp_configs(o: FleetOptions, endpoints: list[str], workdir: Path) -> list[dict[str, Any]]:
+    confs = []
+    for k, endpoint in enumerate(endpoints):
+        conf: dict[str, Any] = {
+            "fleet": FLEET,
+            "listen": [endpoint],
+            "partition": "*" if o.ceddps == 1 else f"c{k}-$*",
+            "rrd": str(workdir / f"ceddp{k}.rrd"),
+            "summary_json": str(workdir / f"ceddp{k}.json"),
+            "sensor_qos": sensor_qos(o),
+        }
+        if k > 0:
+            conf["connect"] = [endpoints[0]]
+        if o.zenoh_config:
+            conf["zenoh_config"] = str(Path(o.zenoh_config).resolve())
+        from_dict(conf, CeddpConfig, source=f"ceddp {k}")  # a config the CEDDP will refuse: now
+        confs.append(conf)
+    return confs
+
+
+def robot_config(o: FleetOptions, robot: str, endpoint: str, seed: int) -> dict[str, Any]:
+    conf: dict[str, Any] = {
+        "robot_id": robot,
+        "fleet": FLEET,
+        "connect": [endpoint],
+        "seed": seed,
+        "sensors": [
+            {"name": f"t{j:02d}", "kind": TOPIC_KINDS[j % len(TOPIC_KINDS)], "rate_hz": o.rate_hz}
+            for j in range(o.topics)
+        ],
+        "local_cache": {"enabled": o.local_cache},
+        "sensor_qos": sensor_qos(o),
+    }
+    if o.zenoh_config:
+        conf["zenoh_config"] = str(Path(o.zenoh_config).resolve())
+    from_dict(conf, RobotConfig, source=robot)
+    return conf
+
+
+def worker_plan(
+    o: FleetOptions, endpoints: list[str], workdir: Path
+) -> tuple[dict[str, Any], dict[str, tuple[int, int]]]:
+    where = placement(o)
+    workers: list[list[dict[str, Any]]] = [[] for _ in range(min(o.processes, o.robots))]
+    for seed, (robot, (ceddp, worker)) in enumerate(where.items(), start=1):
+        workers[worker].append(robot_config(o, robot, endpoints[ceddp], seed))
+    plan = {
+        "workers": workers,
+        "go_file": str(workdir / "go"),
+        "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
+    }
+    return plan, where
+
+
+# ------------------------------------------------------------------------------ /proc sampling
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU of a process (all threads), from /proc/PID/stat; None once it is gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    fields = text.rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS  # utime, stime (fields 14, 15)
+
+
+def rss_mb(pid: int) -> tuple[float, float] | None:
+    """(VmRSS, VmHWM) in MB from /proc/PID/status: the resident memory now and its peak."""
+    try:
+        text = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return None
+    values = {}
+    for line in text.splitlines():
+        name, _, rest = line.partition(":")
+        if name in ("VmRSS", "VmHWM"):
+            values[name] = int(rest.split()[0]) / 1024
+    if len(values) < 2:
+        return None
+    return values["VmRSS"], values["VmHWM"]
+
+
+def host_busy_s() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole host since boot, from /proc/stat."""
+    first = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
+    ticks = [int(v) for v in first]
+    idle = ticks[3] + (ticks[4] if len(ticks) > 4 else 0)
+    return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS
+
+
+class ProcSampler:
+    """CPU and RSS of some processes over the measured window, sampled every call of ``sample``
+    (the busiest one-second interval is the peak)."""
+
+    def __init__(self, pids: list[int]) -> None:
+        self.pids = pids
+        self.t0 = time.monotonic()
+        self.cpu0 = {pid: cpu_seconds(pid) or 0.0 for pid in pids}
+        self.host0 = host_busy_s()
+        self.last = {pid: (self.t0, self.cpu0[pid]) for pid in pids}
+        self.peak = dict.fromkeys(pids, 0.0)
+        self.cpu_now = dict(self.cpu0)
+        self.rss = dict.fromkeys(pids, (0.0, 0.0))
+        self.t_end = self.t0
+        self.host_end = self.host0
+
+    def sample(self) -> None:
+        now = time.monotonic()
+        for pid in self.pids:
+            cpu = cpu_seconds(pid)
+            if cpu is None:
+                continue
+            self.cpu_now[pid] = cpu
+            t_last, cpu_last = self.last[pid]
+            if now - t_last >= 1.0:
+                self.peak[pid] = max(self.peak[pid], (cpu - cpu_last) / (now - t_last))
+                self.last[pid] = (now, cpu)
+            memory = rss_mb(pid)
+            if memory is not None:
+                self.rss[pid] = (memory[0], max(memory[1], self.rss[pid][1]))
+        self.t_end = now
+        self.host_end = host_busy_s()
+
+    def cores(self, pid: int) -> float:
+        span = self.t_end - self.t0
+        return (self.cpu_now[pid] - self.cpu0[pid]) / span if span > 0 else 0.0
+
+    def figures(self, pid: int) -> ProcessFigures:
+        cores = self.cores(pid)
+        return ProcessFigures(
+            pid=pid,
+            cpu_cores=round(cores, 3),
+            cpu_cores_peak=round(max(self.peak[pid], cores), 3),
+            rss_mb=round(self.rss[pid][0], 1),
+            rss_peak_mb=round(self.rss[pid][1], 1),
+        )
+
+    def host_busy_cores(self) -> float | None:
+        busy = self.host_end[0] - self.host0[0]
+        span = self.t_end - self.t0
+        return round(busy / span, 3) if span > 0 else None
+
+
+# --------------------------------------------------------------------------------- one run
+@dataclass(frozen=True)
+class RunResult:
+    point: FleetPoint
+    ceddps: list[CeddpFigures]
+    rows: list[Any]
+    #: every pid this run started (all gone when ``run_load`` returns)
+    pids: list[int]
+
+    def as_dict(self) -> dict[str, Any]:
+        return {**result_dict(self.point, self.ceddps, self.rows), "pids": self.pids}
+
+
+def _stop_all(procs: list[Proc], timeout_s: float) -> list[str]:
+    """SIGINT to all at once (ONE each: a second SIGINT may find the default handler back, in
+    a process already on its way out), then wait for each; what does not stop in time prints
+    its threads' stacks (SIGUSR1) into its log, is killed and reported."""
+    for proc in procs:
+        if proc.popen.poll() is None:
+            proc.popen.send_signal(signal.SIGINT)
+    deadline = time.monotonic() + timeout_s
+    failures = []
+    for proc in procs:
+        try:
+            code = proc.popen.wait(timeout=max(deadline - time.monotonic(), 0.1))
+        except subprocess.TimeoutExpired:
+            proc.popen.send_signal(signal.SIGUSR1)
+            time.sleep(0.5)
+            proc.kill()
+            failures.append(
+                f"{proc.name} did not stop within {timeout_s:g} s of SIGINT and was killed; "
+                f"see {proc.log_path}"
+            )
+            continue
+        if code != 0:
+            failures.append(f"{proc.name} exited with code {code}; see {proc.log_path}")
+    return failures
+
+
+def _check_alive(procs: list[Proc]) -> None:
+    for proc in procs:
+        if proc.popen.poll() is not None:
+            raise LaunchError(
+                f"{proc.name} exited early with code {proc.popen.returncode}; "
+                f"see {proc.log_path}:\n{proc.tail()}"
+            )
+
+
+def _received_so_far(paths: list[Path]) -> int | None:
+    """What the CEDDPs' periodic summaries say has arrived (every summary_period_s)."""
+    total = 0
+    for path in paths:
+        try:
+            summary = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        total += sum(int(r.get("received", 0)) for r in summary.get("robots", {}).values())
+    return total
+
+
+def run_load(
+    o: FleetOptions,
+    workdir: Path,
+    progress: TextIO | None = sys.stderr,
+    stop: threading.Event | None = None,
+) -> RunResult:
+    """Start the CEDDPs and the workers, run ``o.duration_s`` with every robot sending, stop
+    everything (SIGINT: final reports, summaries), and reduce. Every process started is ended
+    on every exit path."""
+    check_options(o)
+    workdir.mkdir(parents=True, exist_ok=True)
+    endpoints = [f"tcp/127.0.0.1:{free_port()}" for _ in range(o.ceddps)]
+    ceddp_confs = ceddp_configs(o, endpoints, workdir)
+    plan, where = worker_plan(o, endpoints, workdir)
+    plan_path = workdir / "plan.json"
+    plan_path.write_text(json.dumps(plan, indent=1), encoding="utf-8")
+    procs: list[Proc] = []
+
+    def say(text: str) -> None:
+        if progress is not None:
+            print(text, file=progress, flush=True)
+
+    try:
+        ceddps: list[Proc] = []
+        for k, conf in enumerate(ceddp_confs):
+            path = workdir / f"ceddp{k}.toml"
+            path.write_text(tomli_w.dumps(conf), encoding="utf-8")
+            proc = Proc.spawn(f"ceddp{k}", ["-m", "arpz.ceddp", "--config", str(path)], workdir)
+            procs.append(proc)
+            ceddps.append(proc)
+            proc.wait_line("ready on", timeout_s=60)
+        workers = []
+        for w in range(len(plan["workers"])):
+            proc = Proc.spawn(
+                f"worker{w}",
+                ["-m", "arpz.perf", "fleet-worker", "--plan", str(plan_path), "--worker", str(w)],
+                workdir,
+            )
+            procs.append(proc)
+            workers.append(proc)
+        for proc in workers:
+            proc.wait_line(": ready", timeout_s=60 + 0.5 * o.robots)
+        sampler = ProcSampler([p.popen.pid for p in procs])
+        Path(plan["go_file"]).touch()
+        say(f"fleet: {o.robots} robots in {len(workers)} processes running; logs in {workdir}")
+        start = time.monotonic()
+        summaries = [Path(c["summary_json"]) for c in ceddp_confs]
+        while (elapsed := time.monotonic() - start) < o.duration_s and not (stop and stop.is_set()):
+            time.sleep(min(0.5, max(o.duration_s - elapsed, 0.0)))
+            _check_alive(procs)
+            sampler.sample()
+            if progress is not None:
+                cpu = sum(sampler.cores(p.popen.pid) for p in ceddps)
+                arrived = _received_so_far(summaries)
+                print(
+                    f"\rfleet: {elapsed:5.1f}/{o.duration_s:g} s, CEDDP CPU {cpu:.2f} cores, "
+                    f"host busy {sampler.host_busy_cores() or 0:.2f} cores, received "
+                    f"{'...' if arrived is None else f'{arrived:,}'}   ",
+                    end="",
+                    file=progress,
+                    flush=True,
+                )
+        sampler.sample()
+        window_s = time.monotonic() - start
+        say(f"\rfleet: {window_s:.1f} s, stopping the robots")
+        failures = _stop_all(workers, timeout_s=60 + 0.2 * o.robots)
+        counts: dict[str, dict[str, Any]] = {}
+        ran_s = []
+        for proc in workers:
+            result = _last_json(proc)
+            if result is None:
+                failures.append(f"{proc.name} printed no result; see {proc.log_path}")
+                continue
+            counts.update(result["robots"])
+            failures += result["errors"]
+            ran_s.append(float(result["ran_s"]))
+        # the robots sent from the go file to SIGINT: that is the window of the offered load
+        load_s = sum(ran_s) / len(ran_s) if ran_s else window_s
+        failures += _stop_all(ceddps, timeout_s=60)
+        docs = []
+        for k, path in enumerate(summaries):
+            try:
+                docs.append(json.loads(path.read_text(encoding="utf-8")))
+            except (OSError, ValueError) as exc:
+                failures.append(f"CEDDP {k} left no summary ({path}): {exc}")
+                docs.append({})
+    finally:
+        for proc in procs:
+            proc.kill()
+    rows = robot_rows(where, docs, counts)
+    figures = [
+        ceddp_figures(k, docs[k], rows, sampler.figures(p.popen.pid), load_s)
+        for k, p in enumerate(ceddps)
+    ]
+    point = fleet_point(
+        rows=rows,
+        ceddps=figures,
+        topics=o.topics,
+        rate_hz=o.rate_hz,
+        processes=len(workers),
+        window_s=load_s,
+        workers_cpu_cores=round(sum(sampler.cores(p.popen.pid) for p in workers), 3),
+        host_busy_cores=sampler.host_busy_cores(),
+        failures=failures,
+    )
+    return RunResult(point, figures, rows, [p.popen.pid for p in procs])
+
+
+def _last_json(proc: Proc) -> dict[str, Any] | None:
+    for line in reversed(proc.lines):
+        if line.startswith("{"):
+            try:
+                value: dict[str, Any] = json.loads(line)
+            except ValueError:
+                continue
+            return value
+    return None
+
+
+# ------------------------------------------------------------------------------------ the CLI
+def add_fleet_parser(sub: Any) -> None:
+    f = sub.add_parser("fleet", help="N robot agents in P processes against real CEDDP(s)")
+    f.add_argument("--robots", type=int, default=10, help="N robots (default 10)")
+    f.add_argument("--topics", type=int, default=8, help="sensor topics per robot (8)")
+    f.add_argument("--rate", type=float, default=100.0, help="Hz per topic (100)")
+    f.add_argument(
+        "--size",
+        type=int,
+        help="not supported: the real agent sends Table 1 typed values (about 60 B a sample)",
+    )
+    f.add_argument("--processes", type=int, default=2, help="worker processes (2)")
+    f.add_argument("--duration", type=float, default=10.0, help="seconds of load (10)")
+    f.add_argument("--ceddps", type=int, default=1, help="CEDDPs in one router mesh (1)")
+    f.add_argument("--local-cache", action="store_true", help="robots' local cache on (off)")
+    f.add_argument("--history", choices=["keep_all", "keep_last"], default="keep_all")
+    f.add_argument("--depth", type=int, default=10, help="KEEP_LAST depth (10)")
+    f.add_argument("--p99-bound-ms", type=float, default=P99_BOUND_MS, help="the knee's bound")
+    f.add_argument("--sweep", help="robot counts, e.g. 1,5,10,25,50,100: the scaling curve")
+    f.add_argument("--workdir", type=Path, help="configs, logs, summaries (default: a temp dir)")
+    f.add_argument("--json", type=Path, metavar="FILE", help="write the result here")
+    f.add_argument("--csv", type=Path, metavar="FILE", help="per robot; with --sweep per N")
+    f.add_argument("--png", type=Path, metavar="FILE", help="the scaling curve (with --sweep)")
+    w = sub.add_parser("fleet-worker", help=argparse.SUPPRESS)
+    w.add_argument("--plan", type=Path, required=True)
+    w.add_argument("--worker", type=int, required=True)
+
+
+def options_from_args(args: argparse.Namespace) -> FleetOptions:
+    if args.size is not None:
+        raise FleetArgumentError(
+            "--size: the robot agent sends the typed values of seed 001 Table 1 (floats, "
+            "booleans, short strings: about 60 B a sample with its header), so a payload size "
+            "cannot be chosen; large samples are measured by benchmarks/large_messages.py"
+        )
+    if args.png is not None and not args.sweep:
+        raise FleetArgumentError("--png draws the scaling curve: give --sweep too")
+    options = FleetOptions(
+        robots=args.robots,
+        topics=args.topics,
+        rate_hz=args.rate,
+        processes=args.processes,
+        duration_s=args.duration,
+        ceddps=args.ceddps,
+        local_cache=args.local_cache,
+        history=args.history,
+        depth=args.depth,
+        zenoh_config=args.zenoh_config,
+        p99_bound_ms=args.p99_bound_ms,
+    )
+    check_options(options)
+    return options
+
+
+def run_sweep(
+    o: FleetOptions,
+    sizes: list[int],
+    workdir: Path,
+    progress: TextIO | None = sys.stderr,
+    stop: threading.Event | None = None,
+) -> tuple[list[RunResult], dict[str, Any]]:
+    """One run per fleet size (its own subfolder); the sweep's document with the knees."""
+    results = []
+    for n in sizes:
+        if stop is not None and stop.is_set():
+            break
+        if progress is not None:
+            print(f"--- sweep: {n} robots", file=progress, flush=True)
+        options = replace(o, robots=n, processes=min(o.processes, n), ceddps=min(o.ceddps, n))
+        result = run_load(options, workdir / f"n{n}", progress, stop)
+        if progress is not None:
+            print(format_run(result.point, result.ceddps, result.rows), file=progress, flush=True)
+        results.append(result)
+    points = [r.point for r in results]
+    knee = fleet_knee(points, p99_bound_ms=o.p99_bound_ms)
+    knees = ceddp_knees(points, [r.ceddps for r in results], p99_bound_ms=o.p99_bound_ms)
+    doc = {
+        "knee": None if knee is None else {"robots": knee.robots, "reason": knee.reason},
+        "knee_definition": (
+            f"the first N whose worst robot's p99 exceeds {o.p99_bound_ms:g} ms or whose "
+            "delivered/offered is below 0.99"
+        ),
+        "ceddp_knees": {
+            str(k): None if v is None else {"robots": v.robots, "reason": v.reason}
+            for k, v in knees.items()
+        },
+        "points": [r.as_dict() for r in results],
+    }
+    return results, doc
+
+
+def main(args: argparse.Namespace) -> int:
+    """``fleet``: exit 0 when everything reconciled, 1 when not (FAILED printed), 2 bad args."""
+    if args.command == "fleet-worker":
+        from arpz.perf.fleet_worker import run_worker
+
+        print(json.dumps(run_worker(args.plan, args.worker, stop_on_signals())), flush=True)
+        return 0
+    try:
+        options = options_from_args(args)
+        sizes = parse_sweep(args.sweep) if args.sweep else None
+    except FleetArgumentError as exc:
+        print(f"arpz.perf fleet: {exc}", file=sys.stderr)
+        return 2
+    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="arpz-fleet-"))
+    stop = stop_on_signals()  # SIGINT/SIGTERM: stop the load early, still stop cleanly
+    try:
+        if sizes is None:
+            result = run_load(options, workdir, stop=stop)
+            doc = result.as_dict()
+            print(format_run(result.point, result.ceddps, result.rows), flush=True)
+            if args.csv:
+                write_robot_csv(args.csv, result.rows)
+            ok = result.point.reconciled
+        else:
+            results, doc = run_sweep(options, sizes, workdir, stop=stop)
+            points = [r.point for r in results]
+            per_ceddp = [r.ceddps for r in results]
+            if args.csv:
+                write_sweep_csv(args.csv, points, per_ceddp)
+            if args.png:
+                plot_sweep(args.png, points, per_ceddp, p99_bound_ms=options.p99_bound_ms)
+            print(f"knee: {doc['knee'] or 'none within the sweep'} ({doc['knee_definition']})")
+            for k, knee in doc["ceddp_knees"].items():
+                print(f"knee of CEDDP {k}: {knee or 'none within the sweep'}")
+            ok = all(p.reconciled for p in points)
+            if not ok:
+                print("FAILED: some runs did not reconcile (see above)")
+    except LaunchError as exc:
+        print(f"arpz.perf fleet FAILED: {exc}", file=sys.stderr)
+        return 1
+    if args.json:
+        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    return 0 if ok else 1

@@ -1,0 +1,105 @@
+"""One process of the fleet load test: several real ``RobotAgent``s, each with its own Zenoh
+client session, as separate robots would have.
+
+``python -m arpz.perf fleet-worker --plan PLAN.json --worker I`` (started by ``arpz.perf.fleet``,
+not by hand). The worker opens every session and starts every agent (presence, announcement,
+matching of its writers), prints ``ready``, and waits for the go file the orchestrator writes
+once every worker is ready, so that no robot's traffic overlaps another's start-up; then the
+agents run until SIGINT/SIGTERM, shut down cleanly (final reports through the channel, each
+waiting for its acknowledgement, all at once) and the worker writes what each agent counted.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import threading
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from arpz.config import RobotConfig, from_dict
+from arpz.robot.agent import RobotAgent
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
+
+log = logging.getLogger("arpz.perf.fleet")
+
+
+def _counts(agent: RobotAgent, late_baseline: int) -> dict[str, Any]:
+    counters = agent.counters().values()
+    return {
+        "produced": sum(c.produced for c in counters),
+        "sent": sum(c.sent for c in counters),
+        "held_back": sum(c.held_back for c in counters),
+        "write_failures": sum(c.write_failures for c in counters),
+        "late_ticks": sum(s.late_ticks for s in agent.sensors) - late_baseline,
+    }
+
+
+def _parallel(jobs: dict[str, Any], what: str) -> list[str]:
+    """Run each callable of ``jobs`` (name -> callable) on its own thread; the errors, named."""
+    errors: list[str] = []
+
+    def run(name: str, job: Any) -> None:
+        try:
+            job()
+        except Exception as exc:  # one robot's failure is reported, the others go on
+            errors.append(f"{name}: {what} failed: {exc!r}")
+
+    threads = [
+        threading.Thread(target=run, args=(n, j), name=f"{what}-{n}", daemon=True)
+        for n, j in jobs.items()
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return errors
+
+
+def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, Any]:
+    plan = json.loads(plan_path.read_text(encoding="utf-8"))
+    configs = [
+        from_dict(raw, RobotConfig, source=f"{plan_path} worker {index}")
+        for raw in plan["workers"][index]
+    ]
+    go_file = Path(plan["go_file"])
+    zenoh_config = plan.get("zenoh_config")
+    with ExitStack() as stack:
+        agents: dict[str, RobotAgent] = {}
+        for config in configs:
+            transport = ZenohTransport.open(
+                SessionSettings(mode="client", connect=config.connect, config_file=zenoh_config),
+                timeout_s=config.connect_timeout_s,
+            )
+            stack.callback(transport.close)
+            agents[config.robot_id] = RobotAgent(config, transport)
+        # start (presence, announcement, matching) in parallel: each waits for its readers
+        errors = _parallel({name: agent.start for name, agent in agents.items()}, "start")
+        print(f"arpz.perf fleet-worker {index}: ready ({len(agents)} robots)", flush=True)
+        while not go_file.exists() and not stop.is_set():
+            time.sleep(0.01)
+        started = time.monotonic()
+        threads = [
+            threading.Thread(target=agent.run, args=(stop,), name=f"robot-{name}", daemon=True)
+            for name, agent in agents.items()
+        ]
+        for thread in threads:
+            thread.start()
+        # the scheduler re-aligns the jobs that fell behind while waiting for the go file and
+        # counts them late once: that is not load, so it is taken off as a baseline
+        stop.wait(0.5)
+        baseline = {name: sum(s.late_ticks for s in a.sensors) for name, a in agents.items()}
+        stop.wait()
+        for thread in threads:
+            thread.join()
+        ran_s = time.monotonic() - started
+        # final reports, each waiting (bounded) for the CEDDP's acknowledgement
+        errors += _parallel({name: agent.shutdown for name, agent in agents.items()}, "shutdown")
+        counts = {name: _counts(agent, baseline[name]) for name, agent in agents.items()}
+    for error in errors:
+        print(f"arpz.perf fleet-worker {index}: {error}", file=sys.stderr, flush=True)
+    return {"worker": index, "ran_s": ran_s, "robots": counts, "errors": errors}
