@@ -3,7 +3,8 @@
 Zenoh's RELIABLE retransmits nothing end to end; this package adds what RTPS adds under DDS:
 per-writer sequence numbers, heartbeats, ACKNACK/GAP, KEEP_LAST/KEEP_ALL histories, durability,
 deadline, lifespan and liveliness, matching with incompatible-QoS events, and the invariant that
-for every reader delivered + reported lost == sent during the match.
+for every reader delivered + reported lost == sent during the match. ``FrameWriter`` and
+``FrameReader`` carry large samples (camera frames) as fragments of one radio frame each.
 """
 
 from arpz.protocol.events import (
@@ -37,21 +38,37 @@ from arpz.protocol.qos import (
 from arpz.protocol.reader_machine import PLAIN_PEER, ReaderMachine, ReaderStats
 from arpz.protocol.timers import Clock, FakeClock, SystemClock
 from arpz.protocol.writer_machine import HistoryFullError, WriterMachine, WriterStats
+from arpz.reliability.large import (
+    QOS_FRAMES_ALL,
+    QOS_VIDEO,
+    FrameInfo,
+    FrameReader,
+    FrameReaderStats,
+    FrameWriter,
+    FrameWriterStats,
+)
 from arpz.reliability.reader import Reader
 from arpz.reliability.writer import Writer
 
 __all__ = [
     "PLAIN_PEER",
     "QOS_DEFAULT",
+    "QOS_FRAMES_ALL",
     "QOS_LATCHED",
     "QOS_PARAMETERS",
     "QOS_RELIABLE_ALL",
     "QOS_SENSOR_DATA",
+    "QOS_VIDEO",
     "Clock",
     "DataInfo",
     "DeadlineMissedStatus",
     "DurabilityPolicy",
     "FakeClock",
+    "FrameInfo",
+    "FrameReader",
+    "FrameReaderStats",
+    "FrameWriter",
+    "FrameWriterStats",
     "HistoryFullError",
     "HistoryPolicy",
     "IncompatibleQosStatus",
