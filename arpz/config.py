@@ -238,6 +238,45 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
             raise ValueError(f"need 1 <= dmin <= dmax, got {self.dmin} and {self.dmax}")
 
 
+class OverloadConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Graceful overload (arpz/ceddp/overload.py, docs/operations.md): the CEDDP measures its
+    capacity and, when it cannot keep up, makes it the fleet's rate budget through [qos]."""
+
+    enabled: bool = True
+    #: share of an interval the sensor path's thread works (does not wait for samples) from
+    #: which the CEDDP counts as saturated
+    busy_bound: float = 0.9
+    #: p99 latency (robot stamp to ingest) the fleet must stay within
+    latency_bound_ms: float = 100.0
+    #: overloaded metrics intervals in a row before the budget is cut
+    trigger_intervals: int = 2
+    #: the budget is this share of the measured capacity
+    headroom: float = 0.8
+    #: intervals to wait after a change (the backlog drains) before judging again
+    hold_intervals: int = 6
+    #: calm intervals in a row before the budget grows again, and by how much
+    recover_intervals: int = 10
+    recover_step: float = 1.25
+    #: a stand-in for a heavier planner: every reading the planners see costs this much CPU
+    #: time (capacity drills and the overload test; 0 = off)
+    planner_cost_us: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0 < self.busy_bound <= 1:
+            raise ValueError(f"busy_bound must be in (0, 1], got {self.busy_bound}")
+        if not 0 < self.headroom <= 1:
+            raise ValueError(f"headroom must be in (0, 1], got {self.headroom}")
+        if self.latency_bound_ms <= 0:
+            raise ValueError(f"latency_bound_ms must be > 0, got {self.latency_bound_ms}")
+        if self.recover_step <= 1:
+            raise ValueError(f"recover_step must be > 1, got {self.recover_step}")
+        if self.planner_cost_us < 0:
+            raise ValueError(f"planner_cost_us must be >= 0, got {self.planner_cost_us}")
+        for name in ("trigger_intervals", "hold_intervals", "recover_intervals"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
 class MissionConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
     """Run the hallway mission of seed 001 section 3.2 on this CEDDP (issue 6)."""
 
@@ -296,6 +335,7 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     max_sample_bytes: dict[str, int] = msgspec.field(default_factory=lambda: {"default": 65_536})
     hello: CeddpHelloConfig = msgspec.field(default_factory=CeddpHelloConfig)
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
+    overload: OverloadConfig = msgspec.field(default_factory=OverloadConfig)
     mission: MissionConfig | None = None
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0

@@ -188,6 +188,18 @@ class CeddpStats(msgspec.Struct, frozen=True):
     stamp_ns: int
     cpu_percent: float
     topics: list[TopicRate]
+    #: sensor samples ingested since start
+    processed: int = 0
+    #: share of the interval the sensor path's thread worked (did not wait for samples), 0..1
+    load: float = 0.0
+    #: pooled p99 latency (robot stamp to ingest) of the interval, ms; None: nothing arrived
+    latency_ms_p99: float | None = None
+    #: measured capacity (samples per busy second) and the fleet's budget in force (samples/s;
+    #: None: no budget), arpz/ceddp/overload.py
+    capacity_hz: float | None = None
+    budget_hz: float | None = None
+    #: dashboard frames dropped since start (the Rerun thread fell behind)
+    dashboard_dropped: int = 0
 
 
 class TopicInfo(msgspec.Struct, frozen=True):
@@ -231,6 +243,9 @@ class QosAssignmentMsg(msgspec.Struct, frozen=True):
     t_avg: float
     topics_per_robot: dict[str, int]
     robots: dict[str, RobotQos]
+    #: the fleet's rate budget of the overload governor this assignment fits (samples/s), or
+    #: None when the configured limits alone apply
+    budget_hz: float | None = None
 
 
 class QosAck(msgspec.Struct, frozen=True):

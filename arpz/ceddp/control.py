@@ -15,10 +15,13 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import msgspec
+
 from arpz import keys
 from arpz.ceddp.control_queue import ControlQueue
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.overload import BudgetChange
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.summary import RobotReport
@@ -41,8 +44,9 @@ log = logging.getLogger(__name__)
 #: bad reports, refused items and failures: one line per cause per 10 s, never one per message
 throttled = ThrottledLog(log)
 
-REPORT, PRESENCE, QOS_REQUEST, MODE, INCOMPATIBLE = 1, 2, 3, 4, 5
+REPORT, PRESENCE, QOS_REQUEST, MODE, INCOMPATIBLE, BUDGET = 1, 2, 3, 4, 5, 6
 KIND_NAMES = {
+    BUDGET: "budget",
     REPORT: "report",
     PRESENCE: "presence",
     QOS_REQUEST: "qos_request",
@@ -52,6 +56,8 @@ KIND_NAMES = {
 _REPORT_KINDS = ("stats", "announce", "qos", "telemetry")
 #: incarnations of one robot reported separately in the summary (the ingest tracks as many)
 MAX_INCARNATIONS = 16
+
+BUDGET_DECODER = msgspec.msgpack.Decoder(BudgetChange)
 
 #: (text, level) -> None: a fleet event, for the log, the dashboard and the summary
 EventSink = Callable[[str, str], None]
@@ -184,6 +190,8 @@ class ControlWorker:
                         self._handle_mode(key, bool(payload))
                     elif kind == INCOMPATIBLE:
                         self.mark_incompatible(key, payload.decode())
+                    elif kind == BUDGET:
+                        self._apply_budget(BUDGET_DECODER.decode(payload))
                     else:
                         self.reassign_qos("requested", force=True)
                 except Exception:  # a bug in one handler must not stop the control worker
@@ -301,6 +309,24 @@ class ControlWorker:
             self.reassign_qos(f"robot {robot} joined with {record.topic_count} topics")
         for planner in self.planners:
             planner.on_robot(robot, alive)
+
+    def on_budget(self, change: BudgetChange) -> None:
+        """The overload governor changed the fleet's budget (metrics thread): queued, so that
+        the re-solve runs on this worker like every other; a newer change replaces a waiting
+        one."""
+        self.put(BUDGET, "budget", msgspec.msgpack.encode(change))
+
+    def _apply_budget(self, change: BudgetChange) -> None:
+        if self.qos is None:
+            self._event(
+                f"{change.reason}; QoS control is off ([qos] enabled = false), so the fleet's "
+                "rates stay as configured",
+                "WARNING",
+            )
+            return
+        self.qos.budget_hz = change.budget_hz
+        self._event(change.reason, "WARNING" if change.budget_hz is not None else "INFO")
+        self.reassign_qos(change.reason, force=True)
 
     def reassign_qos(self, reason: str, *, force: bool = False) -> None:
         """Re-solve problem (6) for the robots present now; publish if the answer changed."""

@@ -65,6 +65,9 @@ class SensorIntake:
         self.channel_lost = 0
         #: raw path: channel-headed sensor samples refused per (robot, topic) (INCOMPATIBLE_QOS)
         self.raw_refused: dict[tuple[str, str], int] = {}
+        #: raw path: seconds the ingest worker waited for samples, and since when it waits now
+        self._raw_idle_s = 0.0
+        self._raw_waiting_since = 0.0
         self._wake_key = keys.sensor_key(config.fleet, "ceddp-wake", "wake")
         self._stopping = threading.Event()
 
@@ -98,6 +101,15 @@ class SensorIntake:
         if self.reader is not None:
             self.reader.close()
 
+    def idle_s(self) -> float:
+        """Seconds the sensor path's thread has waited for samples so far; the rest of its time
+        it worked (or waited for a CPU): what the overload governor reads as the CEDDP's load."""
+        if self.reader is not None:
+            return self.reader.delivery_idle_s
+        since = self._raw_waiting_since
+        done = self._raw_idle_s
+        return done + (time.perf_counter() - since if since else 0.0)
+
     def refused(self) -> dict[str, int]:
         """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
         if self.reader is not None:
@@ -112,10 +124,14 @@ class SensorIntake:
         sensors, ingest, stopping, wake = self.raw, self.ingest, self._stopping, self._wake_key
         assert sensors is not None, "open() declares the subscriber before the worker runs"
         try_recv = sensors.try_recv
+        clock = time.perf_counter
         while True:
             item = try_recv()
             if item is None:
+                self._raw_waiting_since = since = clock()
                 item = sensors.recv()
+                self._raw_waiting_since = 0.0
+                self._raw_idle_s += clock() - since
             batch = [item]
             while len(batch) < _RAW_BATCH and (item := try_recv()) is not None:
                 batch.append(item)

@@ -13,10 +13,12 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.planner import Planner
 from arpz.channel_io import Outlet
 from arpz.config import CeddpConfig
@@ -45,6 +47,8 @@ class MetricsTicker:
         *,
         refused: Callable[[], dict[str, dict[str, int]]],
         persist_partial: Callable[[], None],
+        sensor_path: Callable[[], tuple[int, float]] = lambda: (0, 0.0),
+        on_budget: Callable[[BudgetChange], None] = lambda change: None,
     ) -> None:
         self.config = config
         self.ingest = ingest
@@ -54,6 +58,11 @@ class MetricsTicker:
         self.dashboard = dashboard
         self._refused = refused
         self._persist_partial = persist_partial
+        #: (samples ingested so far, seconds the sensor path waited for samples so far)
+        self._sensor_path = sensor_path
+        self._on_budget = on_budget
+        self.governor = OverloadGovernor(config.overload)
+        self._last_path = sensor_path()
         #: where CeddpStats go (opened by the server at start)
         self.stats_out: Outlet | None = None
         self._last: tuple[float, float, dict[tuple[str, str], tuple[int, int]]] = (
@@ -87,11 +96,13 @@ class MetricsTicker:
             written[robot] = written.get(robot, 0) + counters.written
         rates: list[TopicRate] = []
         counts: dict[tuple[str, str], tuple[int, int]] = {}
+        latencies: list[float] = []
         with self.ingest.lock:
             for slot, m in self.ingest.topics.items():
                 received0, bytes0 = last_counts.get(slot, (0, 0))
                 counts[slot] = (m.received, m.bytes)
                 window = m.latency_ms.take_window()
+                latencies.extend(window)
                 stale = m.staleness_ms.take_window()
                 row = {
                     "rate_hz": (m.received - received0) / interval_s,
@@ -138,16 +149,58 @@ class MetricsTicker:
                 robots.setdefault(robot, {})["refused"] = float(sum(per_key.values()))
         self._last = (now, cpu, counts)
         cpu_percent = 100.0 * (cpu - last_cpu) / interval_s
+        load = self._judge_load(interval_s, percentile(latencies, 99) if latencies else None)
         if self.dashboard is not None:
-            robots.setdefault("ceddp", {})["cpu_percent"] = cpu_percent
+            ceddp_row = robots.setdefault("ceddp", {})
+            ceddp_row["cpu_percent"] = cpu_percent
+            ceddp_row["ingest_load"] = load.load
+            if self.governor.capacity_hz is not None:
+                ceddp_row["capacity_hz"] = self.governor.capacity_hz
+            if self.governor.budget_hz is not None:
+                ceddp_row["budget_hz"] = self.governor.budget_hz
             self.dashboard.submit(MetricsFrame(time.time_ns(), frame_topics, robots))
         try:
             if self.stats_out is not None:
+                governor = self.governor
                 report = CeddpStats(
-                    stamp_ns=time.time_ns(), cpu_percent=round(cpu_percent, 2), topics=rates
+                    stamp_ns=time.time_ns(),
+                    cpu_percent=round(cpu_percent, 2),
+                    topics=rates,
+                    processed=load.processed,
+                    load=round(load.load, 4),
+                    latency_ms_p99=load.latency_ms_p99,
+                    capacity_hz=governor.capacity_hz,
+                    budget_hz=governor.budget_hz,
+                    dashboard_dropped=self.dashboard.dropped if self.dashboard else 0,
                 )
                 self.stats_out.send(encode(report), report.stamp_ns)
         except ArpzError as exc:  # the session may be closing, or a full history refused it
             log.debug("could not publish CEDDP stats: %s", exc)
         for planner in self.planners:
             planner.tick(now)
+
+    def _judge_load(self, interval_s: float, latency_ms_p99: float | None) -> _Load:
+        """The sensor path's load over the interval, handed to the overload governor; a budget
+        change goes to the control worker, which re-solves the QoS."""
+        processed, idle_s = self._sensor_path()
+        last_processed, last_idle_s = self._last_path
+        self._last_path = (processed, idle_s)
+        busy = min(1.0, max(0.0, 1.0 - (idle_s - last_idle_s) / interval_s))
+        change = self.governor.observe(
+            LoadSample(
+                interval_s=interval_s,
+                processed=processed - last_processed,
+                load=busy,
+                latency_ms_p99=latency_ms_p99,
+            )
+        )
+        if change is not None:
+            self._on_budget(change)
+        return _Load(processed, busy, latency_ms_p99)
+
+
+@dataclass(frozen=True, slots=True)
+class _Load:
+    processed: int
+    load: float
+    latency_ms_p99: float | None

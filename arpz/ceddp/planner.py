@@ -71,6 +71,20 @@ class Planner:
         """Called periodically by the server (metrics period)."""
 
 
+class CostlyPlanner(Planner):
+    """A stand-in for a heavy planning algorithm: every reading costs ``cost_us`` of CPU time
+    on the ingest thread (``[overload] planner_cost_us``). It gives a CEDDP a known, small
+    capacity, so that overload and its recovery can be rehearsed and tested with few robots."""
+
+    def __init__(self, cost_us: float) -> None:
+        self.cost_s = cost_us / 1e6
+
+    def on_reading(self, reading: Reading) -> None:
+        until = time.thread_time() + self.cost_s
+        while time.thread_time() < until:
+            pass
+
+
 @dataclass
 class HelloRelayCounters:
     forwarded_to_relay: int = 0

@@ -13,6 +13,7 @@ import logging
 import time
 
 from arpz.ceddp.optimiser import LinkQuality, OptimiserError, QosLimits, assign_qos
+from arpz.ceddp.overload import rmax_for_budget
 from arpz.config import QosControlConfig, QosLimitsConfig
 from arpz.messages import QosAck, QosAssignmentMsg, RobotQos
 
@@ -30,12 +31,18 @@ class QosController:
         self.refusals: list[QosAck] = []
         self.errors: list[str] = []
         self._last_topics: dict[str, int] | None = None
+        #: the fleet's rate budget (samples/s) the overload governor measured; None: no budget
+        self.budget_hz: float | None = None
 
-    def limits_for(self, robot: str) -> QosLimits:
+    def limits_for(self, robot: str, rmax_cap_hz: float | None = None) -> QosLimits:
+        """The robot's limits from the config, with Rmax lowered to ``rmax_cap_hz`` if given."""
         cfg = self.config
         own = cfg.robots.get(robot, QosLimitsConfig())
+        rmax = cfg.rmax_hz if own.rmax_hz is None else own.rmax_hz
+        if rmax_cap_hz is not None:
+            rmax = min(rmax, rmax_cap_hz)
         return QosLimits(
-            rmax_hz=cfg.rmax_hz if own.rmax_hz is None else own.rmax_hz,
+            rmax_hz=rmax,
             rmin_hz=cfg.rmin_hz if own.rmin_hz is None else own.rmin_hz,
             dmax=cfg.dmax if own.dmax is None else own.dmax,
             dmin=cfg.dmin if own.dmin is None else own.dmin,
@@ -52,10 +59,15 @@ class QosController:
         link = LinkQuality(rtt_s=self.config.link_rtt_ms / 1000, loss_pct=self.config.link_loss_pct)
         robots: dict[str, RobotQos] = {}
         t_avg = 0.0
+        cap = (
+            None
+            if self.budget_hz is None
+            else rmax_for_budget(self.budget_hz, topics, self.config.rmin_hz)
+        )
         try:
             for robot in topics:
                 assignment = assign_qos(
-                    self.limits_for(robot),
+                    self.limits_for(robot, cap),
                     topics,
                     depth_policy=self.config.depth_policy,
                     link=link if self.config.depth_policy != "paper" else None,
@@ -80,6 +92,7 @@ class QosController:
             t_avg=t_avg,
             topics_per_robot=topics,
             robots=robots,
+            budget_hz=self.budget_hz,
         )
         self.history.append(self.current)
         return self.current

@@ -31,7 +31,7 @@ from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.intake import SensorIntake
 from arpz.ceddp.metrics import MetricsTicker
 from arpz.ceddp.mission import MissionRunner
-from arpz.ceddp.planner import HelloRelay, Planner
+from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.summary import previous_run, qos_summary, robot_summary
 from arpz.channel_io import Inlet, Outlet
@@ -83,6 +83,8 @@ class CeddpServer:
             self.sink, writer_id("ceddp", self.incarnation), relay=config.hello.relay
         )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
+        if config.overload.planner_cost_us > 0:
+            self.planners.append(CostlyPlanner(config.overload.planner_cost_us))
         self.mission: MissionRunner | None = None
         if config.mission is not None:
             self.mission = MissionRunner(
@@ -123,6 +125,8 @@ class CeddpServer:
             dashboard,
             refused=self._refused_by_robot,
             persist_partial=lambda: self._persist({**self.summary(), "complete": False}),
+            sensor_path=lambda: (self.intake.processed, self.intake.idle_s()),
+            on_budget=self.control.on_budget,
         )
         self._reports: Inlet | None = None
         self._stop = threading.Event()
@@ -323,6 +327,7 @@ class CeddpServer:
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
             "qos": qos_summary(self.qos) if self.qos is not None else None,
+            "overload": self.metrics.governor.summary(),
             "mission": self.mission.summary() if self.mission is not None else None,
             "events": self.events,
         }

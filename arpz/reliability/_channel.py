@@ -146,6 +146,13 @@ class Channel:
         self._turns = _Turns()
         #: the delivery thread left samples in its FIFO at its last pass (lock held)
         self._pull_backlog = False
+        #: seconds the delivery thread spent waiting for data (blocked in ``recv``): the rest of
+        #: its wall time it was working, or waiting for the CPU or the GIL. A server judges its
+        #: own load from it (arpz/ceddp/overload.py); written by the delivery thread only, read
+        #: through ``idle_s`` (which adds the wait in progress)
+        self._idle_done_s = 0.0
+        #: perf_counter when the current wait began; 0.0 while the thread works
+        self._waiting_since = 0.0
         self._delivery: threading.Thread | None = None
         if self._pulls:
             self._delivery = threading.Thread(target=self._run_delivery, name=name, daemon=True)
@@ -229,9 +236,13 @@ class Channel:
         pull, handler = self._pull, self._pull_handler
         assert pull is not None and handler is not None
         recv, try_recv = pull.recv, pull.try_recv
+        clock = time.perf_counter
         while True:
             try:
+                self._waiting_since = since = clock()
                 items = [recv()]
+                self._waiting_since = 0.0
+                self._idle_done_s += clock() - since
             except TransportError:  # undeclared by close() and drained, or the session went away
                 if self._closing:
                     log.debug("reliable channel: delivery thread stops", exc_info=True)
@@ -271,6 +282,12 @@ class Channel:
                 self._turns.run(ticket, self._perform_here, out)
             elif out:
                 self._perform_here(out)
+
+    def idle_s(self) -> float:
+        """Seconds the delivery thread has waited for data so far, the wait in progress too."""
+        since = self._waiting_since
+        done = self._idle_done_s
+        return done + (time.perf_counter() - since if since else 0.0)
 
     def _ticket(self, actions: list[Action]) -> int | None:
         """Lock held: a turn for a pass that delivers (a reader with a delivery thread only)."""

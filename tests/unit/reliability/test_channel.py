@@ -251,3 +251,34 @@ def test_a_delivery_thread_that_cannot_receive_says_so_and_counts_it(
         with Reader(MemoryTransport(bus), "t/x", QOS_RELIABLE_ALL, lambda p, i: None):
             time.sleep(0.05)
     assert "delivery stopped" not in caplog.text
+
+
+def test_a_readers_delivery_idle_time_counts_its_waits_and_not_its_work() -> None:
+    """What the CEDDP's overload governor reads: a reader waiting for data is idle, the wait in
+    progress included; a slow on_data is work, not idleness."""
+    bus = MemoryBus()
+    done: list[bytes] = []
+
+    def slow(payload: bytes, info: DataInfo) -> None:
+        time.sleep(0.05)  # deliberately: on_data's own time is the delivery thread's work
+        done.append(payload)
+
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(b, "f/robot/*/sensor/*", QOS_RELIABLE_ALL, slow) as reader,
+        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        start, idle0 = time.perf_counter(), reader.delivery_idle_s
+        time.sleep(0.3)  # deliberately: nothing is written, the reader waits the whole time
+        assert reader.delivery_idle_s - idle0 == pytest.approx(
+            time.perf_counter() - start, abs=0.05
+        )
+        busy_from, idle1 = time.perf_counter(), reader.delivery_idle_s
+        for i in range(6):
+            writer.write(b"%d" % i)
+        wait_until(lambda: len(done) == 6, what="six slow deliveries")
+        elapsed = time.perf_counter() - busy_from
+        assert elapsed >= 0.3
+        assert reader.delivery_idle_s - idle1 < elapsed - 0.25
