@@ -50,6 +50,7 @@ from arpz.perf.fleet_report import (
     write_robot_csv,
     write_sweep_csv,
 )
+from arpz.perf.fleet_watch import CeddpWatcher
 
 #: the kinds of seed 001 Table 1, cycled over a robot's topics (a mixed, realistic fleet)
 TOPIC_KINDS = ("lidar", "imu", "ultrasonic", "dht11", "flame", "pir", "light")
@@ -73,6 +74,10 @@ class FleetOptions:
     depth: int = 10
     zenoh_config: str | None = None
     p99_bound_ms: float = P99_BOUND_MS
+    #: the sensor profile's heartbeat period (None: the profile's default, 100 ms)
+    heartbeat_ms: float | None = None
+    #: the worker processes' niceness: the CEDDP gets the CPU first, the robots what is left
+    robot_nice: int = 10
 
 
 def check_options(o: FleetOptions) -> None:
@@ -93,6 +98,10 @@ def check_options(o: FleetOptions) -> None:
         raise FleetArgumentError(
             f"--ceddps {o.ceddps} > --robots {o.robots}: a CEDDP would serve nobody"
         )
+    if not 0 <= o.robot_nice <= 19:
+        raise FleetArgumentError(f"--robot-nice must be 0..19, got {o.robot_nice}")
+    if o.heartbeat_ms is not None and o.heartbeat_ms <= 0:
+        raise FleetArgumentError(f"--heartbeat-ms must be > 0, got {o.heartbeat_ms:g}")
     if o.depth < 1:
         raise FleetArgumentError(f"--depth must be >= 1, got {o.depth}")
     if o.zenoh_config is not None and not Path(o.zenoh_config).is_file():
@@ -133,6 +142,8 @@ def sensor_qos(o: FleetOptions) -> dict[str, Any]:
     qos: dict[str, Any] = {"reliability": "reliable", "history": o.history}
     if o.history == "keep_last":
         qos["depth"] = o.depth
+    if o.heartbeat_ms is not None:
+        qos["heartbeat_period_s"] = o.heartbeat_ms / 1000
     return qos
 
 
@@ -185,6 +196,7 @@ def worker_plan(
     plan = {
         "workers": workers,
         "go_file": str(workdir / "go"),
+        "nice": o.robot_nice,
         "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
     }
     return plan, where
@@ -358,6 +370,7 @@ def run_load(
     plan_path = workdir / "plan.json"
     plan_path.write_text(json.dumps(plan, indent=1), encoding="utf-8")
     procs: list[Proc] = []
+    watcher: CeddpWatcher | None = None
 
     def say(text: str) -> None:
         if progress is not None:
@@ -372,6 +385,7 @@ def run_load(
             procs.append(proc)
             ceddps.append(proc)
             proc.wait_line("ready on", timeout_s=60)
+        watcher = CeddpWatcher(FLEET, endpoints[0], o.ceddps, o.zenoh_config)
         workers = []
         for w in range(len(plan["workers"])):
             proc = Proc.spawn(
@@ -419,6 +433,7 @@ def run_load(
             ran_s.append(float(result["ran_s"]))
         # the robots sent from the go file to SIGINT: that is the window of the offered load
         load_s = sum(ran_s) / len(ran_s) if ran_s else window_s
+        self_reports = [vars(r) for r in watcher.snapshot()]
         failures += _stop_all(ceddps, timeout_s=60)
         docs = []
         for k, path in enumerate(summaries):
@@ -428,11 +443,13 @@ def run_load(
                 failures.append(f"CEDDP {k} left no summary ({path}): {exc}")
                 docs.append({})
     finally:
+        if watcher is not None:
+            watcher.close()
         for proc in procs:
             proc.kill()
     rows = robot_rows(where, docs, counts)
     figures = [
-        ceddp_figures(k, docs[k], rows, sampler.figures(p.popen.pid), load_s)
+        ceddp_figures(k, docs[k], rows, sampler.figures(p.popen.pid), load_s, self_reports[k])
         for k, p in enumerate(ceddps)
     ]
     point = fleet_point(
@@ -477,6 +494,15 @@ def add_fleet_parser(sub: Any) -> None:
     f.add_argument("--local-cache", action="store_true", help="robots' local cache on (off)")
     f.add_argument("--history", choices=["keep_all", "keep_last"], default="keep_all")
     f.add_argument("--depth", type=int, default=10, help="KEEP_LAST depth (10)")
+    f.add_argument(
+        "--robot-nice",
+        type=int,
+        default=10,
+        help="niceness of the robot processes (10): the CEDDP is served first",
+    )
+    f.add_argument(
+        "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"
+    )
     f.add_argument("--p99-bound-ms", type=float, default=P99_BOUND_MS, help="the knee's bound")
     f.add_argument("--sweep", help="robot counts, e.g. 1,5,10,25,50,100: the scaling curve")
     f.add_argument("--workdir", type=Path, help="configs, logs, summaries (default: a temp dir)")
@@ -509,6 +535,8 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         depth=args.depth,
         zenoh_config=args.zenoh_config,
         p99_bound_ms=args.p99_bound_ms,
+        robot_nice=args.robot_nice,
+        heartbeat_ms=args.heartbeat_ms,
     )
     check_options(options)
     return options

@@ -31,18 +31,27 @@ from typing import Any
 P99_BOUND_MS = 10.0
 MIN_DELIVERED_RATIO = 0.99
 
-#: what the CEDDP does not publish yet (reported as unavailable, with the reason)
-UNAVAILABLE = {
+#: what the CEDDP does not publish (yet): reported as unavailable, with the reason
+MISSING = {
     "ingest_backlog": (
-        "CeddpStats and summary.json carry no ingest queue depth (the sensor Reader's delivery "
-        "FIFO / the raw FIFO); only the reader's queue_dropped count is reported"
+        "neither CeddpStats nor summary.json carries the ingest queue depth (the sensor "
+        "Reader's delivery FIFO, or the raw FIFO); the reader's queue_dropped count and the "
+        "sensor path's busy share (CeddpStats.load, where published) stand in"
     ),
     "dashboard_dropped": (
-        "summary.json writes dashboard.dropped as a constant 0 (arpz/ceddp/server.py) and "
-        "CeddpStats does not carry Dashboard.dropped"
+        "this CEDDP's CeddpStats has no dashboard_dropped, and summary.json writes "
+        "dashboard.dropped as a constant 0"
     ),
     "latency_ms_max": "summary.json gives latency p50/p99 per robot and topic, no maximum",
 }
+
+
+def unavailable(ceddps: Sequence[CeddpFigures]) -> dict[str, str]:
+    """The figures this run could not report, each with what is missing."""
+    out = {k: v for k, v in MISSING.items() if k != "dashboard_dropped"}
+    if any(c.dashboard_dropped is None for c in ceddps):
+        out["dashboard_dropped"] = MISSING["dashboard_dropped"]
+    return out
 
 
 @dataclass(frozen=True)
@@ -96,8 +105,14 @@ class CeddpFigures:
     staleness_ms_p99: float | None
     #: samples the sensor reader's full worker queue refused (reliable readers NACK them again)
     ingest_queue_dropped: int | None
-    ingest_backlog: int | None = None
+    #: CPU per delivered sample, microseconds (cpu_cores x window / delivered)
+    cpu_us_per_sample: float | None = None
+    #: from its CeddpStats reports (None where it does not publish them): the highest busy
+    #: share of its sensor path, dashboard frames dropped, its measured capacity (samples/s)
+    ingest_load_max: float | None = None
     dashboard_dropped: int | None = None
+    capacity_hz: float | None = None
+    ingest_backlog: int | None = None
 
 
 @dataclass(frozen=True)
@@ -123,6 +138,9 @@ class FleetPoint:
     staleness_ms_p99: float | None
     ceddp_cpu_cores: float | None
     ceddp_rss_mb: float | None
+    #: the CEDDPs' and the robot workers' CPU per delivered sample, microseconds
+    ceddp_cpu_us_per_sample: float | None
+    workers_cpu_us_per_sample: float | None
     workers_cpu_cores: float
     host_busy_cores: float | None
     reconciled: bool
@@ -202,11 +220,15 @@ def ceddp_figures(
     rows: Sequence[RobotRow],
     process: ProcessFigures | None,
     window_s: float,
+    self_report: Mapping[str, Any] | None = None,
 ) -> CeddpFigures:
+    """``self_report``: what the CEDDP said of itself (``load_max``, ``dashboard_dropped``,
+    ``capacity_hz``; absent keys or None: not published)."""
     mine = [r for r in rows if r.ceddp == index]
     channel = (summary.get("ingest") or {}).get("channel") or {}
     dropped = channel.get("queue_dropped")
     delivered = sum(r.delivered for r in mine)
+    own = self_report or {}
     return CeddpFigures(
         index=index,
         partition=str(summary.get("partition", "?")),
@@ -220,7 +242,20 @@ def ceddp_figures(
         latency_ms_p99=_worst(r.latency_ms_p99 for r in mine),
         staleness_ms_p99=_worst(r.staleness_ms_p99 for r in mine),
         ingest_queue_dropped=int(dropped) if isinstance(dropped, int) else None,
+        cpu_us_per_sample=per_sample_us(
+            process.cpu_cores if process else None, window_s, delivered
+        ),
+        ingest_load_max=own.get("load_max"),
+        dashboard_dropped=own.get("dashboard_dropped"),
+        capacity_hz=own.get("capacity_hz"),
     )
+
+
+def per_sample_us(cores: float | None, window_s: float, samples: int) -> float | None:
+    """CPU microseconds per sample: cores x window / samples (None without samples or CPU)."""
+    if cores is None or samples <= 0:
+        return None
+    return round(cores * window_s / samples * 1e6, 1)
 
 
 def fleet_point(
@@ -265,6 +300,8 @@ def fleet_point(
         staleness_ms_p99=_worst(r.staleness_ms_p99 for r in rows),
         ceddp_cpu_cores=sum(cpus) if cpus else None,
         ceddp_rss_mb=sum(rss) if rss else None,
+        ceddp_cpu_us_per_sample=per_sample_us(sum(cpus) if cpus else None, window_s, delivered),
+        workers_cpu_us_per_sample=per_sample_us(workers_cpu_cores, window_s, delivered),
         workers_cpu_cores=workers_cpu_cores,
         host_busy_cores=host_busy_cores,
         reconciled=not problems,
@@ -345,7 +382,7 @@ def result_dict(
         "fleet": asdict(point),
         "ceddps": [asdict(c) for c in ceddps],
         "robots": [{**asdict(r), "reconciled": r.reconciled} for r in rows],
-        "unavailable": dict(UNAVAILABLE),
+        "unavailable": unavailable(ceddps),
     }
 
 
@@ -384,6 +421,7 @@ def write_sweep_csv(
 
 
 def _fmt(value: float | None, spec: str = ".2f") -> str:
+    """``n/a`` for a figure that was not measured or not published."""
     return "n/a" if value is None else format(value, spec)
 
 
@@ -411,8 +449,10 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
             f"CEDDP {c.index} ({c.partition}, {c.robots} robots): delivered "
             f"{c.delivered_per_s:,.0f}/s, lost {c.lost}, p50 {_fmt(c.latency_ms_p50)} ms, "
             f"p99 {_fmt(c.latency_ms_p99)} ms, CPU {cpu}, RSS {rss}, ingest queue dropped "
-            f"{c.ingest_queue_dropped if c.ingest_queue_dropped is not None else 'n/a'}, "
-            "ingest backlog n/a, dashboard frames dropped n/a"
+            f"{_fmt(c.ingest_queue_dropped, 'd')}, sensor path busy (max) "
+            f"{_fmt(c.ingest_load_max)}, dashboard frames dropped "
+            f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
+            f"{_fmt(c.cpu_us_per_sample, '.0f')} us"
         )
     p = point
     lines.append(
@@ -424,11 +464,13 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"staleness p99 {_fmt(p.staleness_ms_p99)} ms"
     )
     lines.append(
-        f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores, robot workers {p.workers_cpu_cores:.2f} "
-        f"cores, host busy {_fmt(p.host_busy_cores)} of {_host_cores()} cores"
+        f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "
+        f"({_fmt(p.ceddp_cpu_us_per_sample, '.0f')} us a sample), robot workers "
+        f"{p.workers_cpu_cores:.2f} cores, host busy {_fmt(p.host_busy_cores)} of "
+        f"{_host_cores()} cores"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
-    lines.append("unavailable: " + "; ".join(f"{k}: {v}" for k, v in UNAVAILABLE.items()))
+    lines.append("unavailable: " + "; ".join(f"{k}: {v}" for k, v in unavailable(ceddps).items()))
     if p.reconciled:
         lines.append(f"reconciled: sent == delivered + lost for all {p.robots} robots")
     else:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sys
 import threading
 import time
@@ -67,6 +68,9 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         for raw in plan["workers"][index]
     ]
     go_file = Path(plan["go_file"])
+    # the robots yield the CPU to the CEDDP: on one host the load generator must not starve
+    # the server it measures (real robots have CPUs of their own)
+    os.nice(int(plan.get("nice", 0)))
     zenoh_config = plan.get("zenoh_config")
     with ExitStack() as stack:
         agents: dict[str, RobotAgent] = {}
