@@ -7,7 +7,8 @@ proxy, the subscriber's over TCP. Every session turns Zenoh's shared memory off 
 payload bypasses the link on one host) and the publisher's sets ``transport/link/tx/batch_size``
 to 1472 bytes, so that no datagram exceeds one frame (same link for all three transports). The
 proxy's byte counters must show at least the payload bytes of the frames delivered leaving the
-proxy, and the publisher's payload bytes entering it: the run fails loudly otherwise.
+proxy towards the router: the run fails loudly otherwise (and prints what entered the proxy and
+what the kernel dropped before the proxy read it, ``rx_overflow``, which is not emulated loss).
 
 Also at 0 % loss over TCP (publisher straight to the router): arpz's goodput against raw
 Zenoh's, at the frame rate and flat out (frames back to back), with the default 1280-byte
@@ -235,17 +236,17 @@ def goodput(got: Received, t0: float) -> float:
         return got.intact * len(got.payloads[0]) / max(got.last_at - t0, 1e-9) / 1e6
 
 
-def check_link(cell: Cell, sent_bytes: int, delivered_bytes: int) -> None:
-    """The payload must have crossed the emulated link, not Zenoh's shared memory."""
+def check_link(cell: Cell, delivered_bytes: int) -> None:
+    """The payload delivered must have crossed the emulated link, not Zenoh's shared memory."""
     report = cell.proxy
     if report is None:
         raise SystemExit(f"FAILED: no counters from the netem proxy for {cell}")
-    up_in, up_out = report["up"]["bytes_in"], report["up"]["bytes_out"]
-    if up_in < sent_bytes or up_out < delivered_bytes:
+    up_out = report["up"]["bytes_out"]
+    if up_out < delivered_bytes:
         raise SystemExit(
-            f"FAILED: {cell.transport} at {cell.loss:g} %: the proxy saw {up_in} bytes in and "
-            f"{up_out} out, but {sent_bytes} payload bytes were sent and {delivered_bytes} "
-            "delivered: the payload did not cross the emulated link (shared memory on?)"
+            f"FAILED: {cell.transport} at {cell.loss:g} %: the proxy forwarded {up_out} bytes "
+            f"from the publisher, but {delivered_bytes} payload bytes were delivered: the "
+            "payload did not cross the emulated link (shared memory on?)"
         )
 
 
@@ -283,12 +284,13 @@ def run_cell(cell: Cell, payloads: list[bytes], seed: int) -> Cell:
     cell.delivered, cell.intact, cell.latencies_ms = got.count, got.intact, got.latencies_ms
     size = len(payloads[0])
     if cell.link == "udp":
-        check_link(cell, len(payloads) * size, cell.intact * size)
+        check_link(cell, cell.intact * size)
         up = cell.proxy["up"] if cell.proxy else {}
         print(
             f"    link up: {up.get('bytes_in')} bytes in, {up.get('bytes_out')} out "
-            f"(payload sent {len(payloads) * size}), dropped {up.get('dropped')} of "
-            f"{up.get('received')} datagrams, largest {up.get('largest_datagram')} B",
+            f"(payload written {len(payloads) * size}, delivered {cell.intact * size}), "
+            f"dropped {up.get('dropped')} of {up.get('received')} datagrams, largest "
+            f"{up.get('largest_datagram')} B, kernel overflow {up.get('rx_overflow')}",
             flush=True,
         )
     print(f"    delivered {cell.delivered}, intact {cell.intact}; {cell.extra}", flush=True)

@@ -138,7 +138,8 @@ def main(argv: list[str] | None = None) -> int:
             f"dropped {c['dropped']} (loss {c['dropped_loss']}, burst {c['dropped_burst']}, "
             f"outage {c['dropped_outage']}, queue {c['dropped_queue']}) duplicated "
             f"{c['duplicated']} reordered {c['reordered']} bytes in {c['bytes_in']} out "
-            f"{c['bytes_out']} frames {c['frames_in']} largest datagram {c['largest_datagram']}",
+            f"{c['bytes_out']} frames {c['frames_in']} largest datagram {c['largest_datagram']} "
+            f"kernel rx overflow {c['rx_overflow']}",
             file=sys.stderr,
         )
     line = json.dumps(data)

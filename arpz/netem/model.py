@@ -129,6 +129,10 @@ class Counters:
     largest_datagram: int = 0
     #: decided forwarded, but the socket refused it (full buffer, vanished peer)
     send_errors: int = 0
+    #: datagrams the kernel dropped before the proxy read them (its receive buffer was full: a
+    #: burst faster than the proxy), from /proc/net/udp; not part of ``received``. Not emulated
+    #: loss: a run where it is not 0 measured the emulator's limit, and says so
+    rx_overflow: int = 0
 
     @property
     def dropped(self) -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import itertools
+import os
 import random
 import selectors
 import socket
@@ -21,6 +22,34 @@ from dataclasses import dataclass
 from arpz.netem.model import Counters, Direction, Impairments
 
 _MAX_DATAGRAM = 65535
+#: receive buffer asked for each socket (the kernel caps it at net.core.rmem_max): a sender that
+#: bursts hundreds of datagrams (Zenoh fragmenting a large sample) must not overflow the default
+#: 208 KiB before the proxy's thread reads them, or the emulator adds loss of its own
+_RCVBUF_BYTES = 8 * 2**20
+
+
+def _big_buffer(sock: socket.socket) -> socket.socket:
+    with contextlib.suppress(OSError):
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, _RCVBUF_BYTES)
+    return sock
+
+
+def kernel_drops(socks: list[socket.socket]) -> int:
+    """Datagrams the kernel dropped on these UDP sockets (full receive buffer), from the
+    ``drops`` column of /proc/net/udp matched by socket inode; 0 where that file does not exist."""
+    inodes = {os.fstat(s.fileno()).st_ino for s in socks if s.fileno() >= 0}
+    total = 0
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as fh:
+                lines = fh.read().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            fields = line.split()
+            if len(fields) > 12 and int(fields[9]) in inodes:
+                total += int(fields[12])
+    return total
 
 
 def parse_udp_endpoint(endpoint: str) -> tuple[str, int]:
@@ -70,7 +99,7 @@ class NetemProxy:
         self.up = Direction(up, random.Random(rng.random()))
         self.down = Direction(down if down is not None else up, random.Random(rng.random()))
         self._sel = selectors.DefaultSelector()
-        self._listen = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self._listen = _big_buffer(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
         self._listen.bind(self._listen_addr)
         self._listen.setblocking(False)
         self._sel.register(self._listen, selectors.EVENT_READ, None)
@@ -83,6 +112,7 @@ class NetemProxy:
         self._sel.register(self._wake_r, selectors.EVENT_READ, "wake")
         self._t0 = time.monotonic()
         self._thread: threading.Thread | None = None
+        self._closed = False
 
     @property
     def listen_port(self) -> int:
@@ -119,6 +149,8 @@ class NetemProxy:
         return self.report()
 
     def report(self) -> ProxyReport:
+        if not self._closed:
+            self._count_overflow()
         return ProxyReport(
             self.up.counters, self.down.counters, len(self._upstream), time.monotonic() - self._t0
         )
@@ -142,6 +174,7 @@ class NetemProxy:
                     else:
                         self._receive(key.fileobj, key.data)  # type: ignore[arg-type]
         finally:
+            self._count_overflow()
             self._close()
         return self.report()
 
@@ -158,7 +191,7 @@ class NetemProxy:
             if client is None:
                 out = self._upstream.get(addr)
                 if out is None:
-                    out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+                    out = _big_buffer(socket.socket(socket.AF_INET, socket.SOCK_DGRAM))
                     out.bind((self._listen_addr[0], 0))
                     out.setblocking(False)
                     self._upstream[addr] = out
@@ -196,7 +229,16 @@ class NetemProxy:
             counters.forwarded -= 1
             counters.bytes_out -= len(data)
 
+    def _count_overflow(self) -> None:
+        """Kernel drops on the listening socket were datagrams from the clients (up); on the
+        upstream sockets, from the router (down)."""
+        with contextlib.suppress(OSError, ValueError, RuntimeError):  # RuntimeError: a new
+            # client's socket added while another thread asks for the report
+            self.up.counters.rx_overflow = kernel_drops([self._listen])
+            self.down.counters.rx_overflow = kernel_drops(list(self._upstream.values()))
+
     def _close(self) -> None:
+        self._closed = True
         for sock in [self._listen, *self._upstream.values(), self._wake_r, self._wake_w]:
             with contextlib.suppress(KeyError, ValueError):
                 self._sel.unregister(sock)
