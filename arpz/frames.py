@@ -34,6 +34,9 @@ ROBOT_METRICS: dict[str, str] = {
     "downlink_lost": "downlink lost or expired, robot-reported (cumulative)",
     "watchdog_stops": "command watchdog safe stops (cumulative)",
     "refused": "samples refused: INCOMPATIBLE_QOS (cumulative)",
+    "ingest_load": "CEDDP ingest load (share of time not waiting for samples)",
+    "capacity_hz": "CEDDP measured capacity (samples per busy second)",
+    "budget_hz": "fleet rate budget of the overload governor (samples/s)",
 }
 TIMELINE = "time"
 
