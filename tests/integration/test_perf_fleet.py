@@ -1,0 +1,84 @@
+"""``python -m arpz.perf fleet`` as a real process: a small fleet of real robot agents in two
+worker processes against a real CEDDP process; the files it writes, and no process left behind."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+
+def _gone(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    # a zombie is gone too: it runs nothing (its parent, the tool, has exited)
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] == "Z"
+    except OSError:
+        return True
+
+
+def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(tmp_path: Path) -> None:
+    out_json, out_csv = tmp_path / "fleet.json", tmp_path / "fleet.csv"
+    run = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "arpz.perf",
+            "fleet",
+            "--robots",
+            "6",
+            "--processes",
+            "2",
+            "--topics",
+            "2",
+            "--rate",
+            "20",
+            "--duration",
+            "4",
+            "--workdir",
+            str(tmp_path / "work"),
+            "--json",
+            str(out_json),
+            "--csv",
+            str(out_csv),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=90,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "reconciled: sent == delivered + lost for all 6 robots" in run.stdout
+    doc = json.loads(out_json.read_text())
+    robots = {r["robot"]: r for r in doc["robots"]}
+    assert sorted(robots) == [f"c0-r{i:03d}" for i in range(1, 7)]
+    for row in robots.values():
+        assert row["final_report"] and row["reconciled"], row
+        assert row["sent"] == row["delivered"] + row["lost"]
+        assert row["worker_sent"] == row["sent"]
+        assert row["sent"] > 0 and row["latency_ms_p99"] is not None
+    fleet = doc["fleet"]
+    assert fleet["reconciled"] and fleet["failures"] == []
+    assert fleet["delivered"] == sum(r["delivered"] for r in robots.values())
+    # 6 robots x 2 topics x 20 Hz for about 4 s, on a shared host: most of it, never more
+    assert 0.5 * 960 <= fleet["sent"] <= 1.2 * 960
+    (ceddp,) = doc["ceddps"]
+    process = ceddp["process"]
+    assert 0.0 < process["cpu_cores"] < 2.0
+    assert 30 < process["rss_peak_mb"] < 2000
+    assert process["rss_mb"] <= process["rss_peak_mb"]
+    with out_csv.open(newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    assert sorted(r["robot"] for r in rows) == sorted(robots)
+    assert all(r["reconciled"] == "True" for r in rows)
+    assert len(doc["pids"]) == 3  # one CEDDP, two workers
+    assert all(_gone(pid) for pid in doc["pids"]), doc["pids"]

@@ -1,0 +1,108 @@
+"""The fleet load test's arguments and plan: refused before any process starts (exit code 2)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+
+from arpz.config import CeddpConfig, RobotConfig, from_dict
+from arpz.perf.__main__ import main
+from arpz.perf.fleet import (
+    FleetArgumentError,
+    FleetOptions,
+    ceddp_configs,
+    check_options,
+    parse_sweep,
+    placement,
+    worker_plan,
+)
+from arpz.perf.fleet_watch import ceddp_of
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"robots": 0}, "--robots must be >= 1"),
+        ({"topics": 65}, "--topics must be 1..64"),
+        ({"rate_hz": 0.0}, "--rate must be in (0, 10000]"),
+        ({"processes": 0}, "--processes must be >= 1"),
+        ({"duration_s": -1.0}, "--duration must be > 0"),
+        ({"ceddps": 3, "robots": 2}, "--ceddps 3 > --robots 2"),
+        ({"depth": 0}, "--depth must be >= 1"),
+        ({"robot_nice": 20}, "--robot-nice must be 0..19"),
+        ({"heartbeat_ms": 0.0}, "--heartbeat-ms must be > 0"),
+        ({"zenoh_config": "/nonexistent.json5"}, "no such file"),
+    ],
+)
+def test_bad_options_are_refused(change: dict[str, object], message: str) -> None:
+    with pytest.raises(FleetArgumentError, match=message.replace("(", r"\(").replace("]", r"\]")):
+        check_options(dataclasses.replace(FleetOptions(), **change))  # type: ignore[arg-type]
+
+
+def test_sweep_lists() -> None:
+    assert parse_sweep("1,5,10,25") == [1, 5, 10, 25]
+    for bad in ("", "5,1", "1,1", "0,2", "a,b"):
+        with pytest.raises(FleetArgumentError, match="--sweep"):
+            parse_sweep(bad)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["fleet", "--robots", "0"], "--robots must be >= 1"),
+        (["fleet", "--size", "1024"], "--size: the robot agent sends"),
+        (["fleet", "--png", "x.png"], "--png draws the scaling curve: give --sweep too"),
+        (["fleet", "--sweep", "10,5"], "--sweep wants ascending"),
+        (["fleet", "--zenoh-config", "/nonexistent.json5"], "no such file"),
+        (["sub", "--connect", "tcp/127.0.0.1:1", "--zenoh-config", "/nonexistent"], "no such"),
+    ],
+)
+def test_the_command_exits_2_with_the_reason(
+    argv: list[str], message: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(argv) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_placement_spreads_robots_over_ceddps_and_workers() -> None:
+    where = placement(FleetOptions(robots=5, processes=2, ceddps=2))
+    assert where == {
+        "c0-r001": (0, 0),
+        "c1-r001": (1, 1),
+        "c0-r002": (0, 0),
+        "c1-r002": (1, 1),
+        "c0-r003": (0, 0),
+    }
+    assert set(placement(FleetOptions(robots=2, processes=4)).values()) == {(0, 0), (0, 1)}
+
+
+def test_the_plan_is_configs_the_ceddp_and_the_robots_accept(tmp_path: Path) -> None:
+    options = FleetOptions(robots=3, topics=9, processes=2, ceddps=2, history="keep_last", depth=7)
+    endpoints = ["tcp/127.0.0.1:7001", "tcp/127.0.0.1:7002"]
+    ceddps = ceddp_configs(options, endpoints, tmp_path)
+    assert [c["partition"] for c in ceddps] == ["c0-$*", "c1-$*"]
+    assert "connect" not in ceddps[0] and ceddps[1]["connect"] == [endpoints[0]]
+    plan, where = worker_plan(options, endpoints, tmp_path)
+    robots = [
+        from_dict(raw, RobotConfig, source="t") for worker in plan["workers"] for raw in worker
+    ]
+    assert sorted(r.robot_id for r in robots) == sorted(where)
+    for robot in robots:
+        assert len(robot.sensors) == 9 and not robot.local_cache.enabled
+        assert robot.connect == [endpoints[where[robot.robot_id][0]]]
+        assert robot.sensor_qos.depth == 7
+    ceddp = from_dict(ceddps[0], CeddpConfig, source="t")
+    assert ceddp.sensor_qos == robots[0].sensor_qos
+    assert plan["nice"] == 10
+
+
+def test_a_self_report_is_attributed_by_its_robots() -> None:
+    @dataclasses.dataclass
+    class Rate:
+        robot: str
+
+    assert ceddp_of([Rate("c1-r004")]) == 1
+    assert ceddp_of([Rate("robot1"), Rate("c0-r001")]) == 0
+    assert ceddp_of([]) is None
