@@ -37,6 +37,7 @@ from typing import Any
 
 from arpz.launch import free_port
 from arpz.netem.process import netem_process
+from arpz.netem.proxy import kernel_drops
 from arpz.percentiles import percentile
 from arpz.perf import zenoh_baselines as zb
 from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES
@@ -114,7 +115,14 @@ def link(kind: str, loss: float, seed: int) -> Iterator[tuple[str, str, Callable
                 *("--loss", str(loss), "--per-frame", "--clean-s", "2", "--seed", str(seed)),
             )
         )
-        yield f"udp/127.0.0.1:{proxy}", f"tcp/127.0.0.1:{tcp}", netem.stop
+
+        def stop() -> Any:
+            report = netem.stop()
+            if report is not None:  # what the router's own socket lost to bursts
+                report["router_rx_overflow"] = kernel_drops(port=udp)
+            return report
+
+        yield f"udp/127.0.0.1:{proxy}", f"tcp/127.0.0.1:{tcp}", stop
 
 
 def settings(connect: str, batch: bool) -> SessionSettings:
@@ -285,12 +293,14 @@ def run_cell(cell: Cell, payloads: list[bytes], seed: int) -> Cell:
     size = len(payloads[0])
     if cell.link == "udp":
         check_link(cell, cell.intact * size)
-        up = cell.proxy["up"] if cell.proxy else {}
+        assert cell.proxy is not None
+        up = cell.proxy["up"]
         print(
             f"    link up: {up.get('bytes_in')} bytes in, {up.get('bytes_out')} out "
             f"(payload written {len(payloads) * size}, delivered {cell.intact * size}), "
             f"dropped {up.get('dropped')} of {up.get('received')} datagrams, largest "
-            f"{up.get('largest_datagram')} B, kernel overflow {up.get('rx_overflow')}",
+            f"{up.get('largest_datagram')} B; kernel overflow at the proxy "
+            f"{up.get('rx_overflow')}, at the router {cell.proxy.get('router_rx_overflow')}",
             flush=True,
         )
     print(f"    delivered {cell.delivered}, intact {cell.intact}; {cell.extra}", flush=True)

@@ -34,10 +34,11 @@ def _big_buffer(sock: socket.socket) -> socket.socket:
     return sock
 
 
-def kernel_drops(socks: list[socket.socket]) -> int:
-    """Datagrams the kernel dropped on these UDP sockets (full receive buffer), from the
-    ``drops`` column of /proc/net/udp matched by socket inode; 0 where that file does not exist."""
-    inodes = {os.fstat(s.fileno()).st_ino for s in socks if s.fileno() >= 0}
+def kernel_drops(socks: list[socket.socket] | None = None, *, port: int | None = None) -> int:
+    """Datagrams the kernel dropped on UDP sockets (full receive buffer), from the ``drops``
+    column of /proc/net/udp: of ``socks`` (matched by inode), or of whatever socket is bound to
+    local ``port`` (e.g. a router's, to see what a burst cost it); 0 where the file is missing."""
+    inodes = {os.fstat(s.fileno()).st_ino for s in socks or [] if s.fileno() >= 0}
     total = 0
     for table in ("/proc/net/udp", "/proc/net/udp6"):
         try:
@@ -47,7 +48,10 @@ def kernel_drops(socks: list[socket.socket]) -> int:
             continue
         for line in lines:
             fields = line.split()
-            if len(fields) > 12 and int(fields[9]) in inodes:
+            if len(fields) <= 12:
+                continue
+            local_port = int(fields[1].rpartition(":")[2], 16)
+            if int(fields[9]) in inodes or local_port == port:
                 total += int(fields[12])
     return total
 
