@@ -64,7 +64,7 @@ def curve_line(p: FleetPoint) -> str:
 def sweep(
     label: str, options: FleetOptions, sizes: list[int], workdir: Path, csv: Path, png: Path | None
 ) -> tuple[list[RunResult], dict[str, Any]]:
-    results, doc = run_sweep(options, sizes, workdir / label, progress=sys.stderr)
+    results, doc = run_sweep(options, sizes, workdir / label.replace(" ", "_"), progress=sys.stderr)
     points = [r.point for r in results]
     per_ceddp = [r.ceddps for r in results]
     write_sweep_csv(csv, points, per_ceddp)
@@ -76,6 +76,8 @@ def sweep(
     )
     for point in points:
         print(curve_line(point))
+    for n, reason in doc["not_run"].items():
+        print(f"  N={n:>3}: FAILED to run: {reason}")
     print(f"  knee: {doc['knee'] or 'none within the sweep'} ({doc['knee_definition']})")
     for index, knee in doc["ceddp_knees"].items():
         print(f"  knee of CEDDP {index}: {knee or 'none within the sweep'}")

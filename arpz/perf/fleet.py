@@ -396,7 +396,8 @@ def run_load(
             procs.append(proc)
             workers.append(proc)
         for proc in workers:
-            proc.wait_line(": ready", timeout_s=60 + 0.5 * o.robots)
+            # 100 agents start in about 2 minutes on 2 cores (each waits for its matches)
+            proc.wait_line(": ready", timeout_s=60 + 2.0 * o.robots)
         sampler = ProcSampler([p.popen.pid for p in procs])
         Path(plan["go_file"]).touch()
         say(f"fleet: {o.robots} robots in {len(workers)} processes running; logs in {workdir}")
@@ -551,13 +552,21 @@ def run_sweep(
 ) -> tuple[list[RunResult], dict[str, Any]]:
     """One run per fleet size (its own subfolder); the sweep's document with the knees."""
     results = []
+    not_run: dict[str, str] = {}
     for n in sizes:
         if stop is not None and stop.is_set():
             break
         if progress is not None:
             print(f"--- sweep: {n} robots", file=progress, flush=True)
         options = replace(o, robots=n, processes=min(o.processes, n), ceddps=min(o.ceddps, n))
-        result = run_load(options, workdir / f"n{n}", progress, stop)
+        try:
+            result = run_load(options, workdir / f"n{n}", progress, stop)
+        except LaunchError as exc:
+            # a fleet that cannot even start is past any knee: keep the curve measured so far
+            not_run[str(n)] = str(exc).splitlines()[0]
+            if progress is not None:
+                print(f"sweep: {n} robots FAILED to run: {exc}", file=progress, flush=True)
+            break
         if progress is not None:
             print(format_run(result.point, result.ceddps, result.rows), file=progress, flush=True)
         results.append(result)
@@ -575,6 +584,7 @@ def run_sweep(
             for k, v in knees.items()
         },
         "points": [r.as_dict() for r in results],
+        "not_run": not_run,
     }
     return results, doc
 
@@ -613,7 +623,9 @@ def main(args: argparse.Namespace) -> int:
             print(f"knee: {doc['knee'] or 'none within the sweep'} ({doc['knee_definition']})")
             for k, knee in doc["ceddp_knees"].items():
                 print(f"knee of CEDDP {k}: {knee or 'none within the sweep'}")
-            ok = all(p.reconciled for p in points)
+            for n, reason in doc["not_run"].items():
+                print(f"FAILED: {n} robots could not run: {reason}")
+            ok = all(p.reconciled for p in points) and not doc["not_run"]
             if not ok:
                 print("FAILED: some runs did not reconcile (see above)")
     except LaunchError as exc:
