@@ -157,11 +157,13 @@ class _ZenohPublisher:
         self._inner = inner
 
     def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
-        with _translated("put"):
+        try:  # not ``_translated``: once per sample on a robot's hot path
             if attachment is None:
                 self._inner.put(payload)
             else:
                 self._inner.put(payload, attachment=attachment)
+        except zenoh.ZError as exc:
+            raise TransportError(f"put: {zenoh_message(exc)}") from exc
 
     @property
     def matching(self) -> bool:
@@ -198,15 +200,21 @@ class _ZenohPullSubscriber(_Declared):
             att.to_bytes() if att is not None else None,
         )
 
+    # try/except rather than ``_translated``: these run once per sample on the ingest path, and
+    # a generator context manager costs more than the rest of the call
     def try_recv(self) -> Received | None:
-        with _translated("receive"):
+        try:
             sample = self._try_recv()
+        except zenoh.ZError as exc:
+            raise TransportError(f"receive: {zenoh_message(exc)}") from exc
         return None if sample is None else self._received(sample)
 
     def recv(self) -> Received:
         """Blocks; raises ``TransportError`` once the subscriber is undeclared and drained."""
-        with _translated("receive"):
+        try:
             sample = self._recv()
+        except zenoh.ZError as exc:
+            raise TransportError(f"receive: {zenoh_message(exc)}") from exc
         return self._received(sample)
 
 

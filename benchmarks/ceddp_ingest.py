@@ -5,11 +5,16 @@ the same publisher processes sending the same pre-encoded samples (3 robots x 6 
 repeating as the simulated sensors do, so cache control has both hits and misses):
 
 - raw: a callback that only counts (the ceiling for a Python subscriber);
-- arpz: the real ``CeddpServer`` with its Rerun dashboard: Zenoh FIFO -> worker -> decode ->
-  sequence check -> latency -> cache control -> planner.
+- arpz raw: the real ``CeddpServer`` with its Rerun dashboard: Zenoh FIFO -> worker -> decode ->
+  sequence check -> latency -> cache control -> planner;
+- arpz channel: the same server behind its reliable-channel fleet Reader, fed by
+  ``arpz.reliability`` Writers (KEEP_ALL, batching; bulk publishers, see BULK_BATCH_DELAY_S);
+- arpz channel-unbatched: the same with one sample per message (``batch_max_samples = 1``), the
+  CEDDP's per-message cost, as a fleet of robots at 100 Hz per topic makes it pay.
 
 Throughput = samples / (time the last one was processed - time publishing started). Rounds
-alternate raw/arpz so drift on a shared machine hits both. Target (issue 2): arpz >= 0.5x raw.
+alternate raw/arpz so drift on a shared machine hits both. Targets: the raw path >= 0.5x raw
+(issue 2), the reliable channel >= 0.5x raw (issue 17).
 
     python benchmarks/ceddp_ingest.py [--samples 200000] [--rounds 3] [--publishers 2]
 """
@@ -37,6 +42,13 @@ from arpz.transport import SessionSettings  # noqa: E402
 from arpz.zenoh_transport import ZenohTransport  # noqa: E402
 from tests.support import free_port  # noqa: E402
 
+#: The channel publishers' batch delay. The benchmark measures the CEDDP, so its publishers must
+#: not set the rate: each publisher process here holds 18 writers written flat out, and with the
+#: default delay (0.5 ms) every one of them ticks every 0.5 ms while it streams (36 000 thread
+#: wake-ups a second per process), which made the publishers, not the CEDDP, the bottleneck
+#: (benchmarks/RESULTS.md). A robot's writers at 100 Hz never stream, so they never tick so often.
+BULK_BATCH_DELAY_S = 0.02
+
 PUBLISHER = r"""
 import sys, time
 from arpz.messages import Sample, encode
@@ -47,9 +59,15 @@ t = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]), time
 topics = [(f"robot{r}", name) for r in range(1, 4)
           for name in ("lidar", "imu", "dht11", "pir", "light", "flame")]
 keys = [f"arpz/bench/robot/{r}/sensor/{n}" for r, n in topics]
-if path == "channel":
+if path.startswith("channel"):
+    import msgspec
     from arpz.reliability import QOS_RELIABLE_ALL, Writer
-    writers = [Writer(t, key, QOS_RELIABLE_ALL) for key in keys]
+    # bulk publishers (see BULK_BATCH_DELAY_S); "channel-unbatched": one sample per message,
+    # what a fleet of robots at 100 Hz per topic sends
+    qos = msgspec.structs.replace(QOS_RELIABLE_ALL, batch_max_delay_s=float(sys.argv[5]))
+    if path == "channel-unbatched":
+        qos = msgspec.structs.replace(qos, batch_max_samples=1)
+    writers = [Writer(t, key, qos) for key in keys]
     deadline = time.monotonic() + 20
     while not all(w.matched_count for w in writers) and time.monotonic() < deadline:
         time.sleep(0.01)
@@ -68,7 +86,7 @@ for i, payload in enumerate(payloads):
     puts[i % len(puts)](payload)
 print("done", flush=True)
 sys.stdin.read()
-if path == "channel":
+if path.startswith("channel"):
     for w in writers:
         w.close()
 t.close()
@@ -80,7 +98,16 @@ def start_publishers(
 ) -> tuple[list[subprocess.Popen[str]], float]:
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", PUBLISHER, endpoint, str(per_publisher), str(i), path],
+            [
+                sys.executable,
+                "-c",
+                PUBLISHER,
+                endpoint,
+                str(per_publisher),
+                str(i),
+                path,
+                str(BULK_BATCH_DELAY_S),
+            ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
             text=True,
@@ -136,7 +163,7 @@ def run_arpz(total: int, publishers: int, workdir: Path, path: str) -> tuple[flo
         fleet="bench",
         listen=[endpoint],
         rrd=str(workdir / "bench.rrd"),
-        reliability="channel" if path == "channel" else "none",
+        reliability="channel" if path.startswith("channel") else "none",
         sensor_qos=QOS_RELIABLE_ALL,
     )
     router = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))
@@ -165,9 +192,10 @@ def main() -> int:
     parser.add_argument("--publishers", type=int, default=2)
     parser.add_argument(
         "--paths",
-        default="raw,channel",
-        help="CEDDP ingest paths to measure: raw (plain Zenoh samples) and/or channel "
-        "(arpz.reliability KEEP_ALL writers -> the CEDDP's fleet reader)",
+        default="raw,channel,channel-unbatched",
+        help="CEDDP ingest paths to measure: raw (plain Zenoh samples), channel "
+        "(arpz.reliability KEEP_ALL writers, batching -> the CEDDP's fleet reader), "
+        "channel-unbatched (one sample per message)",
     )
     args = parser.parse_args()
     paths = [p for p in args.paths.split(",") if p]
