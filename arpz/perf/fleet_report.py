@@ -522,7 +522,18 @@ def plot_sweep(
     cpu.axhline(1.0, color="grey", linestyle=":", label="one core")
     cpu.set_ylabel("CPU (cores)")
     rate.plot(ns, [p.offered_per_s for p in points], "k:", label="offered")
+    rate.plot(ns, [p.sent / p.window_s if p.window_s else 0 for p in points], "x--", label="sent")
     rate.plot(ns, [p.delivered_per_s for p in points], "o-", label="delivered")
+    limited = [p for p in points if p.generator_limited]
+    if limited:
+        rate.plot(
+            [p.robots for p in limited],
+            [p.delivered_per_s for p in limited],
+            "rs",
+            fillstyle="none",
+            markersize=10,
+            label="generator-limited",
+        )
     rate.set_ylabel("samples/s")
     for ax in axes:
         ax.set_xlabel("robots")
