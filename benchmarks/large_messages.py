@@ -95,7 +95,9 @@ class Received:
 
 
 @contextmanager
-def link(kind: str, loss: float, seed: int) -> Iterator[tuple[str, str, Callable[[], Any]]]:
+def link(
+    kind: str, loss: float, seed: int, rate_mbps: float
+) -> Iterator[tuple[str, str, Callable[[], Any]]]:
     """A router and (UDP) a netem proxy before it; yields (publisher endpoint, subscriber
     endpoint, stop() -> the proxy's counters or None)."""
     udp, tcp = free_port(socket.SOCK_DGRAM), free_port()
@@ -113,6 +115,7 @@ def link(kind: str, loss: float, seed: int) -> Iterator[tuple[str, str, Callable
                 f"udp/127.0.0.1:{proxy}",
                 f"udp/127.0.0.1:{udp}",
                 *("--loss", str(loss), "--per-frame", "--clean-s", "2", "--seed", str(seed)),
+                *("--rate-kbps", str(rate_mbps * 1000)),
             )
         )
 
@@ -178,8 +181,9 @@ def run_arpz(cell: Cell, pub: str, sub: str, payloads: list[bytes], clean_until:
         ws, rs = writer.stats(), reader.stats()
         f = rs.frames
         cell.extra = (
-            f"fragments {ws.fragments_sent} resent {ws.channel.retransmitted} "
-            f"(nacks {ws.channel.nacks}); frames delivered {f.frames_delivered} dropped "
+            f"fragments {ws.fragments_sent} resent {ws.channel.retransmitted} (seqs NACKed "
+            f"{ws.channel.nacks}, held off {ws.channel.resends_held_off}, duplicates at the "
+            f"reader {rs.channel.duplicates}); frames delivered {f.frames_delivered} dropped "
             f"{f.frames_dropped_incomplete + f.frames_dropped_over_limit} missing "
             f"{f.frames_missing} in assembly {f.in_assembly}; fragments lost {rs.channel.lost}"
         )
@@ -282,10 +286,10 @@ def fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.0f}"
 
 
-def run_cell(cell: Cell, payloads: list[bytes], seed: int) -> Cell:
+def run_cell(cell: Cell, payloads: list[bytes], seed: int, rate_mbps: float = 0.0) -> Cell:
     print(f"... {cell.link} {cell.loss:g} % {cell.transport} {cell.rate_hz:g} Hz", flush=True)
     runner = run_arpz if cell.transport == "arpz" else run_zenoh
-    with link(cell.link, cell.loss, seed) as (pub, sub, stop):
+    with link(cell.link, cell.loss, seed, rate_mbps) as (pub, sub, stop):
         clean_until = time.monotonic() + (2.0 if cell.link == "udp" else 0.0)
         got = runner(cell, pub, sub, payloads, clean_until)
         cell.proxy = stop()
@@ -314,6 +318,13 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=10.0, help="frames per second")
     ap.add_argument("--loss", type=float, nargs="+", default=[0.0, 1.0, 10.0])
     ap.add_argument("--no-tcp", action="store_true", help="skip the TCP goodput cells")
+    ap.add_argument(
+        "--link-mbps",
+        type=float,
+        default=0.0,
+        help="bandwidth of the emulated link (0: unlimited); a radio spaces the datagrams of a "
+        "burst, loopback does not, and the router's socket overflows on an unpaced burst",
+    )
     args = ap.parse_args()
     rng = random.Random(7)
     payloads = [rng.randbytes(args.size) for _ in range(args.frames)]
@@ -322,7 +333,7 @@ def main() -> int:
     verdicts: list[str] = []
     for i, loss in enumerate(args.loss):
         cells = {
-            t: run_cell(Cell("udp", loss, t, args.rate), payloads, seed=11 + i)
+            t: run_cell(Cell("udp", loss, t, args.rate), payloads, 11 + i, args.link_mbps)
             for t in ("zenoh", "advanced", "arpz")
         }
         for t in ("arpz", "zenoh", "advanced"):
@@ -352,8 +363,10 @@ def main() -> int:
                     f"{base.goodput_mbs:.1f} MB/s (target >= 0.8x)"
                 )
     print()
+    bandwidth = f"{args.link_mbps:g} Mb/s" if args.link_mbps else "unlimited"
     print(
-        f"{n} frames of {args.size} random bytes per cell; latency = send stamp to complete "
+        f"{n} frames of {args.size} random bytes per cell; UDP link {bandwidth}; "
+        "latency = send stamp to complete "
         "frame; goodput = intact payload bytes / (first write to last delivery); link MB = "
         "payload and headers the proxy forwarded from the publisher, with its largest datagram"
     )

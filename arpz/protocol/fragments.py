@@ -254,6 +254,11 @@ class Reassembler:
             self._incomplete += 1
         self._sources.pop(source, None)
 
+    @property
+    def sources(self) -> list[str]:
+        """The sources remembered now (at most ``max_sources``)."""
+        return list(self._sources)
+
     def stats(self) -> ReassemblyStats:
         return ReassemblyStats(
             frames_delivered=self._delivered,

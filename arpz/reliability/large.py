@@ -11,6 +11,7 @@ samples" in docs/reliability.md.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections.abc import Callable
@@ -18,7 +19,12 @@ from typing import Final
 
 import msgspec
 
-from arpz.protocol.events import DataInfo, ReaderEventCallbacks, WriterEventCallbacks
+from arpz.protocol.events import (
+    DataInfo,
+    MatchedStatus,
+    ReaderEventCallbacks,
+    WriterEventCallbacks,
+)
 from arpz.protocol.fragments import (
     DEFAULT_FRAGMENT_BYTES,
     FragmentError,
@@ -208,14 +214,28 @@ class FrameReader:
             max_frame_bytes=max_frame_bytes,
             in_order=True,  # the channel delivers each writer's fragments in seq order
         )
+        events = events or ReaderEventCallbacks()
+        self._user_matched = events.matched
         self.reader = Reader(
             transport,
             key_expr,
             fragment_qos(qos, max_frame_bytes, fragment_bytes),
             self._on_fragment,
-            events=events,
+            events=dataclasses.replace(events, matched=self._on_matched),
             clock=clock,
         )
+
+    def _on_matched(self, status: MatchedStatus) -> None:
+        """A writer that left can never complete the frame it was sending: drop it (counted
+        incomplete) rather than hold its buffer until the bounds evict it. The channel delivers
+        the writer's last fragments before this event."""
+        if status.current_count_change < 0:
+            with self._lock:
+                for source in self._reassembler.sources:
+                    if source.endswith(f"#{status.peer}"):
+                        self._reassembler.drop_source(source)
+        if self._user_matched is not None:
+            self._user_matched(status)
 
     def _on_fragment(self, payload: bytes, info: DataInfo) -> None:
         with self._lock:

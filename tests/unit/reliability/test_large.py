@@ -9,7 +9,7 @@ from contextlib import closing
 import pytest
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, HEADER_BYTES, FragmentError
+from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, HEADER_BYTES, FragmentError, split
 from arpz.protocol.qos import QosError
 from arpz.reliability import (
     QOS_FRAMES_ALL,
@@ -18,6 +18,7 @@ from arpz.reliability import (
     FrameReader,
     FrameWriter,
     QosProfile,
+    ReaderEventCallbacks,
 )
 from arpz.reliability.large import fragment_qos
 from tests.support import wait_until
@@ -153,3 +154,26 @@ def test_a_frame_over_the_declared_maximum_is_refused() -> None:
         pytest.raises(FragmentError, match="max_frame_bytes"),
     ):
         writer.write(b"x" * 1001)
+
+
+def test_a_frame_left_incomplete_by_a_departing_writer_is_dropped_and_counted() -> None:
+    bus = MemoryBus()
+    sink = Sink()
+    matched: list[int] = []
+    events = ReaderEventCallbacks(matched=lambda s: matched.append(s.current_count_change))
+    with (
+        closing(MemoryTransport(bus)) as a,
+        closing(MemoryTransport(bus)) as b,
+        FrameReader(b, "cam/front", QOS_VIDEO, sink, max_frame_bytes=FRAME, events=events) as r,
+    ):
+        writer = FrameWriter(a, "cam/front", QOS_VIDEO, max_frame_bytes=FRAME)
+        wait_until(lambda: writer.matched_count == 1, what="match")
+        writer.write(frames(1)[0])
+        for fragment in list(split(2, frames(1)[0], DEFAULT_FRAGMENT_BYTES))[:10]:
+            writer.writer.write(fragment)  # frame 2: the writer goes before its end
+        wait_until(lambda: r.stats().frames.in_assembly == 1, what="frame 2 in assembly")
+        writer.close()
+        wait_until(lambda: r.stats().frames.in_assembly == 0, what="frame 2 dropped")
+        s = r.stats().frames
+        assert (s.frames_delivered, s.frames_dropped_incomplete, s.assembly_bytes) == (1, 1, 0)
+        assert matched == [1, -1]  # the user's callback still runs
