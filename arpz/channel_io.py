@@ -18,8 +18,10 @@ import logging
 import threading
 from collections.abc import Callable
 
+from arpz.protocol.fragments import FragmentError
 from arpz.reliability import (
     PLAIN_PEER,
+    FrameWriter,
     HistoryFullError,
     IncompatibleQosStatus,
     MessageLostStatus,
@@ -148,6 +150,77 @@ class Outlet:
             return True
         acknowledged = self.writer.wait_for_acknowledgments(wait_s)
         self.writer.close()
+        return acknowledged
+
+
+class FrameOutlet:
+    """The ``Outlet`` of a large sensor (camera, point cloud) through the reliable channel: a
+    ``FrameWriter`` whose QoS counts frames (``frames_qos``), so a frame travels as fragments of
+    one radio frame and only missing fragments are resent.
+
+    It answers the sensor path's questions as an ``Outlet`` does, with three differences, each
+    because a frame is many channel samples: the channel counters (``totals``) count fragments;
+    there is no per-sample acknowledgement for the local cache's staleness bookkeeping
+    (``acknowledged_through`` is None); and a QoS assignment's depth, which counts samples of
+    small topics, leaves the frame history alone (the assigned rate still applies).
+    """
+
+    def __init__(self, transport: Transport, key: str, qos: QosProfile, max_frame_bytes: int):
+        self.key = key
+        self.frames = FrameWriter(transport, key, qos, max_frame_bytes=max_frame_bytes, block=True)
+        self._qos = qos
+        #: frames refused: a KEEP_ALL frame history stayed full, or a frame over max_frame_bytes
+        self.write_failures = 0
+
+    def send(self, payload: bytes, stamp_ns: int, *, count_unmatched: bool = False) -> bool:
+        try:
+            self.frames.write(payload, stamp_ns=stamp_ns)
+            return True
+        except (HistoryFullError, FragmentError) as exc:
+            self.write_failures += 1
+            if self.write_failures in (1, 10, 100) or self.write_failures % 1000 == 0:
+                log.error("%s: frame not sent (#%d): %s", self.key, self.write_failures, exc)
+            return False
+
+    def unchanged(self) -> None:
+        """A repeated frame is held back by the local cache; nothing is said on the channel."""
+
+    def acknowledged_through(self) -> int | None:
+        return None
+
+    def latest_undeliverable(self) -> bool:
+        return False
+
+    def retune(self, *, depth: int, deadline_s: float) -> None:
+        """A QoS assignment's depth counts samples of small topics: the frame history stays."""
+
+    @property
+    def qos(self) -> QosProfile:
+        return self._qos
+
+    def stats(self) -> WriterStats:
+        return self.frames.stats().channel
+
+    def totals(self) -> dict[str, int]:
+        """The fragment channel's counters (in fragments) and the frames refused."""
+        stats = self.stats()
+        return {
+            "retransmitted": stats.retransmitted,
+            "history_offered": stats.history_offered,
+            "gapped": stats.lost,
+            "overwritten_unacked": stats.overwritten_unacked,
+            "deadline_missed": stats.deadline_missed,
+            "lifespan_expired": stats.lifespan_expired,
+            "write_failures": self.write_failures,
+        }
+
+    @property
+    def matched(self) -> bool:
+        return self.frames.matched_count > 0
+
+    def close(self, wait_s: float = 0.5) -> bool:
+        acknowledged = self.frames.wait_for_acknowledgments(wait_s)
+        self.frames.close()
         return acknowledged
 
 

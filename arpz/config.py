@@ -17,10 +17,35 @@ from arpz import keys
 from arpz.endpoints import check_endpoints
 from arpz.errors import ConfigError as ConfigError  # re-exported: callers catch it from here
 from arpz.protocol.qos import QosProfile
-from arpz.traffic import ASSIGNMENT_QOS, COMMAND_QOS, REPORT_QOS, SENSOR_QOS, ChannelMode
+from arpz.traffic import (
+    ASSIGNMENT_QOS,
+    COMMAND_QOS,
+    FRAMES_QOS,
+    REPORT_QOS,
+    SENSOR_QOS,
+    ChannelMode,
+)
 
-SensorKind = Literal["lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light"]
-SENSOR_KINDS: tuple[str, ...] = ("lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light")
+SensorKind = Literal[
+    "lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light", "camera", "pointcloud"
+]
+SENSOR_KINDS: tuple[str, ...] = (
+    "lidar",
+    "dht11",
+    "imu",
+    "ultrasonic",
+    "flame",
+    "pir",
+    "light",
+    "camera",
+    "pointcloud",
+)
+#: kinds whose readings are large (a 640x480 RGB frame is 921 600 bytes): through the reliable
+#: channel they travel as fragments (``arpz.reliability.FrameWriter``) on ``frames/{topic}``
+LARGE_KINDS: frozenset[str] = frozenset({"camera", "pointcloud"})
+#: a large reading is refused above this by the CEDDP unless its ``max_sample_bytes`` names the
+#: kind
+LARGE_SAMPLE_BYTES = 2 * 2**20
 
 
 class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -54,6 +79,11 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
         if self.driver == "replay" and not self.trace:
             raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
+        if self.driver == "replay" and self.kind in LARGE_KINDS:
+            raise ValueError(
+                f"a {self.kind} sensor cannot replay a trace (traces hold text values): use "
+                "driver 'sim' or a driver class (docs/sensors.md)"
+            )
 
 
 class LocalCacheConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -117,6 +147,8 @@ class TrafficQos(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
     assignment_qos: QosProfile = ASSIGNMENT_QOS
     #: stats, announcements, QoS acks, telemetry and the CEDDP's stats
     report_qos: QosProfile = REPORT_QOS
+    #: camera and point-cloud sensors (``frames/{topic}``): depth and max_samples count frames
+    frames_qos: QosProfile = FRAMES_QOS
     #: for benchmarks only (benchmarks/downlink_hello.py): the CEDDP -> robot keys as plain puts,
     #: arpz's downlink before issue 14; set on both sides
     plain_downlink: bool = False
@@ -126,7 +158,8 @@ class TrafficQos(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
         return self.reliability == "channel"
 
     def profile(self, kind: str, *, downlink: bool = False) -> QosProfile | None:
-        """The profile of ``kind`` ("sensor", "hello", "command", "assignment", "report"), or
+        """The profile of ``kind`` ("sensor", "hello", "command", "assignment", "report",
+        "frames"), or
         None in plain mode (``downlink``: for a CEDDP -> robot key)."""
         if not self.channel or (downlink and self.plain_downlink):
             return None

@@ -58,6 +58,12 @@ def sensor_key(fleet: str, robot: str, topic: str) -> str:
     return f"{robot_prefix(fleet, robot)}/sensor/{check_chunk(topic, what='topic')}"
 
 
+def frames_key(fleet: str, robot: str, topic: str) -> str:
+    """Large samples (camera frames, point clouds) of one topic, as the reliable channel's
+    fragments (robot -> CEDDP); the reassembled payload is a ``Sample`` as on ``sensor/``."""
+    return f"{robot_prefix(fleet, robot)}/frames/{check_chunk(topic, what='topic')}"
+
+
 #: the Hello probe's name both ways (seed 001 Fig. 9): the robot's ``sensor/hello`` up, each
 #: robot's ``cmd/hello`` down
 HELLO = "hello"
@@ -131,6 +137,10 @@ def ceddp_qos_key(fleet: str) -> str:
 # Wildcards used by the CEDDP to see the whole fleet.
 def all_sensors(fleet: str, partition: str = "*") -> str:
     return f"{fleet_prefix(fleet)}/robot/{check_partition(partition)}/sensor/*"
+
+
+def all_frames(fleet: str, partition: str = "*") -> str:
+    return f"{fleet_prefix(fleet)}/robot/{check_partition(partition)}/frames/*"
 
 
 def all_presence(fleet: str) -> str:

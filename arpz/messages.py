@@ -16,7 +16,11 @@ import msgspec
 
 #: The typed value of one sensor reading (seed 001, Table 1): floats for LIDAR, DHT11, IMU and
 #: Ultrasonic; bool for Flame; the strings "detect"/"not detect" (PIR) and "light"/"dark" (Light).
-SensorValue = float | bool | str
+ScalarValue = float | bool | str
+#: ... and bytes: a camera frame or a point cloud (layouts in docs/sensors.md), carried by
+#: ``LargeSample`` (msgspec decodes no union of str and bytes, and a small reading's decoder
+#: should not pay for large ones)
+SensorValue = ScalarValue | bytes
 
 #: A command's value: a scalar, a string or a vector (for example a velocity ``[v, omega]``).
 CommandValue = float | bool | str | list[float]
@@ -32,13 +36,26 @@ class Sample(msgspec.Struct, array_like=True, frozen=True):
     writer: str
     seq: int
     stamp_ns: int
-    value: SensorValue
+    value: ScalarValue
     #: when the robot first read this value (the start of its run of equal readings; the
     #: receiver measures staleness from it); 0 = not given (then ``stamp_ns``)
     changed_ns: int = 0
     #: ``changed_ns`` of the oldest sample of this topic not yet acknowledged when this one was
     #: written (= ``changed_ns`` when all were): where staleness starts if samples before this
     #: one were lost; 0 = not given
+    since_ns: int = 0
+
+
+class LargeSample(msgspec.Struct, array_like=True, frozen=True):
+    """A camera frame or point cloud: a ``Sample`` whose value is bytes, with the same layout
+    and meaning of every field (on ``.../frames/{topic}`` through the reliable channel, or on
+    ``.../sensor/{topic}`` in plain mode)."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    value: bytes
+    changed_ns: int = 0
     since_ns: int = 0
 
 
@@ -269,6 +286,7 @@ DECODE_ERRORS: Final = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
 
 SAMPLE_ENCODER: Final = msgspec.msgpack.Encoder()
 SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(Sample)
+LARGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(LargeSample)
 HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
 COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)

@@ -12,6 +12,9 @@ for what the traffic is for:
   (a link outage) is dropped and counted, never applied late to a moving robot.
 - assignment: RELIABLE TRANSIENT_LOCAL KEEP_LAST 1, a "latched" topic: a robot that joins or
   reconnects receives the assignment in force, also after a link outage.
+- frames (camera frames, point clouds): RELIABLE KEEP_LAST 1 *frame*, counted in frames: the
+  newest frame wins, an older one still incomplete is dropped and counted; each frame travels as
+  fragments of one radio frame, and only missing fragments are resent (docs/reliability.md).
 - reports (stats, announcements, QoS acks, telemetry, the CEDDP's stats): RELIABLE, and
   TRANSIENT_LOCAL KEEP_LAST 4 so a restarted CEDDP learns each robot's latest report at once;
   a robot waits for the final report's acknowledgement before it closes.
@@ -35,3 +38,4 @@ SENSOR_QOS: Final = QosProfile()
 COMMAND_QOS: Final = QosProfile(depth=10, lifespan_s=0.5)
 ASSIGNMENT_QOS: Final = QosProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 REPORT_QOS: Final = QosProfile(depth=4, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+FRAMES_QOS: Final = QosProfile(depth=1)

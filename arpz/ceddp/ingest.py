@@ -15,7 +15,14 @@ from dataclasses import dataclass, field
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
-from arpz.messages import DECODE_ERRORS, HELLO_DECODER, SAMPLE_DECODER, SensorValue
+from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES
+from arpz.messages import (
+    DECODE_ERRORS,
+    HELLO_DECODER,
+    LARGE_SAMPLE_DECODER,
+    SAMPLE_DECODER,
+    SensorValue,
+)
 from arpz.percentiles import Distribution
 from arpz.protocol.wire import MAX_BATCH, MAX_SEQ, MAX_WRITE_RATE_HZ
 
@@ -62,6 +69,8 @@ class TopicMetrics:
     repeated_from_previous_run: int = 0
     #: the size bound of this topic's samples (by its kind, once the robot announced it)
     max_bytes: int = 65_536
+    #: a camera or point-cloud topic (announced so, or arriving as frames): ``LargeSample``s
+    large: bool = False
     #: the sequence state of the writer of the last sample (the hot path compares only this);
     #: other writers' states wait in ``others`` (many writers to one topic is legitimate)
     writer: str = ""
@@ -102,7 +111,15 @@ class Ingest:
         max_sample_bytes: dict[str, int] | None = None,
     ) -> None:
         #: per sensor kind, and "default" for the others and for topics not yet announced
-        self.max_sample_bytes = {"default": 65_536, **(max_sample_bytes or {})}
+        self.max_sample_bytes = {
+            "default": 65_536,
+            **dict.fromkeys(LARGE_KINDS, LARGE_SAMPLE_BYTES),
+            **(max_sample_bytes or {}),
+        }
+        #: the bound of a large topic not yet announced
+        self._large_limit = max(self.max_sample_bytes[kind] for kind in LARGE_KINDS)
+        #: per robot, its topics announced as a large kind
+        self._large: dict[str, set[str]] = {}
         self.max_robots = max_robots
         self.max_topics_per_robot = max_topics_per_robot
         self._topics_per_robot: dict[str, int] = {}
@@ -141,6 +158,7 @@ class Ingest:
                     max_bytes=self._kinds.get(robot, {}).get(
                         topic, self.max_sample_bytes["default"]
                     ),
+                    large=topic in self._large.get(robot, ()),
                     seen_before=self.seen_before.get((robot, topic), {}),
                 )
                 self.topics[(robot, topic)] = metrics
@@ -151,12 +169,15 @@ class Ingest:
         """The robot announced its topics' kinds: bound each topic's samples by its kind's size
         (call with ``lock`` held). Topics not tracked yet get theirs when they are created."""
         limits = self.max_sample_bytes
+        announced = list(kinds.items())[:256]
         self._kinds[robot] = {
-            topic: limits.get(kind, limits["default"]) for topic, kind in list(kinds.items())[:256]
+            topic: limits.get(kind, limits["default"]) for topic, kind in announced
         }
+        self._large[robot] = {topic for topic, kind in announced if kind in LARGE_KINDS}
         for (r, topic), metrics in self.topics.items():
             if r == robot:
                 metrics.max_bytes = self._kinds[robot].get(topic, limits["default"])
+                metrics.large = topic in self._large[robot]
 
     def _room_for(self, robot: str, topic: str) -> bool:
         """Per-topic state is created only for valid names within the limits, so a client
@@ -176,7 +197,12 @@ class Ingest:
         self._topics_per_robot[robot] = count + 1
         return True
 
-    def handle_sensor(self, key: str, payload: bytes, arrival_ns: int) -> None:
+    def handle_sensor(
+        self, key: str, payload: bytes, arrival_ns: int, *, large: bool = False
+    ) -> None:
+        """One sample on ``key``. ``large``: a camera frame or point cloud reassembled from the
+        channel's fragments, which may come before the robot announced the topic's kind: the
+        topic is large from then on, bounded by the largest size a large kind may have."""
         over = self.counters.over_limit
         metrics = self.metrics_for(key)
         if metrics is None:
@@ -201,6 +227,9 @@ class Ingest:
                     "ignoring sample on unknown key %s (%d so far)", key, self.counters.unknown_keys
                 )
             return
+        if large and not metrics.large:
+            metrics.large = True
+            metrics.max_bytes = max(metrics.max_bytes, self._large_limit)
         if len(payload) > metrics.max_bytes:
             metrics.oversize += 1
             if metrics.oversize in (1, 10, 100) or metrics.oversize % 10000 == 0:
@@ -216,7 +245,7 @@ class Ingest:
             self._handle_hello(metrics, payload, arrival_ns)
             return
         try:
-            sample = SAMPLE_DECODER.decode(payload)
+            sample = (LARGE_SAMPLE_DECODER if metrics.large else SAMPLE_DECODER).decode(payload)
         except DECODE_ERRORS as exc:
             self._decode_error(metrics, key, payload, exc)
             return

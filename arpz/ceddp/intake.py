@@ -19,10 +19,12 @@ from arpz import keys
 from arpz.ceddp.control import ControlWorker, EventSink
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
-from arpz.config import CeddpConfig
+from arpz.config import LARGE_SAMPLE_BYTES, CeddpConfig
 from arpz.reliability import (
     PLAIN_PEER,
     DataInfo,
+    FrameInfo,
+    FrameReader,
     IncompatibleQosStatus,
     MessageLostStatus,
     QosPolicyKind,
@@ -59,6 +61,8 @@ class SensorIntake:
         self.control = control
         self._event = event
         self.reader: Reader | None = None
+        #: camera frames and point clouds (``frames/{topic}``), reassembled from fragments
+        self.frames: FrameReader | None = None
         self.raw: PullSubscriber | None = None
         self.processed = 0
         #: samples the reliable channel reported irrecoverably lost (GAP, timeout, writer gone)
@@ -90,6 +94,16 @@ class SensorIntake:
             ),
             max_writers=cfg.max_robots * cfg.max_topics_per_robot,
         )
+        frames_qos = cfg.profile("frames")
+        assert frames_qos is not None, "channel mode has every profile"
+        self.frames = FrameReader(
+            self.transport,
+            keys.all_frames(cfg.fleet, cfg.partition),
+            frames_qos,
+            self._on_frame,
+            max_frame_bytes=LARGE_SAMPLE_BYTES,
+            events=ReaderEventCallbacks(incompatible_qos=self._on_incompatible),
+        )
         self.control.sensor_reader = self.reader
 
     def stop(self) -> None:
@@ -100,6 +114,8 @@ class SensorIntake:
             self.transport.put(self._wake_key, b"")
         if self.reader is not None:
             self.reader.close()
+        if self.frames is not None:
+            self.frames.close()
 
     def idle_s(self) -> float:
         """Seconds the sensor path's thread has waited for samples so far; the rest of its time
@@ -154,6 +170,21 @@ class SensorIntake:
         with self.ingest.lock:
             try:
                 self.ingest.handle_sensor(info.key, payload, time.time_ns())
+            except Exception:  # a bad sample or a planner bug must not stop the CEDDP
+                log.exception("ingest failed on %s", info.key)
+            self.processed += 1
+
+    def _on_frame(self, payload: bytes, info: FrameInfo) -> None:
+        """A camera frame or point cloud, reassembled: a ``Sample`` like any sensor's, ingested
+        under its ``sensor/{topic}`` key (the FrameReader bounded its size already)."""
+        parsed = keys.parse_robot_key(info.key)
+        with self.ingest.lock:
+            if parsed is None or parsed[1] != "frames":
+                self.ingest.counters.unknown_keys += 1
+                return
+            key = keys.sensor_key(self.config.fleet, parsed[0], parsed[2])
+            try:
+                self.ingest.handle_sensor(key, payload, time.time_ns(), large=True)
             except Exception:  # a bad sample or a planner bug must not stop the CEDDP
                 log.exception("ingest failed on %s", info.key)
             self.processed += 1

@@ -19,7 +19,7 @@ from pathlib import Path
 import msgspec
 
 from arpz import keys
-from arpz.channel_io import Outlet
+from arpz.channel_io import FrameOutlet, Outlet
 from arpz.config import RobotConfig
 from arpz.messages import (
     Announce,
@@ -165,8 +165,8 @@ class RobotAgent:
             cfg.reliability,
         )
 
-    def _outlets(self) -> list[Outlet]:
-        outlets = [s.output for s in self.sensors]
+    def _outlets(self) -> list[Outlet | FrameOutlet]:
+        outlets: list[Outlet | FrameOutlet] = [s.output for s in self.sensors]
         outlets += [self.hello_probe.outlet, self._stats_out, self._announce_out, self._ack_out]
         if self._telemetry_out is not None:
             outlets.append(self._telemetry_out)

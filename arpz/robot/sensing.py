@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from arpz import keys
-from arpz.channel_io import Outlet
-from arpz.config import RobotConfig, SensorConfig
-from arpz.messages import Sample, TopicCounters, encode, same_value
+from arpz.channel_io import FrameOutlet, Outlet
+from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
+from arpz.messages import LargeSample, Sample, TopicCounters, encode, same_value
 from arpz.robot.local_cache import LocalCache
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors
 from arpz.robot.sensors.base import check_value
@@ -40,7 +40,7 @@ class SensorChannel:
     config: SensorConfig
     driver: SensorDriver
     cache: LocalCache
-    output: Outlet
+    output: Outlet | FrameOutlet
     seq: int = 0
     bytes_sent: int = 0
     driver_errors: int = 0
@@ -113,15 +113,24 @@ def build_sensors(
                     tolerance=sensor.tolerance,
                     max_silence_s=silence,
                 ),
-                output=Outlet(
-                    transport,
-                    keys.sensor_key(config.fleet, config.robot_id, sensor.name),
-                    config.profile("sensor"),
-                ),
+                output=sensor_outlet(config, sensor, transport),
                 rate_hz=sensor.rate_hz,
             )
         )
     return sensors
+
+
+def sensor_outlet(
+    config: RobotConfig, sensor: SensorConfig, transport: Transport
+) -> Outlet | FrameOutlet:
+    """A camera or point cloud through the channel goes as fragments on ``frames/{topic}``
+    (``frames_qos``); every other sensor, and every sensor in plain mode, on ``sensor/{topic}``."""
+    frames_qos = config.profile("frames")
+    if sensor.kind in LARGE_KINDS and frames_qos is not None:
+        key = keys.frames_key(config.fleet, config.robot_id, sensor.name)
+        return FrameOutlet(transport, key, frames_qos, LARGE_SAMPLE_BYTES)
+    key = keys.sensor_key(config.fleet, config.robot_id, sensor.name)
+    return Outlet(transport, key, config.profile("sensor"))
 
 
 def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
@@ -132,7 +141,11 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
         sensor.driver_errors += 1
         if sensor.driver_errors in (1, 10, 100) or sensor.driver_errors % 1000 == 0:
             log.error(
-                "sensor %s: driver error #%d: %s", sensor.config.name, sensor.driver_errors, exc
+                "sensor %s: driver error #%d: %s: %s",
+                sensor.config.name,
+                sensor.driver_errors,
+                type(exc).__name__,
+                exc,
             )
         return
     stamp_ns = time.time_ns()
@@ -157,7 +170,11 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
             unacked.popleft()
     since_ns = unacked[0][1] if unacked else sensor.changed_ns
     seq = sensor.seq + 1
-    payload = encode(Sample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns))
+    payload = encode(
+        LargeSample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns)
+        if isinstance(value, bytes)
+        else Sample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns)
+    )
     if sensor.output.send(payload, stamp_ns):
         sensor.seq = seq
         sensor.bytes_sent += len(payload)

@@ -173,7 +173,10 @@ def access_control(
         # it) did not apply. Zenoh's `**` also matches nothing: `{own}/stats/**` covers `stats`
         # and its reliable-channel traffic below it.
         sends = [
-            *(f"{own}/{kind}/**" for kind in ("sensor", "stats", "announce", "telemetry", "qos")),
+            *(
+                f"{own}/{kind}/**"
+                for kind in ("sensor", "frames", "stats", "announce", "telemetry", "qos")
+            ),
             f"{own}/presence",
             f"{own}/mode/*",
             # the command readers' ACKNACKs and tokens; the QoS assignment reader's

@@ -32,6 +32,9 @@ VALUE_TYPES: dict[str, type] = {
     "flame": bool,
     "pir": str,
     "light": str,
+    # beyond Table 1: large readings, as raw bytes (layouts in docs/sensors.md)
+    "camera": bytes,
+    "pointcloud": bytes,
 }
 
 STRING_VALUES: dict[str, tuple[str, str]] = {
@@ -73,10 +76,10 @@ def check_value(kind: str, value: object) -> SensorValue:
     if type(value) is not expected:
         raise DriverValueError(
             f"a {kind} driver must return {expected.__name__}, "
-            f"got {type(value).__name__}: {value!r}"
+            f"got {type(value).__name__}: {value!r:.80}"
         )
     if kind in STRING_VALUES and value not in STRING_VALUES[kind]:
         allowed = " or ".join(repr(v) for v in STRING_VALUES[kind])
         raise DriverValueError(f"a {kind} driver must return {allowed}, got {value!r}")
-    assert isinstance(value, float | bool | str)
+    assert isinstance(value, float | bool | str | bytes)
     return value

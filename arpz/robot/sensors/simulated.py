@@ -1,4 +1,5 @@
-"""Seeded simulated drivers for the seven sensor kinds of seed 001 Table 1.
+"""Seeded simulated drivers for the seven sensor kinds of seed 001 Table 1, and two large ones
+(a camera and a point-cloud scanner) for fleets that send camera-sized samples.
 
 The point of the local cache is that real sensors repeat themselves, so these drivers model the
 physics that makes them do so instead of emitting white noise: a reading is quantised to the
@@ -166,6 +167,67 @@ class SimLight(_Simulated):
         return "dark" if self.darkness.active(now_s) else "light"
 
 
+class SimCamera(_Simulated):
+    """An RGB camera: ``width`` x ``height`` x 3 bytes, row-major (640 x 480 by default, 921 600
+    bytes). A static scene with sensor noise on one band of rows and, in episodes, an object that
+    moves across it: every frame differs, as a real camera's do, so the local cache passes them
+    all unless the scene is dark (``noise = 0`` and no object: identical frames are held back)."""
+
+    kind = "camera"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.width = int(options.get("width", 640))
+        self.height = int(options.get("height", 480))
+        self.noise = bool(options.get("noise", True))
+        self.scene = self.rng.integers(0, 256, (self.height, self.width, 3), dtype=np.uint8)
+        self.objects = Episodes(self.rng, float(options.get("idle_mean_s", 2.0)), 3.0)
+
+    def read(self, now_s: float) -> bytes:
+        frame = self.scene.copy()
+        if self.noise:  # a band of rows with fresh noise: cheap, and every frame differs
+            row = int(now_s * 97) % max(1, self.height - 8)
+            frame[row : row + 8] = self.rng.integers(0, 256, (8, self.width, 3), dtype=np.uint8)
+        if self.objects.active(now_s):
+            x = int((now_s - self.objects.started_s) * 120) % max(1, self.width - 40)
+            frame[self.height // 3 : self.height // 3 + 40, x : x + 40] = (255, 0, 0)
+        return frame.tobytes()
+
+
+class SimPointCloud(_Simulated):
+    """A 3-D scanner: ``points`` x (x, y, z) float32, little-endian (87 381 points: 1 MB). The
+    walls of a room at fixed points with range noise, so every scan differs a little."""
+
+    kind = "pointcloud"
+
+    def __init__(self, options: dict[str, Any], seed: int) -> None:
+        super().__init__(options, seed)
+        self.points = int(options.get("points", 87_381))
+        angles = self.rng.uniform(0, 2 * math.pi, self.points)
+        heights = self.rng.uniform(0.0, 2.5, self.points)
+        self.rays = np.stack([np.cos(angles), np.sin(angles)], axis=1).astype(np.float32)
+        self.heights = heights.astype(np.float32)
+        self.ranges = self.rng.uniform(2.0, 6.0, self.points).astype(np.float32)
+
+    def read(self, now_s: float) -> bytes:
+        ranges = self.ranges + self.rng.normal(0, 0.01, self.points).astype(np.float32)
+        cloud = np.empty((self.points, 3), dtype="<f4")
+        cloud[:, :2] = self.rays * ranges[:, None]
+        cloud[:, 2] = self.heights
+        return cloud.tobytes()
+
+
 SIMULATED: dict[str, type[SensorDriver]] = {
-    cls.kind: cls for cls in (SimLidar, SimDht11, SimImu, SimUltrasonic, SimFlame, SimPir, SimLight)
+    cls.kind: cls
+    for cls in (
+        SimLidar,
+        SimDht11,
+        SimImu,
+        SimUltrasonic,
+        SimFlame,
+        SimPir,
+        SimLight,
+        SimCamera,
+        SimPointCloud,
+    )
 }

@@ -1,7 +1,7 @@
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import MAX_WRITERS_PER_TOPIC, Ingest
 from arpz.ceddp.planner import HelloRelay, Planner, Reading
-from arpz.messages import HELLO_DECODER, Hello, Sample, encode
+from arpz.messages import HELLO_DECODER, Hello, LargeSample, Sample, encode
 
 KEY = "arpz/f/robot/r1/sensor/pir"
 
@@ -155,3 +155,26 @@ def test_samples_the_previous_run_received_are_flagged_not_planned_again() -> No
     m = ingest.topics[("r1", "pir")]
     assert (m.received, m.lost, m.repeated_from_previous_run) == (12, 0, 6)
     assert [r.seq for r in planner.readings] == [7, 8, 9, 10, 1, 2]
+
+
+def test_large_samples_are_decoded_as_bytes_and_bounded_by_their_kind() -> None:
+    planner = Collect()
+    ingest = Ingest(
+        "f", planner, CacheControl(enabled=True), max_sample_bytes={"camera": 1_000_000}
+    )
+    key = "arpz/f/robot/r1/sensor/front"
+    frame = bytes(range(256)) * 3600  # 921 600 bytes, a 640x480 RGB frame
+    # reassembled from fragments before the robot announced the camera: large from now on
+    ingest.handle_sensor(key, encode(LargeSample("r1:a", 1, 1000, frame)), 2_000_000, large=True)
+    ingest.handle_sensor(key, encode(LargeSample("r1:a", 2, 1000, frame)), 2_000_000, large=True)
+    m = ingest.topics[("r1", "front")]
+    assert (m.received, m.decode_errors, m.oversize) == (2, 0, 0)
+    assert [r.value for r in planner.readings] == [frame]  # the repeat was discarded by CC
+    # announced: the camera's own bound applies, also to a plain-mode sample on sensor/
+    ingest.set_kinds("r1", {"front": "camera", "pir": "pir"})
+    assert m.large and m.max_bytes == 1_000_000
+    ingest.handle_sensor(key, encode(LargeSample("r1:a", 3, 1000, frame + frame)), 2_000_000)
+    assert m.oversize == 1
+    # a small topic still refuses bytes where a reading belongs: a decode error, counted
+    ingest.handle_sensor(KEY, encode(LargeSample("r1:a", 1, 1000, b"xy")), 2_000_000)
+    assert ingest.topics[("r1", "pir")].decode_errors == 1

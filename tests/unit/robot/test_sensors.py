@@ -159,3 +159,25 @@ def test_check_value_enforces_table_1() -> None:
         check_value("flame", 1)
     with pytest.raises(TypeError):
         check_value("pir", "maybe")
+
+
+@pytest.mark.parametrize(("kind", "size"), [("camera", 640 * 480 * 3), ("pointcloud", 87_381 * 12)])
+def test_large_kinds_give_seeded_bytes_of_their_size_that_change(kind: str, size: int) -> None:
+    values = readings(kind, seed=3, rate_hz=10, seconds=2)
+    assert all(type(v) is bytes and len(v) == size for v in values)
+    assert values == readings(kind, seed=3, rate_hz=10, seconds=2)
+    assert len(set(values)) == len(values)  # every frame differs, as a real camera's do
+    assert check_value(kind, values[0]) is values[0]
+    with pytest.raises(TypeError, match="must return bytes"):
+        check_value(kind, "not a frame")
+
+
+def test_a_dark_static_camera_repeats_and_a_smaller_one_is_smaller() -> None:
+    dark = SIMULATED["camera"]({"noise": False, "idle_mean_s": 1e9}, 1)
+    assert dark.read(0.1) == dark.read(0.2)
+    assert len(SIMULATED["camera"]({"width": 320, "height": 240}, 1).read(0.0)) == 320 * 240 * 3
+
+
+def test_large_kinds_cannot_replay_text_traces() -> None:
+    with pytest.raises(ValueError, match="cannot replay a trace"):
+        SensorConfig(name="front", kind="camera", driver="replay", trace="t.csv")

@@ -1,0 +1,94 @@
+"""A robot with a camera (640x480 RGB, 921 600-byte frames) and a 1 MB point cloud, as real
+processes, over a UDP link that loses 5 % of its 1500-byte radio frames, to a real CEDDP.
+
+Shared memory is off on every session (on one host Zenoh would otherwise carry the frames
+outside the emulated link), and the proxy's byte counters must show that the frames' bytes
+crossed it. Every frame the robot sent is received or counted lost at the CEDDP.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import pytest
+
+from arpz.netem.process import netem_process
+from tests.integration.fleet import Process, robots
+from tests.support import free_port, free_udp_port, wait_until
+
+pytestmark = pytest.mark.integration
+
+NO_SHM = "{ transport: { shared_memory: { enabled: false } } }\n"
+#: the robot's side: no shared memory, and no datagram larger than one radio frame
+ROBOT_ZENOH = (
+    "{ transport: { shared_memory: { enabled: false }, link: { tx: { batch_size: 1472 } } } }\n"
+)
+CLEAN_S = 3.0
+LOSSY_S = 4.0
+CAMERA_BYTES = 640 * 480 * 3
+CLOUD_BYTES = 87_381 * 12
+
+
+def test_camera_frames_and_point_clouds_cross_a_lossy_link_and_reconcile(tmp_path: Path) -> None:
+    udp, tcp, proxy = free_udp_port(), free_port(), free_udp_port()
+    (tmp_path / "ceddp.json5").write_text(NO_SHM)
+    (tmp_path / "robot.json5").write_text(ROBOT_ZENOH)
+    (tmp_path / "ceddp.toml").write_text(
+        f'fleet = "itest"\nlisten = ["udp/127.0.0.1:{udp}", "tcp/127.0.0.1:{tcp}"]\n'
+        f'zenoh_config = "{tmp_path / "ceddp.json5"}"\n'
+        f'rrd = "{tmp_path / "ceddp.rrd"}"\nsummary_json = "{tmp_path / "summary.json"}"\n'
+        "metrics_period_s = 0.2\n"
+    )
+    robot = tmp_path / "robot1.toml"
+    robot.write_text(
+        f'robot_id = "robot1"\nfleet = "itest"\nconnect = ["udp/127.0.0.1:{proxy}"]\n'
+        f'zenoh_config = "{tmp_path / "robot.json5"}"\nstats_period_s = 0.2\n'
+        '[[sensors]]\nname = "front"\nkind = "camera"\nrate_hz = 10.0\n'
+        '[[sensors]]\nname = "scan3d"\nkind = "pointcloud"\nrate_hz = 5.0\n'
+    )
+    server = Process(
+        "ceddp", ["-m", "arpz.ceddp", "--config", str(tmp_path / "ceddp.toml")], tmp_path
+    )
+    try:
+        server.wait_for("ready on")
+        with netem_process(
+            f"udp/127.0.0.1:{proxy}",
+            f"udp/127.0.0.1:{udp}",
+            *("--loss", "5", "--per-frame", "--clean-s", str(CLEAN_S), "--seed", "11"),
+        ) as netem:
+            with robots(tmp_path, [robot]) as procs:
+                wait_until(lambda: "robot robot1 joined" in server.output(), what="robot1 joined")
+                # deliberately: the link turns lossy after CLEAN_S and stays so for LOSSY_S
+                time.sleep(CLEAN_S + LOSSY_S)
+                assert procs[0].interrupt(timeout_s=30) == 0, procs[0].output()
+            report = netem.stop()
+        assert server.interrupt(timeout_s=60) == 0, server.output()
+    finally:
+        server.kill()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    row = summary["robots"]["robot1"]
+    assert row["final_stats"], "the robot's final report did not arrive"
+    camera, cloud = row["topics"]["front"], row["topics"]["scan3d"]
+    for topic in (camera, cloud):
+        assert topic["sent"] == topic["received"] + topic["lost"], topic
+        assert topic["oversize"] == topic["decode_errors"] == topic["implausible_lost"] == 0
+    # most frames arrive over a 5 % link: only a frame still incomplete when the next one is
+    # written is dropped (KEEP_LAST 1 frame: the newest frame wins), and it is counted lost
+    assert camera["received"] >= 0.6 * camera["sent"] >= 0.6 * 10 * (CLEAN_S + LOSSY_S) * 0.5
+    assert cloud["received"] >= 0.6 * cloud["sent"] > 0
+    assert camera["retransmitted"] > 0, "the link lost fragments: some were resent"
+    assert report is not None
+    up = report["up"]
+    print(
+        f"\ncamera {camera['received']}/{camera['sent']} frames (lost {camera['lost']}, "
+        f"p50 {camera['latency_ms_p50']:.0f} ms, p99 {camera['latency_ms_p99']:.0f} ms), "
+        f"point cloud {cloud['received']}/{cloud['sent']}; fragments resent "
+        f"{camera['retransmitted'] + cloud['retransmitted']}; link: {up['bytes_out']} bytes out, "
+        f"{up['dropped_loss']} of {up['received']} datagrams lost"
+    )
+    crossed = camera["received"] * CAMERA_BYTES + cloud["received"] * CLOUD_BYTES
+    assert up["bytes_out"] >= crossed, (up, crossed)  # through the link, not shared memory
+    assert up["largest_datagram"] <= 1472
+    assert up["dropped_loss"] > 0
