@@ -22,7 +22,7 @@ def frames_of(size: int, frame_bytes: int = WIFI_MTU_BYTES) -> int:
     """Radio frames a UDP datagram with ``size`` payload bytes takes once IP fragments it for an
     MTU of ``frame_bytes``: its UDP header and payload split into pieces of ``frame_bytes`` - 20
     bytes (rounded down to 8, as IP fragment offsets are), each behind its own IP header. A
-    1472-byte payload is one frame, 1473 bytes are two, Zenoh's 8 KiB UDP batch six."""
+    1472-byte payload is one frame, 1473 bytes are two, an 8 KiB datagram six."""
     per_frame = (frame_bytes - IP_HEADER_BYTES) // 8 * 8
     return max(1, math.ceil((size + UDP_HEADER_BYTES) / per_frame))
 

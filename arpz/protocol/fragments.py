@@ -1,14 +1,14 @@
 """Large samples as fragments of one radio frame each: the split and a bounded reassembly, pure.
 
-Why: Zenoh fragments a message larger than its batch (8 KiB on UDP) and loses the whole message
-when one fragment is lost; at 10 % loss per WiFi frame a 921 600-byte camera frame practically
-never arrives, and resending all of it does not help. arpz cuts a large sample into fragments
-small enough that Zenoh never cuts them again (``DEFAULT_FRAGMENT_BYTES`` plus the headers fit one
-1500-byte frame), sends each fragment as one sample of the reliable channel with its own seq, and
-the channel's ACKNACK ranges then ask for exactly the missing fragments (what RTPS does with
-NACK_FRAG), selective repeat included. This module knows nothing of the channel: it turns a
-payload into fragments and fragments back into payloads, with every bound explicit and every
-drop counted.
+Why: Zenoh fragments a message larger than its batch (up to 64 KiB, one UDP datagram) and loses the
+whole message when one fragment is lost; at 10 % loss per WiFi frame a 921 600-byte camera frame
+practically never arrives, and resending all of it does not help. arpz cuts a large sample into
+fragments small enough that Zenoh never cuts them again (``DEFAULT_FRAGMENT_BYTES`` plus the headers
+fit one 1500-byte frame), sends each fragment as one sample of the reliable channel with its own
+seq, and the channel's ACKNACK ranges then ask for exactly the missing fragments (what RTPS does
+with NACK_FRAG), selective repeat included. This module knows nothing of the channel: it turns a
+payload into fragments and fragments back into payloads, with every bound explicit and every drop
+counted.
 
 A fragment is a 25-byte header (``"!BQIIII"``: version = 1, frame id (u64, 1, 2, ... per writer),
 index (u32), count (u32), total length (u32), chunk size (u32)) followed by the bytes
