@@ -595,7 +595,11 @@ def main(args: argparse.Namespace) -> int:
         from arpz.perf.fleet_worker import run_worker
 
         print(json.dumps(run_worker(args.plan, args.worker, stop_on_signals())), flush=True)
-        return 0
+        sys.stderr.flush()
+        # every session is closed and the result printed: skip the interpreter's finalization,
+        # where a Zenoh callback thread of one of the many closed sessions aborted the process
+        # once ("FATAL: exception not rethrown", exit -6, 26 robots in 4 processes)
+        os._exit(0)
     try:
         options = options_from_args(args)
         sizes = parse_sweep(args.sweep) if args.sweep else None

@@ -39,8 +39,8 @@ MISSING = {
         "sensor path's busy share (CeddpStats.load, where published) stand in"
     ),
     "dashboard_dropped": (
-        "this CEDDP's CeddpStats has no dashboard_dropped, and summary.json writes "
-        "dashboard.dropped as a constant 0"
+        "this CEDDP published no CeddpStats.dashboard_dropped (arpz before the overload "
+        "governor), and its summary.json's dashboard.dropped was a constant 0"
     ),
     "latency_ms_max": "summary.json gives latency p50/p99 per robot and topic, no maximum",
 }
