@@ -129,6 +129,9 @@ class FrameWriter:
             block=block,
             clock=clock,
         )
+        #: held for a whole frame, so that its fragments get consecutive seqs
+        self._write_lock = threading.Lock()
+        #: the counters only, so that ``stats()`` never waits for a frame to go out
         self._lock = threading.Lock()
         self._next_id = 1
         self._sent = self._aborted = self._bytes = self._fragments = 0
@@ -142,7 +145,7 @@ class FrameWriter:
                 f"a frame of {len(payload)} bytes exceeds max_frame_bytes {self.max_frame_bytes}"
             )
         stamp = time.time_ns() if stamp_ns is None else stamp_ns
-        with self._lock:  # one frame at a time: its fragments get consecutive seqs
+        with self._write_lock:
             frame_id, self._next_id = self._next_id, self._next_id + 1
             written = 0
             try:
@@ -150,12 +153,14 @@ class FrameWriter:
                     self.writer.write(fragment, stamp_ns=stamp)
                     written += 1
             except BaseException:
-                self._aborted += 1
+                with self._lock:
+                    self._aborted += 1
+                    self._fragments += written
                 raise
-            finally:
+            with self._lock:
+                self._sent += 1
+                self._bytes += len(payload)
                 self._fragments += written
-            self._sent += 1
-            self._bytes += len(payload)
         return frame_id
 
     @property

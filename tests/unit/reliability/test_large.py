@@ -9,6 +9,7 @@ from contextlib import closing
 import pytest
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.protocol import wire
 from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, HEADER_BYTES, FragmentError, split
 from arpz.protocol.qos import QosError
 from arpz.reliability import (
@@ -17,6 +18,7 @@ from arpz.reliability import (
     FrameInfo,
     FrameReader,
     FrameWriter,
+    HistoryFullError,
     QosProfile,
     ReaderEventCallbacks,
 )
@@ -177,3 +179,18 @@ def test_a_frame_left_incomplete_by_a_departing_writer_is_dropped_and_counted() 
         s = r.stats().frames
         assert (s.frames_delivered, s.frames_dropped_incomplete, s.assembly_bytes) == (1, 1, 0)
         assert matched == [1, -1]  # the user's callback still runs
+
+
+def test_a_keep_all_frame_that_finds_the_history_full_is_counted_aborted() -> None:
+    bus = MemoryBus()
+    with closing(MemoryTransport(bus)) as a, closing(MemoryTransport(bus)) as b:
+        # a reader that matched and went silent: nothing is ever acknowledged
+        b.declare_token(wire.reader_token("cam/front", "ab" * 8, "RVA_0_0"))
+        with FrameWriter(a, "cam/front", QOS_FRAMES_ALL, max_frame_bytes=FRAME) as writer:
+            wait_until(lambda: writer.matched_count == 1, what="match")
+            for payload in frames(8):  # 8 frames fill the history
+                writer.write(payload)
+            with pytest.raises(HistoryFullError, match="abababababababab"):
+                writer.write(frames(1)[0])
+            s = writer.stats()
+            assert (s.frames_sent, s.frames_aborted, s.fragments_sent) == (8, 1, 8 * 50)
