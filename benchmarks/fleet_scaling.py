@@ -162,13 +162,15 @@ def main() -> int:
         print(format_run(p, result.ceddps, result.rows))
         print(verdict("0 lost", p.lost == 0, f"{p.lost} lost"))
         print(verdict("p99 < 10 ms", (p.latency_ms_p99 or 1e9) < 10, f"{_f(p.latency_ms_p99)} ms"))
-        print(
-            verdict(
-                "CEDDP below one core",
-                (p.ceddp_cpu_cores or 9) < 1,
-                f"{_f(p.ceddp_cpu_cores)} cores",
+        cpu_ok = (p.ceddp_cpu_cores or 9) < 1
+        if p.delivered_ratio < 0.99:
+            # below one core at a fraction of the load proves nothing about the whole load
+            print(
+                f"  CEDDP below one core: NOT DEMONSTRATED ({_f(p.ceddp_cpu_cores)} cores at "
+                f"{p.delivered_per_s:,.0f} samples/s delivered, not at the target's load)"
             )
-        )
+        else:
+            print(verdict("CEDDP below one core", cpu_ok, f"{_f(p.ceddp_cpu_cores)} cores"))
         print(
             verdict(
                 f"{p.offered_per_s:,.0f} samples/s delivered",
@@ -178,27 +180,36 @@ def main() -> int:
         )
         everything["target"] = result.as_dict()
     if "idle" not in skip:
-        options = dataclasses.replace(base, robots=25, rate_hz=1.0, duration_s=args.duration)
-        result = run_load(options, args.out / "idle", progress=None)
-        p = result.point
-        per_robot = (p.ceddp_cpu_cores or 0.0) / p.robots
-        print(
-            f"fixed cost: 25 robots x {args.topics} topics x 1 Hz: CEDDP {_f(p.ceddp_cpu_cores)} "
-            f"cores = {per_robot * 1000:.1f} ms of CPU per robot per second (a core serves "
-            f"{1 / per_robot if per_robot else 0:.0f} idle robots); robots "
-            f"{p.workers_cpu_cores:.2f} cores; reconciled {p.reconciled}"
-        )
-        everything["idle"] = result.as_dict()
-        target = everything.get("target")
-        if target and per_robot:
-            # CEDDP CPU = per_robot x N + per_sample x samples/s: the loaded run gives per_sample
-            t = target["fleet"]
+        per_robot = 0.0
+        for heartbeat_ms in (None, 1000.0):
+            options = dataclasses.replace(
+                base, robots=25, rate_hz=1.0, duration_s=args.duration, heartbeat_ms=heartbeat_ms
+            )
+            result = run_load(options, args.out / f"idle_hb{heartbeat_ms}", progress=sys.stderr)
+            p = result.point
+            cost = (p.ceddp_cpu_cores or 0.0) / p.robots
+            per_robot = per_robot or cost
+            print(
+                f"fixed cost: 25 robots x {args.topics} topics x 1 Hz, sensor heartbeat "
+                f"{heartbeat_ms or 100:g} ms: CEDDP {_f(p.ceddp_cpu_cores)} cores = "
+                f"{cost * 1000:.1f} ms of CPU per robot per second (one core: "
+                f"{1 / cost if cost else 0:.0f} idle robots); robots {p.workers_cpu_cores:.2f} "
+                f"cores; host {_f(p.host_busy_cores)} cores; reconciled {p.reconciled}"
+            )
+            everything[f"idle_heartbeat_{heartbeat_ms or 100:g}ms"] = result.as_dict()
+        # CEDDP CPU = per_robot x N + per_sample x samples/s, per_sample from the most loaded
+        # sweep point the robots could drive at full rate (not generator-limited)
+        full = [r.point for r in one if not r.point.generator_limited and r.point.ceddp_cpu_cores]
+        if full and per_robot:
+            q = max(full, key=lambda point: point.delivered_per_s)
             per_sample = max(
-                ((t["ceddp_cpu_cores"] or 0) - per_robot * t["robots"]) / t["delivered_per_s"], 0
+                ((q.ceddp_cpu_cores or 0.0) - per_robot * q.robots) / q.delivered_per_s, 0.0
             )
             print(
-                f"estimate from these two runs: CEDDP CPU = {per_robot * 1000:.1f} ms/s per "
-                f"robot + {per_sample * 1e6:.0f} us per sample; one core serves about"
+                f"estimate (fixed cost above, per-sample cost from N={q.robots}: "
+                f"{_f(q.ceddp_cpu_cores)} cores at {q.delivered_per_s:,.0f}/s): CEDDP CPU = "
+                f"{per_robot * 1000:.1f} ms/s per robot + {per_sample * 1e6:.0f} us per sample; "
+                "one core would serve about"
             )
             for rate in (1, 10, 100):
                 load = args.topics * rate
