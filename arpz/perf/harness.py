@@ -70,8 +70,10 @@ def last_json(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
 
 
 @contextmanager
-def perf_router(*listen: str) -> Iterator[None]:
-    with child(_perf("router", "--listen", ",".join(listen)), ready="listening"):
+def perf_router(*listen: str, zenoh_config: str | None = None) -> Iterator[None]:
+    """A bare router; ``zenoh_config``: its ``--zenoh-config`` file."""
+    extra = ["--zenoh-config", zenoh_config] if zenoh_config else []
+    with child(_perf("router", "--listen", ",".join(listen), *extra), ready="listening"):
         yield
 
 

@@ -12,6 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from arpz.perf.harness import free_port, perf_router, pubsub
+
 pytestmark = pytest.mark.integration
 
 
@@ -82,3 +84,23 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(tmp_pa
     assert all(r["reconciled"] == "True" for r in rows)
     assert len(doc["pids"]) == 3  # one CEDDP, two workers
     assert all(_gone(pid) for pid in doc["pids"]), doc["pids"]
+
+
+def test_zenoh_config_file_applies_to_router_pub_and_sub(tmp_path: Path) -> None:
+    """Shared memory off in every session (the large-message benchmarks' setting): the samples
+    still all arrive, and every process accepted the file."""
+    config = tmp_path / "noshm.json5"
+    config.write_text("{ transport: { shared_memory: { enabled: false } } }\n")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with perf_router(endpoint, zenoh_config=str(config)):
+        pub, report = pubsub(
+            transport="arpz",
+            pub_connect=endpoint,
+            sub_connect=endpoint,
+            count=500,
+            rate_hz=2000,
+            size=4096,
+            extra=("--zenoh-config", str(config)),
+        )
+    assert pub["sent"] == 500
+    assert (report["received"], report["lost"], report["unaccounted"]) == (500, 0, 0)
