@@ -274,7 +274,7 @@ def row(cell: Cell, n: int, base: Cell | None) -> str:
     rate = f"{cell.rate_hz:g} Hz" if cell.rate_hz else "flat out"
     name = cell.transport
     if cell.transport == "arpz" and cell.fragment_bytes != DEFAULT_FRAGMENT_BYTES:
-        name += f" ({cell.fragment_bytes // 1024} KiB fragments)"
+        name += f" ({cell.fragment_bytes} B fragments)"
     return (
         f"| {cell.link} | {cell.loss:g} % | {rate} | {name} | {cell.delivered}/{n} "
         f"({cell.intact} intact) | {fmt(p50)} | {fmt(p99)} | {cell.goodput_mbs:.2f} | {ratio} "
@@ -316,8 +316,23 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=30, help="frames per cell")
     ap.add_argument("--size", type=int, default=921_600, help="bytes per frame")
     ap.add_argument("--rate", type=float, default=10.0, help="frames per second")
-    ap.add_argument("--loss", type=float, nargs="+", default=[0.0, 1.0, 10.0])
+    ap.add_argument(
+        "--loss", type=float, nargs="*", default=[0.0, 1.0, 10.0], help="none: TCP cells only"
+    )
     ap.add_argument("--no-tcp", action="store_true", help="skip the TCP goodput cells")
+    ap.add_argument(
+        "--flat-frames",
+        type=int,
+        default=100,
+        help="frames of the flat-out TCP cells (30 back to back last under 0.1 s: too short)",
+    )
+    ap.add_argument(
+        "--tcp-fragments",
+        type=int,
+        nargs="+",
+        default=[DEFAULT_FRAGMENT_BYTES, 32 * 1024, 60 * 1024],
+        help="arpz fragment sizes over TCP (Zenoh's TCP batch is 64 KiB)",
+    )
     ap.add_argument(
         "--link-mbps",
         type=float,
@@ -347,13 +362,14 @@ def main() -> int:
                 f"delivered {a.intact} of {n} frames intact"
             )
     if not args.no_tcp:
-        for rate in (args.rate, 0.0):
-            base = run_cell(Cell("tcp", 0.0, "zenoh", rate), payloads, seed=0)
-            rows.append(row(base, n, None))
+        flat = [rng.randbytes(args.size) for _ in range(args.flat_frames)]
+        for rate, frames in ((args.rate, payloads), (0.0, flat)):
+            base = run_cell(Cell("tcp", 0.0, "zenoh", rate), frames, seed=0)
+            rows.append(row(base, len(frames), None))
             print(rows[-1], flush=True)
-            for fragment in (DEFAULT_FRAGMENT_BYTES, 32 * 1024):
-                cell = run_cell(Cell("tcp", 0.0, "arpz", rate, fragment), payloads, seed=0)
-                rows.append(row(cell, n, base))
+            for fragment in args.tcp_fragments:
+                cell = run_cell(Cell("tcp", 0.0, "arpz", rate, fragment), frames, seed=0)
+                rows.append(row(cell, len(frames), base))
                 print(rows[-1], flush=True)
                 ratio = cell.goodput_mbs / base.goodput_mbs if base.goodput_mbs else 0.0
                 verdicts.append(
@@ -365,7 +381,8 @@ def main() -> int:
     print()
     bandwidth = f"{args.link_mbps:g} Mb/s" if args.link_mbps else "unlimited"
     print(
-        f"{n} frames of {args.size} random bytes per cell; UDP link {bandwidth}; "
+        f"{n} frames of {args.size} random bytes per cell ({args.flat_frames} flat out); "
+        f"UDP link {bandwidth}; "
         "latency = send stamp to complete "
         "frame; goodput = intact payload bytes / (first write to last delivery); link MB = "
         "payload and headers the proxy forwarded from the publisher, with its largest datagram"
