@@ -11,8 +11,9 @@ proxy towards the router: the run fails loudly otherwise (and prints what entere
 what the kernel dropped before the proxy read it, ``rx_overflow``, which is not emulated loss).
 
 Also at 0 % loss over TCP (publisher straight to the router): arpz's goodput against raw
-Zenoh's, at the frame rate and flat out (frames back to back), with the default 1280-byte
-fragments and with 32 KiB ones (Zenoh's TCP batches are 64 KiB, so nothing is cut again there).
+Zenoh's, at the frame rate and flat out (``--flat-frames`` frames back to back), with the
+default 1280-byte fragments and with 32 and 60 KiB ones (``--tcp-fragments``; Zenoh's TCP batches
+are 64 KiB, so nothing is cut again there).
 
     python benchmarks/large_messages.py --frames 30 --loss 0 1 10
 
