@@ -85,6 +85,8 @@ class OverloadGovernor:
         self._overloaded_run = 0
         self._calm_run = 0
         self._hold = 0
+        #: capacity measured in each interval of the current overloaded run
+        self._saturated: list[float] = []
         self.last: LoadSample | None = None
         #: every change, oldest first (at most MAX_CHANGES kept; ``change_count`` counts all)
         self.changes: deque[tuple[int, float | None, str]] = deque(maxlen=MAX_CHANGES)
@@ -121,6 +123,11 @@ class OverloadGovernor:
             self.peak_latency_ms = max(self.peak_latency_ms, sample.latency_ms_p99)
         cfg = self.config
         rate_hz = sample.processed / sample.interval_s if sample.interval_s > 0 else 0.0
+        latency = sample.latency_ms_p99
+        overloaded = (
+            sample.load >= cfg.busy_bound and latency is not None and latency > cfg.latency_bound_ms
+        )
+        measured: float | None = None
         if sample.processed >= _MIN_SAMPLES_FOR_CAPACITY and sample.load >= _MIN_LOAD_FOR_CAPACITY:
             measured = rate_hz / sample.load
             self.capacity_hz = (
@@ -128,10 +135,12 @@ class OverloadGovernor:
                 if self.capacity_hz is None
                 else (1 - _CAPACITY_WEIGHT) * self.capacity_hz + _CAPACITY_WEIGHT * measured
             )
-        latency = sample.latency_ms_p99
-        overloaded = (
-            sample.load >= cfg.busy_bound and latency is not None and latency > cfg.latency_bound_ms
-        )
+        # a saturated interval measures the capacity directly (the smoothed figure may still
+        # carry the lighter load of minutes ago): a cut uses the overloaded run's own mean
+        if overloaded and measured is not None:
+            self._saturated.append(measured)
+        elif not overloaded:
+            self._saturated.clear()
         calm = sample.load < _CALM_SHARE * cfg.busy_bound and (
             latency is None or latency < _CALM_LATENCY_SHARE * cfg.latency_bound_ms
         )
@@ -142,7 +151,9 @@ class OverloadGovernor:
             return None
         if not cfg.enabled:
             return None
-        if self._overloaded_run >= cfg.trigger_intervals and self.capacity_hz is not None:
+        if self._overloaded_run >= cfg.trigger_intervals and (
+            self._saturated or self.capacity_hz is not None
+        ):
             return self._shed(sample, rate_hz)
         if self.budget_hz is not None and self._calm_run >= cfg.recover_intervals:
             return self._recover(sample, rate_hz)
@@ -150,6 +161,9 @@ class OverloadGovernor:
 
     def _shed(self, sample: LoadSample, rate_hz: float) -> BudgetChange:
         cfg = self.config
+        if self._saturated:
+            self.capacity_hz = sum(self._saturated) / len(self._saturated)
+            self._saturated.clear()
         assert self.capacity_hz is not None
         budget = cfg.headroom * self.capacity_hz
         if self.budget_hz is not None:

@@ -163,6 +163,9 @@ class WriterMachine:
         self._incompatible: set[bytes] = set()
         self._hb_count = 0
         self._next_hb_s = now
+        #: ``last_seq`` when a FINAL heartbeat (every reliable reader acknowledged everything)
+        #: last went out; -1 after anything else. See ``_heartbeat_due``.
+        self._final_hb_at = -1
         self._last_unchanged_hb_s = -math.inf
         self._last_live_hb_s = -math.inf
         self._asserted_since_hb = True
@@ -456,6 +459,20 @@ class WriterMachine:
             return [self._heartbeat(now, 0)]
         return []
 
+    def _heartbeat_due(self, now: float) -> bool:
+        """Whether the periodic heartbeat has anything to say. Once every reader is reliable,
+        in sync, acknowledged everything and was told so by a FINAL heartbeat, a writer that
+        writes nothing goes quiet (as RTPS writers do): the next write, a new reader or a
+        liveliness lease (every lease/4) makes it speak again. Best-effort readers learn the
+        tail only from heartbeats, so they keep them coming. The heartbeats of idle writers were
+        most of what a fleet of quiet robots cost its CEDDP (docs/performance.md)."""
+        if self._final_hb_at != self.last_seq or self.batch:
+            return True
+        if any(not (p.reliable and p.synced) for p in self.proxies.values()):
+            return True
+        lease = self.qos.lease_duration_s
+        return lease > 0 and now - self._last_live_hb_s >= lease / 4
+
     def _heartbeat(self, now: float, extra: int) -> Send:
         flags = extra
         if not self._manual or self._asserted_since_hb:
@@ -464,6 +481,7 @@ class WriterMachine:
         self._asserted_since_hb = False
         if self._min_acked() > self.last_seq:
             flags |= wire.HB_FINAL
+        self._final_hb_at = self.last_seq if flags & wire.HB_FINAL and not self.batch else -1
         self._hb_count += 1
         self.heartbeats += 1
         last = self._last_sent
@@ -603,7 +621,8 @@ class WriterMachine:
             self._expire(self.clock.wall_ns())
         if now >= self._next_hb_s:
             self._next_hb_s = now + self.qos.heartbeat_period_s
-            actions.append(self._heartbeat(now, 0))
+            if self._heartbeat_due(now):
+                actions.append(self._heartbeat(now, 0))
         for p in self.proxies.values():
             if not p.synced and now - p.last_sync_s >= self.qos.nack_period_s:
                 actions.append(self._sync(p, now))
