@@ -132,6 +132,7 @@ def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> 
         "decode_errors": m.decode_errors,
         "latency_ms_p50": m.latency_ms.quantile(50),
         "latency_ms_p99": m.latency_ms.quantile(99),
+        "latency_ms_max": m.latency_ms.max,
         "staleness_ms_p50": m.staleness_ms.quantile(50),
         "staleness_ms_p99": m.staleness_ms.quantile(99),
         "staleness_ms_max": m.staleness_ms.max,
