@@ -296,8 +296,11 @@ class CeddpServer:
             downlink.setdefault(robot, {})[name] = counters
         with self.ingest.lock:
             names = sorted({r for r, _ in self.ingest.topics} | set(self.control.robots))
-            robots = {}
-            for robot in names:
+        robots = {}
+        for robot in names:
+            # the lock per robot, not for the whole fleet: a robot's counts stay consistent
+            # with each other, and ingest never waits for more than one robot's quantiles
+            with self.ingest.lock:
                 report = self.control.robots.get(robot, RobotRecord()).as_report()
                 report.refused.update(refused.get(robot, {}))
                 report.downlink.update(downlink.get(robot, {}))

@@ -20,7 +20,7 @@ from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
 from arpz.messages import RobotStats, writer_id
-from arpz.percentiles import Distribution, percentile
+from arpz.percentiles import Distribution, percentiles
 
 #: per-robot totals: the sum of these over the robot's sensor topics (not the Hello probe)
 TOTALS = (
@@ -106,6 +106,8 @@ def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> 
             # by seqs the robot never wrote (its counters are the truth for one incarnation)
             excess = max(lost - max(counters.sent - m.received, 0), 0)
             lost -= excess
+    latency_p50, latency_p99 = m.latency_ms.quantiles(50, 99)
+    staleness_p50, staleness_p99 = m.staleness_ms.quantiles(50, 99)
     return {
         "produced": counters.produced if counters else 0,
         "sent": counters.sent if counters else 0,
@@ -130,11 +132,11 @@ def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> 
         "writer_changes": m.writer_changes,
         "before_join": m.before_join,
         "decode_errors": m.decode_errors,
-        "latency_ms_p50": m.latency_ms.quantile(50),
-        "latency_ms_p99": m.latency_ms.quantile(99),
+        "latency_ms_p50": latency_p50,
+        "latency_ms_p99": latency_p99,
         "latency_ms_max": m.latency_ms.max,
-        "staleness_ms_p50": m.staleness_ms.quantile(50),
-        "staleness_ms_p99": m.staleness_ms.quantile(99),
+        "staleness_ms_p50": staleness_p50,
+        "staleness_ms_p99": staleness_p99,
         "staleness_ms_max": m.staleness_ms.max,
         "cache_forgets": counters.cache_forgets if counters else 0,
     }
@@ -190,6 +192,8 @@ def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, 
     topics = {topic: topic_summary(ingest, m, stats) for topic, m in mine}
     sensors = [row for topic, row in topics.items() if topic != "hello"]
     latencies = [m.latency_ms for topic, m in mine if topic != "hello"]
+    latency_p50, latency_p99 = merged_quantiles(latencies, 50, 99)
+    (staleness_p99,) = merged_quantiles([m.staleness_ms for t, m in mine if t != "hello"], 99)
     return {
         "alive": report.alive,
         "control_decode_errors": report.control_decode_errors,
@@ -197,13 +201,11 @@ def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, 
         "leaves": report.leaves,
         "final_stats": bool(stats and stats.final),
         **{key: sum(row[key] for row in sensors) for key in TOTALS},
-        "latency_ms_p50": merged_quantile(latencies, 50),
-        "latency_ms_p99": merged_quantile(latencies, 99),
+        "latency_ms_p50": latency_p50,
+        "latency_ms_p99": latency_p99,
         "cpu_percent": stats.cpu_percent if stats else None,
         "hello": msgspec.to_builtins(stats.hello) if stats and stats.hello else None,
-        "staleness_ms_p99": merged_quantile(
-            [m.staleness_ms for topic, m in mine if topic != "hello"], 99
-        ),
+        "staleness_ms_p99": staleness_p99,
         "incompatible_qos": list(report.incompatible)
         + [f"(robot side) {line}" for line in (stats.incompatible_qos if stats else [])],
         "refused": sum(report.refused.values()),
@@ -224,9 +226,10 @@ def qos_summary(qos: QosController) -> dict[str, Any]:
     }
 
 
-def merged_quantile(distributions: list[Distribution], q: float) -> float | None:
+def merged_quantiles(distributions: list[Distribution], *qs: float) -> list[float | None]:
+    """Percentiles of several distributions pooled, in one pass."""
     arrays = [dist.values() for dist in distributions]
-    return percentile(np.concatenate(arrays), q) if arrays else None
+    return percentiles(np.concatenate(arrays), qs) if arrays else [None] * len(qs)
 
 
 def previous_run(summary: dict[str, Any]) -> dict[tuple[str, str], dict[str, int]]:

@@ -45,7 +45,7 @@ ROBOTS = ("robot1", "robot2", "robot3")
 RATE_HZ = 100.0
 TOPICS_PER_ROBOT = 6  # machine1: lidar, light, flame, dht11, imu, pir
 #: what the CEDDP may legitimately add per second: latency reservoirs filling (8 bytes a sample,
-#: up to 100 000 per topic) and numpy's copies while they grow, with a generous margin
+#: up to 20 000 per topic) and numpy's copies while they grow, with a generous margin
 CEDDP_MB_PER_S = 0.1
 ROBOT_SPREAD_MB = 8.0
 
