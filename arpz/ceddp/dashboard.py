@@ -154,8 +154,8 @@ class Dashboard:
         pending, self._pending = self._pending, {}
         for path, (times, values) in pending.items():
             try:
-                # numpy arrays, not lists: Rerun converts a list element by element, and with
-                # a fleet's thousands of series this call was most of the CEDDP's idle cost
+                # numpy arrays, not lists: Rerun converts a list element by element, and a
+                # fleet's dashboard has thousands of series
                 stamps = (np.asarray(times) * 1e9).astype("datetime64[ns]")
                 self._rec.send_columns(
                     path,
