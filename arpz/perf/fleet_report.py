@@ -42,7 +42,6 @@ MISSING = {
         "this CEDDP published no CeddpStats.dashboard_dropped (arpz before the overload "
         "governor), and its summary.json's dashboard.dropped was a constant 0"
     ),
-    "latency_ms_max": "summary.json gives latency p50/p99 per robot and topic, no maximum",
 }
 
 
@@ -72,6 +71,8 @@ class RobotRow:
     latency_ms_p50: float | None
     latency_ms_p99: float | None
     staleness_ms_p99: float | None
+    #: the largest latency of any of its samples (None from a CEDDP that does not report it)
+    latency_ms_max: float | None = None
 
     @property
     def reconciled(self) -> bool:
@@ -113,6 +114,7 @@ class CeddpFigures:
     dashboard_dropped: int | None = None
     capacity_hz: float | None = None
     ingest_backlog: int | None = None
+    latency_ms_max: float | None = None
 
 
 @dataclass(frozen=True)
@@ -146,6 +148,7 @@ class FleetPoint:
     reconciled: bool
     generator_limited: bool
     failures: list[str] = field(default_factory=list)
+    latency_ms_max: float | None = None
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -181,6 +184,7 @@ def robot_rows(
                 latency_ms_p50=_num(row, "latency_ms_p50"),
                 latency_ms_p99=_num(row, "latency_ms_p99"),
                 staleness_ms_p99=_num(row, "staleness_ms_p99"),
+                latency_ms_max=_num(row, "latency_ms_max"),
             )
         )
     return rows
@@ -245,6 +249,7 @@ def ceddp_figures(
         cpu_us_per_sample=per_sample_us(
             process.cpu_cores if process else None, window_s, delivered
         ),
+        latency_ms_max=_worst(r.latency_ms_max for r in mine),
         ingest_load_max=own.get("load_max"),
         dashboard_dropped=own.get("dashboard_dropped"),
         capacity_hz=own.get("capacity_hz"),
@@ -298,6 +303,7 @@ def fleet_point(
         latency_ms_p50=_median(r.latency_ms_p50 for r in rows),
         latency_ms_p99=_worst(r.latency_ms_p99 for r in rows),
         staleness_ms_p99=_worst(r.staleness_ms_p99 for r in rows),
+        latency_ms_max=_worst(r.latency_ms_max for r in rows),
         ceddp_cpu_cores=sum(cpus) if cpus else None,
         ceddp_rss_mb=sum(rss) if rss else None,
         ceddp_cpu_us_per_sample=per_sample_us(sum(cpus) if cpus else None, window_s, delivered),
@@ -448,7 +454,8 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         lines.append(
             f"CEDDP {c.index} ({c.partition}, {c.robots} robots): delivered "
             f"{c.delivered_per_s:,.0f}/s, lost {c.lost}, p50 {_fmt(c.latency_ms_p50)} ms, "
-            f"p99 {_fmt(c.latency_ms_p99)} ms, CPU {cpu}, RSS {rss}, ingest queue dropped "
+            f"p99 {_fmt(c.latency_ms_p99)} ms, max {_fmt(c.latency_ms_max)} ms, CPU {cpu}, "
+            f"RSS {rss}, ingest queue dropped "
             f"{_fmt(c.ingest_queue_dropped, 'd')}, sensor path busy (max) "
             f"{_fmt(c.ingest_load_max)}, dashboard frames dropped "
             f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
@@ -461,7 +468,7 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"{p.sent_ratio:.3f} of it, delivered {p.delivered_per_s:,.0f}/s "
         f"({p.delivered_ratio:.3f} of offered), lost {p.lost}, latency p50 "
         f"{_fmt(p.latency_ms_p50)} ms, p99 (worst robot) {_fmt(p.latency_ms_p99)} ms, "
-        f"staleness p99 {_fmt(p.staleness_ms_p99)} ms"
+        f"max {_fmt(p.latency_ms_max)} ms, staleness p99 {_fmt(p.staleness_ms_p99)} ms"
     )
     lines.append(
         f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "

@@ -193,7 +193,7 @@ def test_robot_csv_and_json_have_every_robot(tmp_path: Path) -> None:
     point, figures = _point(3, 1.0)
     doc = result_dict(point, figures, rows)
     assert len(doc["robots"]) == 3 and doc["robots"][0]["reconciled"] is True
-    assert set(doc["unavailable"]) == {"ingest_backlog", "dashboard_dropped", "latency_ms_max"}
+    assert set(doc["unavailable"]) == {"ingest_backlog", "dashboard_dropped"}
 
 
 def test_unavailable_names_dashboard_drops_only_when_a_ceddp_did_not_publish_them() -> None:
