@@ -49,6 +49,8 @@ _CAPACITY_WEIGHT = 0.5
 #: bound (the hysteresis that keeps budgets from oscillating)
 _CALM_SHARE = 0.7
 _CALM_LATENCY_SHARE = 0.5
+#: saturated intervals whose capacity a cut averages (the latest of a long overloaded run)
+_SATURATED_KEPT = 16
 #: a budget the fleet uses less than this share of, in calm intervals, no longer binds: lifted
 _UNUSED_SHARE = 0.5
 
@@ -85,8 +87,8 @@ class OverloadGovernor:
         self._overloaded_run = 0
         self._calm_run = 0
         self._hold = 0
-        #: capacity measured in each interval of the current overloaded run
-        self._saturated: list[float] = []
+        #: capacity measured in the latest intervals of the current overloaded run
+        self._saturated: deque[float] = deque(maxlen=_SATURATED_KEPT)
         self.last: LoadSample | None = None
         #: every change, oldest first (at most MAX_CHANGES kept; ``change_count`` counts all)
         self.changes: deque[tuple[int, float | None, str]] = deque(maxlen=MAX_CHANGES)
