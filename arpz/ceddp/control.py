@@ -128,6 +128,8 @@ class ControlWorker:
         self.queue = ControlQueue(config.control_queue_limit)
         #: where assignments go (opened by the server when it runs QoS control)
         self.qos_out: Outlet | None = None
+        #: budget changes the overload governor made while QoS control is off (not applied)
+        self.unapplied_budgets = 0
         #: the CEDDP's sensor reader, which follows the assigned depth (channel mode)
         self.sensor_reader: Reader | None = None
 
@@ -318,14 +320,19 @@ class ControlWorker:
 
     def _apply_budget(self, change: BudgetChange) -> None:
         if self.qos is None:
-            self._event(
+            # the governor keeps cutting while nothing changes: one event, then the log only
+            self.unapplied_budgets += 1
+            text = (
                 f"{change.reason}; QoS control is off ([qos] enabled = false), so the fleet's "
-                "rates stay as configured",
-                "WARNING",
+                "rates stay as configured"
             )
+            if self.unapplied_budgets == 1:
+                self._event(text, "WARN")
+            else:
+                throttled.warning("budget without QoS control", "%s", text)
             return
         self.qos.budget_hz = change.budget_hz
-        self._event(change.reason, "WARNING" if change.budget_hz is not None else "INFO")
+        self._event(change.reason, "WARN" if change.budget_hz is not None else "INFO")
         self.reassign_qos(change.reason, force=True)
 
     def reassign_qos(self, reason: str, *, force: bool = False) -> None:

@@ -4,10 +4,16 @@ from __future__ import annotations
 
 import pytest
 
+from arpz.ceddp.cache_control import CacheControl
+from arpz.ceddp.control import ControlWorker
+from arpz.ceddp.downlink import Downlink
+from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.optimiser import QosLimits, solve
-from arpz.ceddp.overload import LoadSample, OverloadGovernor, rmax_for_budget
+from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor, rmax_for_budget
+from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
-from arpz.config import OverloadConfig, QosControlConfig
+from arpz.config import CeddpConfig, OverloadConfig, QosControlConfig
+from arpz.memory_transport import MemoryBus, MemoryTransport
 
 CONFIG = OverloadConfig(
     busy_bound=0.9,
@@ -138,3 +144,21 @@ def test_the_qos_controller_fits_its_assignment_to_the_budget() -> None:
     controller.budget_hz = 1e9
     roomy = controller.update(topics, "recovered", force=True)
     assert roomy is not None and roomy.robots == free.robots
+
+
+def test_without_qos_control_a_budget_is_one_event_then_only_the_log() -> None:
+    events: list[tuple[str, str]] = []
+    config = CeddpConfig(fleet="f")
+    worker = ControlWorker(
+        config,
+        Ingest("f", Planner(), CacheControl(enabled=True)),
+        Downlink(MemoryTransport(MemoryBus()), "f", config),
+        [],
+        None,
+        lambda text, level: events.append((text, level)),
+    )
+    for _ in range(3):
+        worker._apply_budget(BudgetChange(500.0, "overload: measured capacity 625 samples/s"))
+    assert worker.unapplied_budgets == 3
+    assert len(events) == 1 and events[0][1] == "WARN"
+    assert "QoS control is off" in events[0][0]
