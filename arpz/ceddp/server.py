@@ -291,6 +291,10 @@ class CeddpServer:
         queue = self.control.queue
         reader = self.intake.reader
         reader_stats = msgspec.to_builtins(reader.stats()) if reader is not None else None
+        frames = self.intake.frames
+        # camera frames and point clouds: what reassembly delivered and dropped (incomplete when
+        # a newer frame won, over a bound), and the fragment channel's own counters
+        frames_stats = msgspec.to_builtins(frames.stats()) if frames is not None else None
         downlink: dict[str, dict[str, DownlinkCounters]] = {}
         for (robot, name), counters in self.sink.snapshot().items():
             downlink.setdefault(robot, {})[name] = counters
@@ -316,6 +320,7 @@ class CeddpServer:
                 "path": "reliable channel" if self.config.channel else "raw",
                 "channel_lost": self.intake.channel_lost,
                 "channel": reader_stats,
+                "frames": frames_stats,
                 "unknown_keys": self.ingest.counters.unknown_keys,
                 "over_limit": self.ingest.counters.over_limit,
                 "unknown_control_keys": self.control.counters.unknown_control_keys,

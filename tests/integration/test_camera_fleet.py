@@ -79,6 +79,13 @@ def test_camera_frames_and_point_clouds_cross_a_lossy_link_and_reconcile(tmp_pat
     assert camera["received"] >= 0.6 * camera["sent"] >= 0.6 * 10 * (CLEAN_S + LOSSY_S) * 0.5
     assert cloud["received"] >= 0.6 * cloud["sent"] > 0
     assert camera["retransmitted"] > 0, "the link lost fragments: some were resent"
+    # the CEDDP's reassembly accounts for every frame it delivered to ingest and every one it
+    # dropped: together they are what arrived or was counted lost
+    frames = summary["ingest"]["frames"]["frames"]
+    assert frames["frames_delivered"] == camera["received"] + cloud["received"], frames
+    assert frames["bad_fragments"] == frames["frames_too_large"] == 0, frames
+    dropped = frames["frames_dropped_incomplete"] + frames["frames_dropped_over_limit"]
+    assert dropped <= camera["lost"] + cloud["lost"], (frames, camera["lost"], cloud["lost"])
     assert report is not None
     up = report["up"]
     print(
