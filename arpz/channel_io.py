@@ -41,6 +41,19 @@ log = logging.getLogger(__name__)
 CHANNEL_PEER = "channel:"
 
 
+def writer_totals(stats: WriterStats | None, write_failures: int) -> dict[str, int]:
+    """The channel counters a sender reports per key (zeros without the channel)."""
+    return {
+        "retransmitted": stats.retransmitted if stats else 0,
+        "history_offered": stats.history_offered if stats else 0,
+        "gapped": stats.lost if stats else 0,
+        "overwritten_unacked": stats.overwritten_unacked if stats else 0,
+        "deadline_missed": stats.deadline_missed if stats else 0,
+        "lifespan_expired": stats.lifespan_expired if stats else 0,
+        "write_failures": write_failures,
+    }
+
+
 class Outlet:
     """Where one key's messages go: a reliable-channel ``Writer`` or a plain publisher.
 
@@ -120,16 +133,7 @@ class Outlet:
 
     def totals(self) -> dict[str, int]:
         """Channel counters of this key (zeros without the channel)."""
-        stats = self.stats()
-        return {
-            "retransmitted": stats.retransmitted if stats else 0,
-            "history_offered": stats.history_offered if stats else 0,
-            "gapped": stats.lost if stats else 0,
-            "overwritten_unacked": stats.overwritten_unacked if stats else 0,
-            "deadline_missed": stats.deadline_missed if stats else 0,
-            "lifespan_expired": stats.lifespan_expired if stats else 0,
-            "write_failures": self.write_failures,
-        }
+        return writer_totals(self.stats(), self.write_failures)
 
     @property
     def matched(self) -> bool:
@@ -203,16 +207,7 @@ class FrameOutlet:
 
     def totals(self) -> dict[str, int]:
         """The fragment channel's counters (in fragments) and the frames refused."""
-        stats = self.stats()
-        return {
-            "retransmitted": stats.retransmitted,
-            "history_offered": stats.history_offered,
-            "gapped": stats.lost,
-            "overwritten_unacked": stats.overwritten_unacked,
-            "deadline_missed": stats.deadline_missed,
-            "lifespan_expired": stats.lifespan_expired,
-            "write_failures": self.write_failures,
-        }
+        return writer_totals(self.stats(), self.write_failures)
 
     @property
     def matched(self) -> bool:

@@ -42,11 +42,11 @@ from arpz.transport import SessionSettings  # noqa: E402
 from arpz.zenoh_transport import ZenohTransport  # noqa: E402
 from tests.support import free_port  # noqa: E402
 
-#: The channel publishers' batch delay. The benchmark measures the CEDDP, so its publishers must
-#: not set the rate: each publisher process here holds 18 writers written flat out, and with the
-#: default delay (0.5 ms) every one of them ticks every 0.5 ms while it streams (36 000 thread
-#: wake-ups a second per process), which made the publishers, not the CEDDP, the bottleneck
-#: (benchmarks/RESULTS.md). A robot's writers at 100 Hz never stream, so they never tick so often.
+#: The channel publishers' batch delay (``--publisher-batch-delay-ms``). The benchmark measures
+#: the CEDDP, so its publishers must not set the rate: each publisher process here holds 18
+#: writers written flat out, and with the default delay (0.5 ms) each of them ticks every 0.5 ms
+#: while it streams, so the publishers, not the CEDDP, set the rate (``--publisher-batch-delay-ms
+#: 0.5`` against the default: benchmarks/RESULTS.md). A robot's writers at 100 Hz never stream.
 BULK_BATCH_DELAY_S = 0.02
 
 PUBLISHER = r"""
@@ -94,7 +94,11 @@ t.close()
 
 
 def start_publishers(
-    endpoint: str, per_publisher: int, publishers: int, path: str = "raw"
+    endpoint: str,
+    per_publisher: int,
+    publishers: int,
+    path: str = "raw",
+    batch_delay_s: float = BULK_BATCH_DELAY_S,
 ) -> tuple[list[subprocess.Popen[str]], float]:
     procs = [
         subprocess.Popen(
@@ -106,7 +110,7 @@ def start_publishers(
                 str(per_publisher),
                 str(i),
                 path,
-                str(BULK_BATCH_DELAY_S),
+                str(batch_delay_s),
             ],
             stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
@@ -157,7 +161,9 @@ def run_raw(total: int, publishers: int) -> float:
     return total / (t1 - t0)
 
 
-def run_arpz(total: int, publishers: int, workdir: Path, path: str) -> tuple[float, dict[str, int]]:
+def run_arpz(
+    total: int, publishers: int, workdir: Path, path: str, batch_delay_s: float
+) -> tuple[float, dict[str, int]]:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = CeddpConfig(
         fleet="bench",
@@ -171,7 +177,7 @@ def run_arpz(total: int, publishers: int, workdir: Path, path: str) -> tuple[flo
     server = CeddpServer(config, router, dashboard=dashboard)
     try:
         server.start()
-        procs, t0 = start_publishers(endpoint, total // publishers, publishers, path)
+        procs, t0 = start_publishers(endpoint, total // publishers, publishers, path, batch_delay_s)
         t1 = wait_count(lambda: server.processed, total, 300)
         stop_publishers(procs)
         summary = server.shutdown()
@@ -197,6 +203,13 @@ def main() -> int:
         "(arpz.reliability KEEP_ALL writers, batching -> the CEDDP's fleet reader), "
         "channel-unbatched (one sample per message)",
     )
+    parser.add_argument(
+        "--publisher-batch-delay-ms",
+        type=float,
+        default=BULK_BATCH_DELAY_S * 1000,
+        help="the channel publishers' batch_max_delay_s in ms (default %(default)g; the "
+        "channel's own default is 0.5)",
+    )
     args = parser.parse_args()
     paths = [p for p in args.paths.split(",") if p]
     total = args.samples // args.publishers * args.publishers
@@ -208,7 +221,9 @@ def main() -> int:
             raw_rates.append(raw)
             line = f"round {round_}/{args.rounds}: raw {raw:,.0f} samples/s"
             for path in paths:
-                rate, info = run_arpz(total, args.publishers, Path(tmp), path)
+                rate, info = run_arpz(
+                    total, args.publishers, Path(tmp), path, args.publisher_batch_delay_ms / 1000
+                )
                 arpz_rates[path].append(rate)
                 line += f"; arpz {path} {rate:,.0f} samples/s ({rate / raw:.2f}x) {info}"
             print(line, flush=True)

@@ -20,6 +20,7 @@ from arpz.ceddp.control import ControlWorker, EventSink
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
 from arpz.config import LARGE_SAMPLE_BYTES, CeddpConfig
+from arpz.protocol.timers import WaitMeter
 from arpz.reliability import (
     PLAIN_PEER,
     DataInfo,
@@ -69,9 +70,8 @@ class SensorIntake:
         self.channel_lost = 0
         #: raw path: channel-headed sensor samples refused per (robot, topic) (INCOMPATIBLE_QOS)
         self.raw_refused: dict[tuple[str, str], int] = {}
-        #: raw path: seconds the ingest worker waited for samples, and since when it waits now
-        self._raw_idle_s = 0.0
-        self._raw_waiting_since = 0.0
+        #: raw path: how long the ingest worker waited for samples (see ``idle_s``)
+        self._raw_wait = WaitMeter()
         self._wake_key = keys.sensor_key(config.fleet, "ceddp-wake", "wake")
         self._stopping = threading.Event()
 
@@ -122,9 +122,7 @@ class SensorIntake:
         it worked (or waited for a CPU): what the overload governor reads as the CEDDP's load."""
         if self.reader is not None:
             return self.reader.delivery_idle_s
-        since = self._raw_waiting_since
-        done = self._raw_idle_s
-        return done + (time.perf_counter() - since if since else 0.0)
+        return self._raw_wait.waited_s
 
     def refused(self) -> dict[str, int]:
         """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
@@ -139,15 +137,15 @@ class SensorIntake:
         are none."""
         sensors, ingest, stopping, wake = self.raw, self.ingest, self._stopping, self._wake_key
         assert sensors is not None, "open() declares the subscriber before the worker runs"
-        try_recv = sensors.try_recv
-        clock = time.perf_counter
+        try_recv, wait = sensors.try_recv, self._raw_wait
         while True:
             item = try_recv()
             if item is None:
-                self._raw_waiting_since = since = clock()
-                item = sensors.recv()
-                self._raw_waiting_since = 0.0
-                self._raw_idle_s += clock() - since
+                wait.start()
+                try:
+                    item = sensors.recv()
+                finally:
+                    wait.stop()
             batch = [item]
             while len(batch) < _RAW_BATCH and (item := try_recv()) is not None:
                 batch.append(item)
@@ -167,27 +165,27 @@ class SensorIntake:
 
     def _on_channel_data(self, payload: bytes, info: DataInfo) -> None:
         """A sample delivered by the reliable channel (in order per writer, on its worker)."""
+        self._ingest_one(info.key, payload, large=False)
+
+    def _ingest_one(self, key: str, payload: bytes, *, large: bool) -> None:
         with self.ingest.lock:
             try:
-                self.ingest.handle_sensor(info.key, payload, time.time_ns())
+                self.ingest.handle_sensor(key, payload, time.time_ns(), large=large)
             except Exception:  # a bad sample or a planner bug must not stop the CEDDP
-                log.exception("ingest failed on %s", info.key)
+                log.exception("ingest failed on %s", key)
             self.processed += 1
 
     def _on_frame(self, payload: bytes, info: FrameInfo) -> None:
         """A camera frame or point cloud, reassembled: a ``Sample`` like any sensor's, ingested
         under its ``sensor/{topic}`` key (the FrameReader bounded its size already)."""
         parsed = keys.parse_robot_key(info.key)
-        with self.ingest.lock:
-            if parsed is None or parsed[1] != "frames":
+        if parsed is None or parsed[1] != "frames":
+            with self.ingest.lock:
                 self.ingest.counters.unknown_keys += 1
-                return
-            key = keys.sensor_key(self.config.fleet, parsed[0], parsed[2])
-            try:
-                self.ingest.handle_sensor(key, payload, time.time_ns(), large=True)
-            except Exception:  # a bad sample or a planner bug must not stop the CEDDP
-                log.exception("ingest failed on %s", info.key)
-            self.processed += 1
+            return
+        self._ingest_one(
+            keys.sensor_key(self.config.fleet, parsed[0], parsed[2]), payload, large=True
+        )
 
     def _refuse_channel_sample(self, key: str) -> None:
         """Raw path (``reliability = "none"``): a sample with a channel header comes from a robot

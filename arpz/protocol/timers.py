@@ -95,3 +95,33 @@ class LeaseTimer:
             self.alive = False
             return True
         return False
+
+
+class WaitMeter:
+    """How long one thread has waited (for data) so far, the wait in progress included.
+
+    The thread brackets each blocking receive with ``start`` and ``stop``; any other thread
+    reads ``waited_s``. A server judges its own load from the growth of ``waited_s`` over an
+    interval (arpz/ceddp/overload.py): what the thread did not wait, it worked, or waited for a
+    CPU. Reads race the writer by design (two floats, no lock): a read may miss or double one
+    wait at its boundary, which callers clamp.
+    """
+
+    def __init__(self) -> None:
+        self._done_s = 0.0
+        #: perf_counter when the current wait began; 0.0 while the thread works
+        self._since = 0.0
+
+    def start(self) -> None:
+        self._since = time.perf_counter()
+
+    def stop(self) -> None:
+        since, self._since = self._since, 0.0
+        if since:
+            self._done_s += time.perf_counter() - since
+
+    @property
+    def waited_s(self) -> float:
+        since = self._since
+        done = self._done_s
+        return done + (time.perf_counter() - since if since else 0.0)

@@ -28,6 +28,7 @@ import msgspec
 from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.protocol.events import DataInfo
 from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import WaitMeter
 from arpz.protocol.writer_machine import WriterMachine
 from arpz.transport import Handle, PullSubscriber, Transport, TransportError
 
@@ -146,13 +147,9 @@ class Channel:
         self._turns = _Turns()
         #: the delivery thread left samples in its FIFO at its last pass (lock held)
         self._pull_backlog = False
-        #: seconds the delivery thread spent waiting for data (blocked in ``recv``): the rest of
-        #: its wall time it was working, or waiting for the CPU or the GIL. A server judges its
-        #: own load from it (arpz/ceddp/overload.py); written by the delivery thread only, read
-        #: through ``idle_s`` (which adds the wait in progress)
-        self._idle_done_s = 0.0
-        #: perf_counter when the current wait began; 0.0 while the thread works
-        self._waiting_since = 0.0
+        #: how long the delivery thread waited for data (blocked in ``recv``): the rest of its
+        #: wall time it was working, or waiting for the CPU or the GIL (a server's load)
+        self.delivery_wait = WaitMeter()
         self._delivery: threading.Thread | None = None
         if self._pulls:
             self._delivery = threading.Thread(target=self._run_delivery, name=name, daemon=True)
@@ -236,14 +233,14 @@ class Channel:
         pull, handler = self._pull, self._pull_handler
         assert pull is not None and handler is not None
         recv, try_recv = pull.recv, pull.try_recv
-        clock = time.perf_counter
+        wait = self.delivery_wait
         while True:
             try:
-                self._waiting_since = since = clock()
+                wait.start()
                 items = [recv()]
-                self._waiting_since = 0.0
-                self._idle_done_s += clock() - since
+                wait.stop()
             except TransportError:  # undeclared by close() and drained, or the session went away
+                wait.stop()
                 if self._closing:
                     log.debug("reliable channel: delivery thread stops", exc_info=True)
                 else:  # nothing more is delivered: say so loudly (the transport closed first?)
@@ -282,12 +279,6 @@ class Channel:
                 self._turns.run(ticket, self._perform_here, out)
             elif out:
                 self._perform_here(out)
-
-    def idle_s(self) -> float:
-        """Seconds the delivery thread has waited for data so far, the wait in progress too."""
-        since = self._waiting_since
-        done = self._idle_done_s
-        return done + (time.perf_counter() - since if since else 0.0)
 
     def _ticket(self, actions: list[Action]) -> int | None:
         """Lock held: a turn for a pass that delivers (a reader with a delivery thread only)."""

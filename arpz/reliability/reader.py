@@ -61,7 +61,7 @@ class Reader(Endpoint):
     def delivery_idle_s(self) -> float:
         """Seconds the delivery thread has waited for data since it started (0 when inline):
         one minus its growth over an interval's length is how busy the reader kept it."""
-        return self._channel.idle_s()
+        return self._channel.delivery_wait.waited_s
 
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""

@@ -114,7 +114,7 @@ def test_an_overloaded_ceddp_cuts_the_budget_and_returns_within_its_latency_boun
             print(
                 f"\noverload: offered {offered:.0f} samples/s, capacity {capacity:.0f}, budget "
                 f"{assignment.budget_hz:.0f}; p99 after: "
-                f"{max(s.latency_ms_p99 or 0 for s in after):.1f} ms"
+                f"{max(s.latency_ms_p99 or 0 for s in after):.1f} ms\nreason: {assignment.reason}"
             )
             for proc in procs:
                 assert proc.interrupt() == 0, proc.output()

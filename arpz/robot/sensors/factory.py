@@ -29,7 +29,10 @@ def make_driver(
 ) -> SensorDriver:
     seed = sensor_seed(robot_seed, robot_id, sensor)
     if sensor.driver == "sim":
-        return SIMULATED[sensor.kind](sensor.options, seed)
+        try:
+            return SIMULATED[sensor.kind](sensor.options, seed)
+        except (ValueError, TypeError) as exc:
+            raise DriverError(f"sensor {sensor.name!r} ({sensor.kind}): {exc}") from None
     if sensor.driver == "replay":
         assert sensor.trace is not None  # checked by SensorConfig
         trace = Path(sensor.trace)

@@ -167,6 +167,14 @@ class SimLight(_Simulated):
         return "dark" if self.darkness.active(now_s) else "light"
 
 
+def _size_option(options: dict[str, Any], name: str, default: int) -> int:
+    """A large sensor's size option: an integer >= 1, else a ValueError that names it."""
+    value = options.get(name, default)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"option {name} must be an integer >= 1, got {value!r}")
+    return value
+
+
 class SimCamera(_Simulated):
     """An RGB camera: ``width`` x ``height`` x 3 bytes, row-major (640 x 480 by default, 921 600
     bytes). A static scene with sensor noise on one band of rows and, in episodes, an object that
@@ -177,8 +185,8 @@ class SimCamera(_Simulated):
 
     def __init__(self, options: dict[str, Any], seed: int) -> None:
         super().__init__(options, seed)
-        self.width = int(options.get("width", 640))
-        self.height = int(options.get("height", 480))
+        self.width = _size_option(options, "width", 640)
+        self.height = _size_option(options, "height", 480)
         self.noise = bool(options.get("noise", True))
         self.scene = self.rng.integers(0, 256, (self.height, self.width, 3), dtype=np.uint8)
         self.objects = Episodes(self.rng, float(options.get("idle_mean_s", 2.0)), 3.0)
@@ -202,7 +210,7 @@ class SimPointCloud(_Simulated):
 
     def __init__(self, options: dict[str, Any], seed: int) -> None:
         super().__init__(options, seed)
-        self.points = int(options.get("points", 87_381))
+        self.points = _size_option(options, "points", 87_381)
         angles = self.rng.uniform(0, 2 * math.pi, self.points)
         heights = self.rng.uniform(0.0, 2.5, self.points)
         self.rays = np.stack([np.cos(angles), np.sin(angles)], axis=1).astype(np.float32)

@@ -181,3 +181,12 @@ def test_a_dark_static_camera_repeats_and_a_smaller_one_is_smaller() -> None:
 def test_large_kinds_cannot_replay_text_traces() -> None:
     with pytest.raises(ValueError, match="cannot replay a trace"):
         SensorConfig(name="front", kind="camera", driver="replay", trace="t.csv")
+
+
+@pytest.mark.parametrize("options", [{"width": -3}, {"height": "tall"}, {"width": True}])
+def test_a_bad_camera_option_is_a_driver_error_naming_sensor_and_option(
+    options: dict[str, object], tmp_path: Path
+) -> None:
+    sensor = SensorConfig(name="front", kind="camera", options=options)
+    with pytest.raises(DriverError, match=r"sensor 'front' \(camera\): option (width|height)"):
+        make_driver(sensor, robot_id="r1", robot_seed=0, base_dir=tmp_path)
