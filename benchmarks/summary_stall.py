@@ -16,6 +16,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections import deque
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +43,7 @@ def filled_ingest(robots: int, topics: int, capacity: int) -> Ingest:
             m.latency_ms, m.staleness_ms = Distribution(capacity), Distribution(capacity)
             for dist in (m.latency_ms, m.staleness_ms):
                 for _ in range(2):  # more than the capacity: the reservoir is full
-                    dist._window.extend(rng.random(capacity).tolist())
+                    deque(map(dist.add, rng.random(capacity).tolist()), maxlen=0)
                     dist.take_window()
     return ingest
 

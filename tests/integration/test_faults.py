@@ -7,6 +7,7 @@ import json
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -159,19 +160,7 @@ def test_the_ceddp_killed_and_restarted_loses_nothing_with_keep_all(tmp_path: Pa
         assert persisted["complete"] is False and persisted["robots"]["robot1"]["received"] > 0
         # deliberately 2 s of the robot sensing with nobody listening: what the restart recovers
         settle(2.0)
-        second = Process("ceddp2", ["-m", "arpz.ceddp", "--config", str(config)], tmp_path)
-        try:
-            second.wait_for("ready on")
-            wait_until(
-                lambda: "robot robot1 joined" in second.output(),
-                timeout_s=20,
-                what="the robot to reconnect by itself",
-            )
-            wait_until(caught_up, timeout_s=20, what="the restarted CEDDP to catch up")
-            assert robot.interrupt() == 0, robot.output()
-            assert second.interrupt() == 0, second.output()
-        finally:
-            second.kill()
+        _restart_and_catch_up(tmp_path, config, robot, caught_up, catch_up_s=20)
     finally:
         first.kill()
         if robot is not None:
@@ -303,19 +292,7 @@ def test_the_ceddp_killed_at_high_rate_declares_nothing_lost_that_the_robot_held
         # the first run's periodic summary must not be taken for the second's
         summary_json.unlink(missing_ok=True)
         settle(2.0)  # deliberately: 2 s with no CEDDP, the robot writing on
-        second = Process("ceddp2", ["-m", "arpz.ceddp", "--config", str(config)], tmp_path)
-        try:
-            second.wait_for("ready on")
-            wait_until(
-                lambda: "robot robot1 joined" in second.output(),
-                timeout_s=20,
-                what="the robot to reconnect",
-            )
-            wait_until(caught_up, timeout_s=30, what="the history to catch up")
-            assert robot.interrupt(timeout_s=30) == 0, robot.output()
-            assert second.interrupt() == 0, second.output()
-        finally:
-            second.kill()
+        _restart_and_catch_up(tmp_path, config, robot, caught_up, catch_up_s=30)
     finally:
         first.kill()
         if robot is not None:
@@ -332,3 +309,28 @@ def test_the_ceddp_killed_at_high_rate_declares_nothing_lost_that_the_robot_held
         # about once per reader: measured 1.00 for most topics, at worst 1.19 (one answer of 256
         # resends sent twice); 1.5 leaves room for a loaded host, 6.6 (before) fails
         assert t["retransmitted"] <= 1.5 * held, (topic, t)
+
+
+def _restart_and_catch_up(
+    tmp_path: Path,
+    config: Path,
+    robot: Process,
+    caught_up: Callable[[], bool],
+    *,
+    catch_up_s: float,
+) -> None:
+    """A second CEDDP on the killed one's config: the robot reconnects by itself and the
+    restarted CEDDP catches up on what it missed; then both stop cleanly."""
+    second = Process("ceddp2", ["-m", "arpz.ceddp", "--config", str(config)], tmp_path)
+    try:
+        second.wait_for("ready on")
+        wait_until(
+            lambda: "robot robot1 joined" in second.output(),
+            timeout_s=20,
+            what="the robot to reconnect by itself",
+        )
+        wait_until(caught_up, timeout_s=catch_up_s, what="the restarted CEDDP to catch up")
+        assert robot.interrupt(timeout_s=30) == 0, robot.output()
+        assert second.interrupt() == 0, second.output()
+    finally:
+        second.kill()

@@ -10,18 +10,15 @@ from contextlib import ExitStack
 
 import pytest
 
-from arpz.netem.process import netem_process
 from arpz.reliability import QOS_FRAMES_ALL, FrameInfo, FrameReader, FrameWriter
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
-from tests.support import free_port, free_udp_port, wait_until
+from tests.integration.lossy_link import lossy_link
+from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
 
 NO_SHM: dict[str, object] = {"transport/shared_memory/enabled": False}
 #: no datagram larger than one 1500-byte frame (docs/reliability.md, "Large samples")
-ONE_FRAME: dict[str, object] = {**NO_SHM, "transport/link/tx/batch_size": 1472}
-CLEAN_S = 1.5
+ONE_FRAME: dict[str, object] = {"transport/link/tx/batch_size": 1472}
 SIZE = 921_600  # 640x480 RGB
 
 
@@ -35,30 +32,15 @@ def test_camera_frames_arrive_intact_over_a_link_losing_10_percent_of_frames() -
         with lock:
             got.append((payload, info))
 
-    udp, tcp, proxy = free_udp_port(), free_port(), free_udp_port()
     with ExitStack() as stack:
-        listen = [f"udp/127.0.0.1:{udp}", f"tcp/127.0.0.1:{tcp}"]
-        stack.enter_context(
-            ZenohTransport.open(SessionSettings(mode="router", listen=listen, extra=NO_SHM))
-        )
-        netem = stack.enter_context(
-            netem_process(
-                f"udp/127.0.0.1:{proxy}",
-                f"udp/127.0.0.1:{udp}",
-                *("--loss", "10", "--per-frame", "--clean-s", str(CLEAN_S), "--seed", "3"),
+        link = stack.enter_context(
+            lossy_link(
+                *("--loss", "10", "--per-frame", "--seed", "3"),
+                every_session=NO_SHM,
+                writer_session=ONE_FRAME,
             )
         )
-        lossy_from = time.monotonic() + CLEAN_S
-        a = stack.enter_context(
-            ZenohTransport.open(
-                SessionSettings(connect=[f"udp/127.0.0.1:{proxy}"], extra=ONE_FRAME), timeout_s=5
-            )
-        )
-        b = stack.enter_context(
-            ZenohTransport.open(
-                SessionSettings(connect=[f"tcp/127.0.0.1:{tcp}"], extra=NO_SHM), timeout_s=5
-            )
-        )
+        a, b, netem, lossy_from = link.writer_side, link.reader_side, link.netem, link.lossy_from
         reader = stack.enter_context(
             FrameReader(b, "cam/*", QOS_FRAMES_ALL, on_frame, max_frame_bytes=SIZE)
         )

@@ -4,13 +4,9 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
-from dataclasses import dataclass
 
 import pytest
 
-from arpz.netem.process import NetemProcess, netem_process
 from arpz.reliability import (
     QOS_RELIABLE_ALL,
     DataInfo,
@@ -20,51 +16,10 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     Writer,
 )
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
-from tests.support import free_port, free_udp_port, wait_until
+from tests.integration.lossy_link import lossy_link
+from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
-
-CLEAN_S = 1.5
-
-
-@dataclass
-class LossyLink:
-    writer_side: ZenohTransport
-    reader_side: ZenohTransport
-    netem: NetemProcess
-    lossy_from: float
-
-
-@contextmanager
-def lossy_link(loss_pct: float) -> Iterator[LossyLink]:
-    """Both directions of the writer's link lose ``loss_pct`` % of datagrams after a clean start."""
-    udp, tcp, proxy = free_udp_port(), free_port(), free_udp_port()
-    with ExitStack() as stack:
-        stack.enter_context(
-            ZenohTransport.open(
-                SessionSettings(
-                    mode="router", listen=[f"udp/127.0.0.1:{udp}", f"tcp/127.0.0.1:{tcp}"]
-                )
-            )
-        )
-        netem = stack.enter_context(
-            netem_process(
-                f"udp/127.0.0.1:{proxy}",
-                f"udp/127.0.0.1:{udp}",
-                *("--loss", str(loss_pct), "--clean-s", str(CLEAN_S), "--seed", "11"),
-            )
-        )
-        # the proxy said "ready" after its clock started: loss is on from here + CLEAN_S at most
-        lossy_from = time.monotonic() + CLEAN_S
-        a = stack.enter_context(
-            ZenohTransport.open(SessionSettings(connect=[f"udp/127.0.0.1:{proxy}"]), timeout_s=5)
-        )
-        b = stack.enter_context(
-            ZenohTransport.open(SessionSettings(connect=[f"tcp/127.0.0.1:{tcp}"]), timeout_s=5)
-        )
-        yield LossyLink(a, b, netem, lossy_from)
 
 
 class Sink:
@@ -83,7 +38,7 @@ def test_keep_all_delivers_everything_in_order_over_a_lossy_link(loss_pct: int) 
     sink = Sink()
     n = 1500
     with (
-        lossy_link(loss_pct) as link,
+        lossy_link("--loss", str(loss_pct), "--seed", "11") as link,
         Reader(link.reader_side, "arpz/f/robot/*/sensor/*", QOS_RELIABLE_ALL, sink) as reader,
         Writer(link.writer_side, "arpz/f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
     ):
@@ -109,7 +64,7 @@ def test_keep_last_depth_1_at_a_high_rate_loses_and_reports_every_loss_exactly()
     lost_events: list[MessageLostStatus] = []
     qos = QosProfile(depth=1)
     with (
-        lossy_link(30) as link,
+        lossy_link("--loss", "30", "--seed", "11") as link,
         Reader(
             link.reader_side,
             "t/x",
