@@ -228,6 +228,16 @@ class Ingest:
                 )
             return
         if large and not metrics.large:
+            if metrics.robot in self._large:
+                # announced as a small kind: a frame there is bad input, not a change of kind
+                metrics.decode_errors += 1
+                if metrics.decode_errors in (1, 10, 100) or metrics.decode_errors % 10000 == 0:
+                    log.warning(
+                        "frame on %s refused: the robot announced it as a small sensor (%d so far)",
+                        key,
+                        metrics.decode_errors,
+                    )
+                return
             metrics.large = True
             metrics.max_bytes = max(metrics.max_bytes, self._large_limit)
         if len(payload) > metrics.max_bytes:

@@ -641,3 +641,19 @@ def assign_qos(
         method=solution.method,
         solve_time_s=solution.solve_time_s,
     )
+
+
+def rmax_for_budget(budget_hz: float, topics_per_robot: Mapping[str, int], rmin_hz: float) -> float:
+    """The Rmax that makes seed 001's assignment fit ``budget_hz`` samples/s in all.
+
+    Eq. (4) gives every robot R = Rmax/T_avg - Rmin, so the fleet sends about
+    N T_avg R = N (Rmax - Rmin T_avg) samples/s; equal to the budget at
+    Rmax = budget/N + Rmin T_avg. Never below 2 Rmin T_avg, where R = Rmin: a budget too small
+    for every robot's minimum rate leaves them at the minimum (the caller reports it). T counts
+    command topics too (eq. 1), so the fleet's sensor rate stays at or below the budget.
+    """
+    counts = [n for n in topics_per_robot.values() if n > 0]
+    if not counts:
+        raise InvalidQosInput("no robot with topics to share a budget")
+    t_avg = sum(counts) / len(counts)
+    return max(budget_hz / len(counts) + rmin_hz * t_avg, 2 * rmin_hz * t_avg)

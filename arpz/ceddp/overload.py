@@ -15,8 +15,8 @@ than it can ingest lets its queues grow and its latency with them, without bound
 An interval is *overloaded* when the load is at or above ``busy_bound`` and the pooled p99
 latency (robot stamp to ingest) is above ``latency_bound_ms``. After ``trigger_intervals`` of
 them in a row, the governor sets the fleet's budget to ``headroom`` x the measured capacity;
-the QoS optimiser turns the budget into a lower Rmax (``rmax_for_budget``), so every robot is
-assigned a lower rate R (a new QoS epoch whose reason carries the measurements). The governor
+the QoS optimiser turns the budget into a lower Rmax (``optimiser.rmax_for_budget``), so every
+robot is assigned a lower rate R (a new QoS epoch whose reason carries the measurements). The governor
 then holds for ``hold_intervals`` while the backlog drains before it judges again (else the
 drain itself, at full load, would cut the budget twice). After ``recover_intervals`` calm
 intervals in a row (load below 70 % of the bound, latency below half of it) the budget grows by
@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Mapping
 from dataclasses import dataclass
 
 import msgspec
@@ -207,19 +206,3 @@ class OverloadGovernor:
             f"intervals; measured capacity {self.capacity_hz:.0f} samples/s, budget raised to "
             f"{grown:.0f} samples/s",
         )
-
-
-def rmax_for_budget(budget_hz: float, topics_per_robot: Mapping[str, int], rmin_hz: float) -> float:
-    """The Rmax that makes seed 001's assignment fit ``budget_hz`` samples/s in all.
-
-    Eq. (4) gives every robot R = Rmax/T_avg - Rmin, so the fleet sends about
-    N T_avg R = N (Rmax - Rmin T_avg) samples/s; equal to the budget at
-    Rmax = budget/N + Rmin T_avg. Never below 2 Rmin T_avg, where R = Rmin: a budget too small
-    for every robot's minimum rate leaves them at the minimum (the caller reports it). T counts
-    command topics too (eq. 1), so the fleet's sensor rate stays at or below the budget.
-    """
-    counts = [n for n in topics_per_robot.values() if n > 0]
-    if not counts:
-        raise ValueError("no robot with topics to share a budget")
-    t_avg = sum(counts) / len(counts)
-    return max(budget_hz / len(counts) + rmin_hz * t_avg, 2 * rmin_hz * t_avg)

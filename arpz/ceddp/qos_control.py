@@ -12,8 +12,13 @@ from __future__ import annotations
 import logging
 import time
 
-from arpz.ceddp.optimiser import LinkQuality, OptimiserError, QosLimits, assign_qos
-from arpz.ceddp.overload import rmax_for_budget
+from arpz.ceddp.optimiser import (
+    LinkQuality,
+    OptimiserError,
+    QosLimits,
+    assign_qos,
+    rmax_for_budget,
+)
 from arpz.config import QosControlConfig, QosLimitsConfig
 from arpz.messages import QosAck, QosAssignmentMsg, RobotQos
 

@@ -178,3 +178,15 @@ def test_large_samples_are_decoded_as_bytes_and_bounded_by_their_kind() -> None:
     # a small topic still refuses bytes where a reading belongs: a decode error, counted
     ingest.handle_sensor(KEY, encode(LargeSample("r1:a", 1, 1000, b"xy")), 2_000_000)
     assert ingest.topics[("r1", "pir")].decode_errors == 1
+
+
+def test_a_frame_on_a_topic_announced_small_is_refused_not_a_change_of_kind() -> None:
+    ingest = Ingest("f", Collect(), CacheControl(enabled=True))
+    ingest.set_kinds("r1", {"pir": "pir"})
+    feed(ingest, KEY, [1])
+    ingest.handle_sensor(
+        KEY, encode(LargeSample("r1:a", 2, 1000, b"x" * 100)), 2_000_000, large=True
+    )
+    feed(ingest, KEY, [2])  # the small sensor's own next sample still decodes
+    m = ingest.topics[("r1", "pir")]
+    assert (m.received, m.decode_errors, m.large) == (2, 1, False)

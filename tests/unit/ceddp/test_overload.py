@@ -8,8 +8,8 @@ from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.control import ControlWorker
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.ingest import Ingest
-from arpz.ceddp.optimiser import QosLimits, solve
-from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor, rmax_for_budget
+from arpz.ceddp.optimiser import QosLimits, rmax_for_budget, solve
+from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.config import CeddpConfig, OverloadConfig, QosControlConfig
