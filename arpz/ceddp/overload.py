@@ -16,8 +16,8 @@ An interval is *overloaded* when the load is at or above ``busy_bound`` and the 
 latency (robot stamp to ingest) is above ``latency_bound_ms``. After ``trigger_intervals`` of
 them in a row, the governor sets the fleet's budget to ``headroom`` x the measured capacity;
 the QoS optimiser turns the budget into a lower Rmax (``optimiser.rmax_for_budget``), so every
-robot is assigned a lower rate R (a new QoS epoch whose reason carries the measurements). The governor
-then holds for ``hold_intervals`` while the backlog drains before it judges again (else the
+robot is assigned a lower rate R (a new QoS epoch whose reason carries the measurements). The
+governor then holds for ``hold_intervals`` while the backlog drains before it judges again (else the
 drain itself, at full load, would cut the budget twice). After ``recover_intervals`` calm
 intervals in a row (load below 70 % of the bound, latency below half of it) the budget grows by
 ``recover_step``, never above ``headroom`` x the capacity measured meanwhile; it is lifted when
