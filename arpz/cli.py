@@ -2,10 +2,17 @@
 
 from __future__ import annotations
 
+import argparse
 import faulthandler
+import json
 import logging
 import signal
+import sys
 import threading
+from pathlib import Path
+
+from arpz.endpoints import DEFAULT_CONNECT, check_endpoints
+from arpz.errors import ConfigError
 
 
 def configure_logging(level: str) -> None:
@@ -31,3 +38,72 @@ def stop_on_signals() -> threading.Event:
     # in native code (where the handlers above cannot run): `kill -USR1 PID` on a hung process
     faulthandler.register(signal.SIGUSR1, all_threads=True)
     return stop
+
+
+# --- the options and conventions every command shares (docs/tools.md "Conventions") ---------
+
+#: ``--json`` alone prints machine-readable output on stdout; ``--json FILE`` writes it there
+JSON_TO_STDOUT = "-"
+
+
+def add_json_option(parser: argparse.ArgumentParser, what: str = "the result") -> None:
+    """One meaning of ``--json`` in every command, so that no user has to remember which tool
+    prints and which one writes a file."""
+    parser.add_argument(
+        "--json",
+        nargs="?",
+        const=JSON_TO_STDOUT,
+        default=None,
+        metavar="FILE",
+        help=f"{what} as JSON: on stdout, or into FILE when given",
+    )
+
+
+def emit_json(document: object, target: str | None) -> None:
+    """Print or write ``document`` as ``--json`` asked (nothing when it was not given)."""
+    if target is None:
+        return
+    text = json.dumps(document, indent=2, sort_keys=True, default=str)
+    if target == JSON_TO_STDOUT:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+    else:
+        Path(target).write_text(text + "\n", encoding="utf-8")
+
+
+def add_fleet_client_options(parser: argparse.ArgumentParser) -> None:
+    """``--connect`` / ``--fleet`` / ``--zenoh-config`` of every tool that joins a running fleet
+    as a client, as robots and ROS 2 tools do."""
+    parser.add_argument(
+        "--connect",
+        default=",".join(DEFAULT_CONNECT),
+        metavar="ENDPOINT[,ENDPOINT...]",
+        help=f"the fleet's router (default {','.join(DEFAULT_CONNECT)})",
+    )
+    parser.add_argument("--fleet", default="default", help="the fleet's name (default 'default')")
+    parser.add_argument(
+        "--zenoh-config",
+        default=None,
+        metavar="FILE",
+        help="a Zenoh JSON5 config applied to the session before arpz's own settings",
+    )
+
+
+def connect_endpoints(value: str, flag: str = "--connect") -> tuple[str, ...]:
+    """The endpoints of a ``--connect`` value, each checked: a bad one is a ConfigError naming
+    the flag (exit 2), never a raw Zenoh parse error."""
+    endpoints = [part.strip() for part in value.split(",") if part.strip()]
+    if not endpoints:
+        raise ConfigError(f"{flag}: give at least one endpoint, e.g. 'tcp/192.168.1.10:7447'")
+    try:
+        check_endpoints(endpoints, field=flag)
+    except ValueError as error:
+        raise ConfigError(str(error)) from None
+    return tuple(endpoints)
+
+
+def fail(tool: str, message: str, code: int = 2) -> int:
+    """The one error format of every command: ``arpz TOOL: error: MESSAGE`` on stderr; returns
+    the exit code (2: the user's input or configuration, 1: the run failed)."""
+    print(f"arpz {tool}: error: {message}", file=sys.stderr)
+    return code
