@@ -13,6 +13,7 @@ from pathlib import Path
 
 from arpz.endpoints import DEFAULT_CONNECT, check_endpoints
 from arpz.errors import ConfigError
+from arpz.version import version_line
 
 
 def configure_logging(level: str) -> None:
@@ -107,3 +108,9 @@ def fail(tool: str, message: str, code: int = 2) -> int:
     the exit code (2: the user's input or configuration, 1: the run failed)."""
     print(f"arpz {tool}: error: {message}", file=sys.stderr)
     return code
+
+
+def add_version_option(parser: argparse.ArgumentParser) -> None:
+    """``--version`` on every command: which arpz and which Zenoh, the first question of any
+    bug report (and of ``arpz doctor``)."""
+    parser.add_argument("--version", action="version", version=version_line())

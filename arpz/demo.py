@@ -10,13 +10,13 @@ the demo exit non-zero with a message that says which and where its log is.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO
 
+from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, emit_json, fail
 from arpz.errors import ArpzError
 from arpz.launch import FleetSpec, LaunchError, Proc, free_port, run_fleet
 
@@ -239,7 +239,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--duration", type=float, help="seconds of running; for a mission, its time limit"
     )
-    parser.add_argument("--rrd", type=Path, default=Path("arpz-demo.rrd"))
+    parser.add_argument(
+        "--rrd",
+        type=Path,
+        help="the Rerun recording (default: arpz-demo.rrd in --workdir, else in the current "
+        "directory; the previous demo's recording there is replaced)",
+    )
     parser.add_argument(
         "--rate",
         type=float,
@@ -264,7 +269,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mission", choices=["hallway"], help="run seed 001's hallway mission")
     parser.add_argument("--world", default="hallway", help="mission map: hallway, hallway_small")
     parser.add_argument("--workdir", type=Path, help="where configs and logs go (default: temp)")
-    parser.add_argument("--json", type=Path, help="also write the result here")
+    add_json_option(parser, "the summary (a mission's result and summary)")
+    add_version_option(parser)
     args = parser.parse_args(argv)
     mission = args.mission is not None
     duration = args.duration if args.duration is not None else (150.0 if mission else 10.0)
@@ -272,13 +278,17 @@ def main(argv: list[str] | None = None) -> int:
     forced = args.rate is not None and args.rmax is None
     rmax = 0.0 if (args.no_qos or forced) else (args.rmax or 500.0)
     if args.robots < 1 or duration <= 0 or rate <= 0 or args.depth < 1:
-        print("demo: --robots and --depth must be >= 1, --duration and --rate > 0", file=sys.stderr)
-        return 2
+        return fail("demo", "--robots and --depth must be >= 1, --duration and --rate > 0")
     workdir = args.workdir or Path(tempfile.mkdtemp(prefix="arpz-demo-"))
+    rrd = args.rrd or (args.workdir or Path.cwd()) / "arpz-demo.rrd"
+    # the demo's own output from its last run: replaced, not kept beside (a server keeps every
+    # earlier recording, a demo run again and again would fill the directory)
+    if args.rrd is None:
+        rrd.unlink(missing_ok=True)
     options = DemoOptions(
         robots=args.robots,
         duration_s=duration,
-        rrd=args.rrd.resolve(),
+        rrd=rrd.resolve(),
         rate_hz=rate,
         hello_rate_hz=args.hello_rate,
         local_cache=not args.no_local_cache,
@@ -293,25 +303,23 @@ def main(argv: list[str] | None = None) -> int:
     try:
         summary = run_demo(options, workdir)
     except DemoError as exc:
-        print(f"demo FAILED: {exc}", file=sys.stderr)
+        print(f"arpz demo: error: FAILED: {exc}", file=sys.stderr)
         return 1
-    print(format_summary(summary))
-    print(f"Rerun recording: {options.rrd}  (open it with: rerun {options.rrd})")
+    # with --json on stdout, stdout is the JSON alone and the words go to stderr
+    words = sys.stderr if args.json == JSON_TO_STDOUT else sys.stdout
+    print(format_summary(summary), file=words)
+    print(f"Rerun recording: {options.rrd}  (open it with: rerun {options.rrd})", file=words)
     result = (summary.get("mission") or {}).get("result")
     if mission:
         if result is None:
-            print(
-                "demo FAILED: the mission never started (were all robots present?)", file=sys.stderr
-            )
-            return 1
+            return fail("demo", "FAILED: the mission never started (were all robots present?)", 1)
         print(
             f"mission {result['mission'].upper()}: {result['reason']} "
             f"(time {result['duration_s']:.1f} s, path error "
-            f"{_fmt(result['path_error_m'])} m mean, {_fmt(result['path_error_max_m'])} m max)"
+            f"{_fmt(result['path_error_m'])} m mean, {_fmt(result['path_error_max_m'])} m max)",
+            file=words,
         )
-    if args.json:
-        out = {**result, "summary": summary} if mission and result else summary
-        args.json.write_text(json.dumps(out, indent=2), encoding="utf-8")
+    emit_json({**result, "summary": summary} if mission and result else summary, args.json)
     if mission and result and result["mission"] != "success":
         return MISSION_FAILED
     return 0

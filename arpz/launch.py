@@ -193,8 +193,14 @@ def run_fleet(
                 proc.wait_line("running", timeout_s=60)
         if progress is not None:
             print(
-                f"{label}: CEDDP and {len(robots)} robots running; logs in {workdir}", file=progress
+                f"{label}: CEDDP on {','.join(spec.ceddp.get('listen', []))} "
+                f"(fleet {spec.ceddp.get('fleet', 'default')!r}) and {len(robots)} robots "
+                f"running; logs in {workdir}",
+                file=progress,
             )
+        # a progress line rewritten in place is for a person at a terminal; in a log file it
+        # would be hundreds of lines of "\r"
+        live = progress is not None and progress.isatty()
         start = time.monotonic()
         while (elapsed := time.monotonic() - start) < duration_s:
             for proc in procs:
@@ -205,7 +211,7 @@ def run_fleet(
                     )
             if until is not None and until(ceddp):
                 break
-            if progress is not None:
+            if live and progress is not None:
                 print(
                     f"\r{label}: {elapsed:5.1f}/{duration_s:.0f} s",
                     end="",
@@ -214,7 +220,10 @@ def run_fleet(
                 )
             time.sleep(min(0.25, max(duration_s - elapsed, 0.0)))
         if progress is not None:
-            print(f"\r{label}: {time.monotonic() - start:5.1f} s, stopping", file=progress)
+            print(
+                f"{chr(13) if live else ''}{label}: {time.monotonic() - start:5.1f} s, stopping",
+                file=progress,
+            )
         failures = []
         # in reverse start order: robots started first (e.g. a Hello relay) stop last
         for proc in reversed(robots):

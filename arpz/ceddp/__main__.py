@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import argparse
 import logging
+import socket
 import sys
 from pathlib import Path
 from typing import Any
 
 import msgspec
 
-from arpz.cli import configure_logging, stop_on_signals
+from arpz.cli import add_version_option, configure_logging, stop_on_signals
 from arpz.config import CeddpConfig, ConfigError, from_dict, load_toml
 from arpz.endpoints import DEFAULT_LISTEN, plain_tcp_beside_tls, resolve
 from arpz.transport import SessionSettings, TransportError
@@ -25,6 +26,7 @@ log = logging.getLogger("arpz.ceddp")
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m arpz.ceddp", description=__doc__)
+    add_version_option(parser)
     parser.add_argument("--config", type=Path, help="CEDDP TOML file")
     parser.add_argument("--fleet", help="overrides fleet")
     parser.add_argument("--listen", help="overrides listen (comma-separated endpoints)")
@@ -70,20 +72,53 @@ def resolve_listen(config: CeddpConfig, source: str) -> CeddpConfig:
     return msgspec.structs.replace(config, listen=listen)
 
 
+def with_ports_chosen(listen: list[str]) -> list[str]:
+    """Port 0 ("any free port") replaced by a port that is free now, so that the CEDDP can print
+    the endpoint robots must connect to: Zenoh does not tell which port it picked without its
+    admin space, which the CEDDP keeps closed. The port is free when chosen; another process
+    taking it in the next milliseconds makes the start fail loudly, never silently."""
+    chosen = []
+    for endpoint in listen:
+        proto, _, rest = endpoint.partition("/")
+        address, sep, params = rest.partition("#")
+        host, colon, port = address.rpartition(":")
+        if colon and port == "0" and proto in ("tcp", "tls", "ws", "udp", "quic"):
+            kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
+            family = socket.AF_INET6 if host.startswith("[") else socket.AF_INET
+            with socket.socket(family, kind) as probe:
+                probe.bind((host.strip("[]"), 0))
+                port = str(probe.getsockname()[1])
+            endpoint = f"{proto}/{host}:{port}{sep}{params}"
+        chosen.append(endpoint)
+    return chosen
+
+
+def connect_hint(listen: list[str]) -> str:
+    """What a robot passes to ``--connect``: a wildcard address becomes "THIS_HOST"."""
+    hints = [
+        endpoint.replace("0.0.0.0", "THIS_HOST").replace("[::]", "THIS_HOST") for endpoint in listen
+    ]
+    return ",".join(hints)
+
+
 def serve(argv: list[str] | None) -> int:
     args = parse_args(argv)
     configure_logging(args.log_level)
     try:
         config = load(args)
         config = resolve_listen(config, str(args.config or "command line"))
+        config = msgspec.structs.replace(config, listen=with_ports_chosen(config.listen))
     except ConfigError as exc:
-        print(f"arpz.ceddp: bad configuration: {exc}", file=sys.stderr)
+        print(f"arpz ceddp: error: bad configuration: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"arpz ceddp: error: cannot choose a free port for listen: {exc}", file=sys.stderr)
         return 2
     try:
         from arpz.ceddp.dashboard import Dashboard
     except ImportError as exc:
         print(
-            f"arpz.ceddp: the server needs its extra dependencies ({exc.name} is missing): "
+            f"arpz ceddp: error: the server needs its extra dependencies ({exc.name} is missing): "
             "pip install 'arpz[server]'",
             file=sys.stderr,
         )
@@ -101,14 +136,19 @@ def serve(argv: list[str] | None) -> int:
             )
         )
     except TransportError as exc:
-        print(f"arpz.ceddp: {exc}", file=sys.stderr)
+        print(f"arpz ceddp: error: {exc}", file=sys.stderr)
         return 1
     dashboard = None
     try:
         dashboard = Dashboard(config.rrd, grpc_port=config.grpc_port)
         server = CeddpServer(config, transport, dashboard=dashboard)
         server.start()
-        print(f"arpz.ceddp: ready on {','.join(config.listen)} (rrd {config.rrd})", flush=True)
+        print(
+            f"arpz ceddp: ready on {','.join(config.listen)} (fleet {config.fleet!r}, "
+            f"rrd {config.rrd}); robots: --connect {connect_hint(config.listen)} "
+            f"--fleet {config.fleet}",
+            flush=True,
+        )
         server.run(stop)
         server.shutdown()
     finally:
@@ -125,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             from arpz.ceddp.optimise_cli import main as optimise_main
         except ImportError as exc:
-            print(f"arpz.ceddp optimise is unavailable: {exc}", file=sys.stderr)
+            print(f"arpz ceddp optimise: error: unavailable: {exc}", file=sys.stderr)
             return 1
         return optimise_main(argv[1:])
     return serve(argv)

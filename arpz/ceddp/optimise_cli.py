@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any, cast
 
 import msgspec
@@ -29,6 +30,7 @@ from arpz.ceddp.optimiser import (
     QosLimits,
     assign_qos,
 )
+from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.errors import ArpzError
 
 EXIT_USAGE = 2
@@ -112,7 +114,8 @@ def _parser() -> _Parser:
         help="paper: D of (6); loss_aware: the loss-aware depth; max: the larger (default paper)",
     )
     parser.add_argument("--method", choices=("closed", "cvxpy", "both"), default="closed")
-    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json_option(parser, "one JSON object")
+    add_version_option(parser)
     return parser
 
 
@@ -120,9 +123,7 @@ def _link(args: argparse.Namespace) -> LinkQuality | None:
     if args.rtt_ms is None and args.loss_pct is None:
         return None
     if args.rtt_ms is None or args.loss_pct is None:
-        raise _UsageError(
-            "optimise: error: the loss-aware depth needs both --rtt-ms and --loss-pct"
-        )
+        raise _UsageError("the loss-aware depth needs both --rtt-ms and --loss-pct")
     return LinkQuality(
         rtt_s=args.rtt_ms / 1000,
         loss_pct=args.loss_pct,
@@ -213,11 +214,9 @@ def main(argv: list[str] | None = None) -> int:
             for m in methods
         }
     except _UsageError as exc:
-        print(exc, file=sys.stderr)
-        return EXIT_USAGE
+        return fail("ceddp optimise", str(exc), EXIT_USAGE)
     except OptimiserError as exc:
-        print(f"optimise: {exc}", file=sys.stderr)
-        return EXIT_USAGE
+        return fail("ceddp optimise", str(exc), EXIT_USAGE)
     except SystemExit as exc:  # --help
         return exc.code if isinstance(exc.code, int) else 0
     result = results[methods[0]]
@@ -225,16 +224,19 @@ def main(argv: list[str] | None = None) -> int:
     if len(results) == 2 and not _agree(results["closed"], results["cvxpy"], args.rmax):
         other = results["cvxpy"]
         print(
-            f"optimise: closed form (R={result.rate_hz!r}, D={result.paper_depth}) and CVXPY "
+            "arpz ceddp optimise: error: "
+            f"closed form (R={result.rate_hz!r}, D={result.paper_depth}) and CVXPY "
             f"(R={other.rate_hz!r}, D={other.paper_depth}) disagree",
             file=sys.stderr,
         )
         return EXIT_DISAGREE
-    print(
-        _as_json(result, args.topics, times_s)
-        if args.json
-        else _as_text(result, args.topics, times_s)
-    )
+    if args.json is None:
+        print(_as_text(result, args.topics, times_s))
+    elif args.json == JSON_TO_STDOUT:
+        print(_as_json(result, args.topics, times_s))
+    else:
+        Path(args.json).write_text(_as_json(result, args.topics, times_s) + "\n", encoding="utf-8")
+        print(_as_text(result, args.topics, times_s))
     return 0
 
 

@@ -9,10 +9,10 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import sys
 from pathlib import Path
 
+from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, emit_json, fail
 from arpz.configure import METHODS, solve
 from arpz.configure.check import check
 from arpz.configure.model import ModelError, dump_json, dump_toml, load_model
@@ -21,8 +21,7 @@ from arpz.configure.report import as_dict, as_text
 
 
 def _fail(message: str) -> int:
-    print(f"error: {message}", file=sys.stderr)
-    return 2
+    return fail("configure", message)
 
 
 def cmd_solve(args: argparse.Namespace) -> int:
@@ -31,10 +30,9 @@ def cmd_solve(args: argparse.Namespace) -> int:
     except ModelError as exc:
         return _fail(str(exc))
     solution = solve(model, problem=args.problem, method=args.method, time_limit_s=args.time_limit)
-    if args.json:
-        print(json.dumps(as_dict(model, solution)))
-    else:
+    if args.json != JSON_TO_STDOUT:
         print(as_text(model, solution), end="")
+    emit_json(as_dict(model, solution), args.json)
     if check(model, solution):
         return 1
     return 0 if solution.objective is not None else 3
@@ -87,22 +85,21 @@ def cmd_fit(args: argparse.Namespace) -> int:
     except (ValueError, FitError) as exc:
         return _fail(f"{args.points}: {exc}")
     curves = candidate_fits(cpu, perf)
-    if args.json:
-        print(
-            json.dumps(
-                {
-                    "chosen": {
-                        "kind": chosen.kind,
-                        "coefficients": chosen.coefficients,
-                        "r2": chosen.r2,
-                        "equation": chosen.equation(),
-                    },
-                    "candidates": [
-                        {"kind": c.kind, "coefficients": c.coefficients, "r2": c.r2} for c in curves
-                    ],
-                }
-            )
-        )
+    emit_json(
+        {
+            "chosen": {
+                "kind": chosen.kind,
+                "coefficients": chosen.coefficients,
+                "r2": chosen.r2,
+                "equation": chosen.equation(),
+            },
+            "candidates": [
+                {"kind": c.kind, "coefficients": c.coefficients, "r2": c.r2} for c in curves
+            ],
+        },
+        args.json,
+    )
+    if args.json == JSON_TO_STDOUT:
         return 0
     print(f"{len(cpu)} points from {args.points} (x = cpu / 100)")
     for curve in curves:
@@ -138,6 +135,7 @@ def parser() -> argparse.ArgumentParser:
         prog="python -m arpz.configure",
         description="Automatic configuration of node settings and placement (Cano et al. 2016).",
     )
+    add_version_option(top)
     sub = top.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("solve", help="solve Problem 1 or 2 of a model file")
@@ -153,7 +151,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--time-limit", type=float, default=60.0, help="seconds (exact; improved uses at most 10)"
     )
-    p.add_argument("--json", action="store_true", help="print one JSON object")
+    add_json_option(p, "one JSON object")
     p.set_defaults(func=cmd_solve)
 
     p = sub.add_parser("instance", help="write the paper's case study as a model file")
@@ -168,7 +166,7 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("fit", help="fit linear, log and quadratic curves to cpu,performance")
     p.add_argument("points", help="CSV file: cpu,performance per row (header optional)")
     p.add_argument("--kind", choices=("best", "linear", "log", "poly2"), default="best")
-    p.add_argument("--json", action="store_true")
+    add_json_option(p, "the fits")
     p.set_defaults(func=cmd_fit)
 
     p = sub.add_parser("figure5", help="greedy vs exact vs improved on the paper's instances")

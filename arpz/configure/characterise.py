@@ -19,7 +19,6 @@ only function that touches a transport, and ``main`` the only one that opens Zen
 from __future__ import annotations
 
 import argparse
-import sys
 import threading
 import time
 from dataclasses import dataclass, field
@@ -28,6 +27,7 @@ from pathlib import Path
 import msgspec
 
 from arpz import keys
+from arpz.cli import fail
 from arpz.configure.model import (
     Computer,
     Link,
@@ -307,16 +307,14 @@ def main(args: argparse.Namespace) -> int:
         try:
             expected = load_model(args.expected)
         except ModelError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
+            return fail("configure characterise", str(exc))
     try:
         keys.fleet_prefix(args.fleet)
         transport = ZenohTransport.open(
             SessionSettings(mode="client", connect=[args.connect]), timeout_s=5.0
         )
     except (TransportError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+        return fail("configure characterise", str(exc))
     try:
         print(
             f"listening to fleet {args.fleet!r} on {args.connect} for {args.duration:g} s",
@@ -326,8 +324,11 @@ def main(args: argparse.Namespace) -> int:
     finally:
         transport.close()
     if not _robots(obs) and not obs.ceddp:
-        print(f"error: heard nothing from fleet {args.fleet!r} on {args.connect}", file=sys.stderr)
-        return 3
+        return fail(
+            "configure characterise",
+            f"heard nothing from fleet {args.fleet!r} on {args.connect}",
+            3,
+        )
     model = build_model(
         obs,
         robot_capacity=args.robot_capacity,

@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+from arpz.cli import add_version_option, fail
 from arpz.experiment.presets import PRESETS
 from arpz.experiment.spec import ExperimentSpec, SpecError, load_spec
 
@@ -31,10 +32,11 @@ def resolve_spec(name: str) -> ExperimentSpec:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m arpz.experiment", description=__doc__)
+    add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="run a grid (resumable) and write results and figures")
     run.add_argument("spec", help=f"a spec TOML file or a preset: {', '.join(sorted(PRESETS))}")
-    run.add_argument("--out", type=Path, required=True, help="results directory")
+    run.add_argument("--out", type=Path, help="results directory (required unless --list)")
     run.add_argument("--keep-logs", action="store_true", help="keep every process log")
     run.add_argument("--list", action="store_true", help="only list the cells, run nothing")
     run.add_argument(
@@ -65,8 +67,7 @@ def main(argv: list[str] | None = None) -> int:
         try:
             paths = write_report(args.dir, figures=args.figures, out=args.out)
         except ReportError as exc:
-            print(f"report: {exc}", file=sys.stderr)
-            return 2
+            return fail("experiment report", str(exc))
         for path in paths:
             print(path)
         return 0
@@ -76,24 +77,23 @@ def main(argv: list[str] | None = None) -> int:
 
         check_cells(spec)  # optr / optd need the optimiser's R / D: infeasible is an error now
     except SpecError as exc:
-        print(f"experiment: {exc}", file=sys.stderr)
-        return 2
+        return fail("experiment", str(exc))
     if args.list:
         for cell in spec.cells():
             print(cell.label)
         return 0
+    if args.out is None:
+        return fail("experiment", "run: give --out DIR, the results directory (or --list)")
     from arpz.experiment.runner import Interrupted, run_experiment
 
     try:
         run_experiment(spec, args.out, keep_logs=args.keep_logs)
     except Interrupted as exc:
-        print(f"experiment: {exc}", file=sys.stderr)
-        return INTERRUPTED
+        return fail("experiment", str(exc), INTERRUPTED)
     try:
         paths = write_report(args.out)
     except ReportError as exc:
-        print(f"report: {exc}", file=sys.stderr)
-        return 1
+        return fail("experiment report", str(exc), 1)
     print(f"report: {args.out / 'REPORT.md'} and {len(paths) - 1} figures", file=sys.stderr)
     if not args.no_merge:
         from arpz.experiment.recordings import MergeError, merge_recordings

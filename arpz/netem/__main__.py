@@ -17,6 +17,7 @@ import signal
 import sys
 from types import FrameType
 
+from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.netem.model import GilbertElliott, Impairments, Outage
 from arpz.netem.proxy import NetemProxy
 
@@ -88,7 +89,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     ap.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds")
     ap.add_argument("--seed", type=int, default=None)
-    ap.add_argument("--json", metavar="FILE", help="also write the counters to FILE")
+    add_json_option(ap, "the counters (always printed as one JSON line on stdout too)")
+    add_version_option(ap)
     return ap
 
 
@@ -119,15 +121,14 @@ def main(argv: list[str] | None = None) -> int:
         down = imp if args.direction in ("both", "down") else clean
         proxy = NetemProxy(args.listen, args.forward, up, down, seed=args.seed)
     except (ValueError, OSError) as exc:
-        print(f"arpz.netem: {exc}", file=sys.stderr)
-        return 2
+        return fail("netem", str(exc))
 
     def stop(signum: int, frame: FrameType | None) -> None:
         proxy.request_stop()
 
     signal.signal(signal.SIGINT, stop)
     signal.signal(signal.SIGTERM, stop)
-    print(f"arpz.netem: {args.listen} -> {args.forward} ready", file=sys.stderr, flush=True)
+    print(f"arpz netem: {args.listen} -> {args.forward} ready", file=sys.stderr, flush=True)
     report = proxy.run(args.duration or None)
     data = report.as_dict()
     for name in ("up", "down"):
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
         )
     line = json.dumps(data)
     print(line, flush=True)
-    if args.json:
+    if args.json and args.json != JSON_TO_STDOUT:
         with open(args.json, "w") as fh:
             fh.write(line + "\n")
     return 0

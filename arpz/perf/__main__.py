@@ -24,6 +24,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
+from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.config import ConfigError
 from arpz.perf import fleet
 from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
@@ -100,6 +101,7 @@ def qos_from_args(args: argparse.Namespace) -> QosProfile:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="python -m arpz.perf", description="arpz performance test")
+    add_version_option(ap)
     sub = ap.add_subparsers(dest="command", required=True)
     r = sub.add_parser("router", help="a bare Zenoh router")
     r.add_argument("--listen", required=True, help="ENDPOINT[,ENDPOINT...]")
@@ -120,7 +122,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--count", type=int, default=0)
         p.add_argument("--duration", type=float, default=0.0)
         p.add_argument("--size", type=int, default=24, help="payload bytes (at least 16)")
-        p.add_argument("--json", metavar="FILE", help="write the report to FILE")
+        add_json_option(p, "the report (always printed as one JSON line on stdout too)")
         p.add_argument(
             "--latency-out",
             metavar="FILE",
@@ -419,7 +421,7 @@ def run_router(args: argparse.Namespace) -> dict[str, Any]:
 
 def _check_writable(path: str | None, option: str) -> None:
     """Refuse an output file that cannot be written before the run, not after it."""
-    if not path:
+    if not path or path == JSON_TO_STDOUT:
         return
     try:
         with open(path, "ab"):
@@ -441,13 +443,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         _check_zenoh_config(args.zenoh_config)
     except ConfigError as exc:
-        print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)
-        return 2
+        return fail(f"perf {args.command}", str(exc))
     if args.command in ("fleet", "fleet-worker"):
         return fleet.main(args)
     if args.command != "router" and args.size < HEADER.size:
-        print(f"arpz.perf: --size must be at least {HEADER.size}", file=sys.stderr)
-        return 2
+        return fail("perf", f"--size must be at least {HEADER.size}")
     runner = {
         "router": run_router,
         "pub": run_pub,
@@ -462,11 +462,10 @@ def main(argv: list[str] | None = None) -> int:
                 _check_writable(getattr(args, option, None), option)
         result = runner[args.command](args)
     except (ValueError, msgspec.ValidationError, TransportError) as exc:
-        print(f"arpz.perf {args.command}: {exc}", file=sys.stderr)
-        return 2
+        return fail(f"perf {args.command}", str(exc))
     text = json.dumps(result)
     print(text, flush=True)
-    if getattr(args, "json", None):
+    if getattr(args, "json", None) not in (None, JSON_TO_STDOUT):
         with open(args.json, "w") as fh:
             fh.write(json.dumps(result, indent=2) + "\n")
     return 0

@@ -30,7 +30,7 @@ from typing import Any, TextIO
 
 import tomli_w
 
-from arpz.cli import stop_on_signals
+from arpz.cli import add_json_option, emit_json, fail, stop_on_signals
 from arpz.config import CeddpConfig, RobotConfig, from_dict
 from arpz.errors import ArpzError
 from arpz.launch import LaunchError, Proc, free_port
@@ -507,7 +507,7 @@ def add_fleet_parser(sub: Any) -> None:
     f.add_argument("--p99-bound-ms", type=float, default=P99_BOUND_MS, help="the knee's bound")
     f.add_argument("--sweep", help="robot counts, e.g. 1,5,10,25,50,100: the scaling curve")
     f.add_argument("--workdir", type=Path, help="configs, logs, summaries (default: a temp dir)")
-    f.add_argument("--json", type=Path, metavar="FILE", help="write the result here")
+    add_json_option(f, "the result")
     f.add_argument("--csv", type=Path, metavar="FILE", help="per robot; with --sweep per N")
     f.add_argument("--png", type=Path, metavar="FILE", help="the scaling curve (with --sweep)")
     w = sub.add_parser("fleet-worker", help=argparse.SUPPRESS)
@@ -633,8 +633,6 @@ def main(args: argparse.Namespace) -> int:
             if not ok:
                 print("FAILED: some runs did not reconcile (see above)")
     except LaunchError as exc:
-        print(f"arpz.perf fleet FAILED: {exc}", file=sys.stderr)
-        return 1
-    if args.json:
-        args.json.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+        return fail("perf fleet", f"FAILED: {exc}", 1)
+    emit_json(doc, args.json)
     return 0 if ok else 1

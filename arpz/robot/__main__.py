@@ -14,7 +14,7 @@ from typing import Any
 
 import msgspec
 
-from arpz.cli import configure_logging, stop_on_signals
+from arpz.cli import add_version_option, configure_logging, stop_on_signals
 from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
 from arpz.endpoints import DEFAULT_CONNECT, resolve
 from arpz.robot.agent import RobotAgent
@@ -28,6 +28,7 @@ log = logging.getLogger("arpz.robot")
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="python -m arpz.robot", description=__doc__)
+    add_version_option(parser)
     parser.add_argument("--config", type=Path, help="robot TOML file")
     parser.add_argument("--robot-id", help="overrides robot_id")
     parser.add_argument("--fleet", help="overrides fleet")
@@ -95,16 +96,32 @@ def main(argv: list[str] | None = None) -> int:
             config, connect=resolve(config.connect, from_file, DEFAULT_CONNECT)
         )
     except ConfigError as exc:
-        print(f"arpz.robot: bad configuration: {exc}", file=sys.stderr)
+        print(f"arpz robot: error: bad configuration: {exc}", file=sys.stderr)
         return 2
+    if not config.sensors and config.preset is None and config.sim is None:
+        log.warning(
+            "robot %s has no sensors: it will only act on commands (give [[sensors]] in the "
+            "TOML, --preset or --sim to make it sense)",
+            config.robot_id,
+        )
     stop = stop_on_signals()
+    # a --duration shorter than the connect timeout bounds the wait too: the user asked for a
+    # run of that length, not for one that may sit 30 s trying to reach an absent server
+    timeout_s = config.connect_timeout_s
+    if config.duration_s > 0:
+        timeout_s = min(timeout_s, config.duration_s)
+    print(
+        f"arpz robot: {config.robot_id} connecting to {','.join(config.connect)} "
+        f"(fleet {config.fleet!r}, up to {timeout_s:g} s)",
+        flush=True,
+    )
     try:
         transport = ZenohTransport.open(
             SessionSettings(mode="client", connect=config.connect, config_file=config.zenoh_config),
-            timeout_s=config.connect_timeout_s,
+            timeout_s=timeout_s,
         )
     except TransportError as exc:
-        print(f"arpz.robot: {exc}", file=sys.stderr)
+        print(f"arpz robot: error: {exc}", file=sys.stderr)
         return 1
     try:
         base_dir = args.config.parent if args.config is not None else Path.cwd()
@@ -112,12 +129,12 @@ def main(argv: list[str] | None = None) -> int:
             agent = RobotAgent(config, transport, base_dir=base_dir)
         except (DriverError, TraceError, ValueError) as exc:
             print(
-                f"arpz.robot: bad configuration: {args.config or 'command line'}: {exc}",
+                f"arpz robot: error: bad configuration: {args.config or 'command line'}: {exc}",
                 file=sys.stderr,
             )
             return 2
         agent.start()
-        print(f"arpz.robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True)
+        print(f"arpz robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True)
         agent.run(stop)
         agent.shutdown()
     finally:

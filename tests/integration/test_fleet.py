@@ -261,3 +261,19 @@ def test_the_demo_runs_and_reports(tmp_path: Path) -> None:
     summary = json.loads((tmp_path / "demo.json").read_text())
     assert set(summary["robots"]) == {"robot1", "robot2"}
     assert (tmp_path / "demo.rrd").stat().st_size > 0
+    # what a client needs to connect, and no progress rewritten in place into a pipe
+    assert "CEDDP on tcp/127.0.0.1:" in result.stderr and "fleet 'demo'" in result.stderr
+    assert "\r" not in result.stderr + result.stdout
+
+
+def test_the_demo_writes_its_outputs_under_its_workdir_and_json_on_stdout(tmp_path: Path) -> None:
+    """Without --rrd the recording goes into --workdir (not the current directory), a second run
+    replaces it instead of keeping the first beside it, and --json alone is the whole stdout."""
+    argv = [sys.executable, "-m", "arpz", "demo", "--robots", "1", "--duration", "2"]
+    argv += ["--no-qos", "--workdir", str(tmp_path / "work"), "--json"]
+    for _ in range(2):
+        result = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert set(json.loads(result.stdout)["robots"]) == {"robot1"}
+    assert [p.name for p in (tmp_path / "work").glob("*.rrd")] == ["arpz-demo.rrd"]
+    assert not list(tmp_path.glob("*.rrd")), "nothing written into the current directory"

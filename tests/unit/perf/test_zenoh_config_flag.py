@@ -37,4 +37,4 @@ def test_a_config_that_does_not_parse_is_refused_with_exit_2(
     path.write_text("{ transport: { shared_memory: ")
     assert main([*COMMANDS[command], "--zenoh-config", str(path)]) == 2
     err = capsys.readouterr().err
-    assert f"arpz.perf {command}:" in err and "bad.json5" in err
+    assert f"arpz perf {command}: error:" in err and "bad.json5" in err
