@@ -184,6 +184,31 @@ class WatchdogConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
                 raise ValueError(f"deadlines_s.{name} must be > 0 seconds, got {deadline}")
 
 
+class RobotClockConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """The robot's clock against the CEDDP's (``[clock]`` of a robot; docs/operations.md): a
+    burst of NTP-style exchanges every ``period_s``, the fastest of the last ``window`` kept."""
+
+    enabled: bool = True
+    period_s: float = 2.0
+    #: exchanges per period (the fastest of them is the least disturbed by queues)
+    burst: int = 4
+    #: exchanges the estimate is chosen from (the last ones)
+    window: int = 16
+    #: a request not answered within this is given up
+    timeout_s: float = 1.0
+    #: TEST AND DIAGNOSTIC AID: add this many seconds to every stamp the robot makes (sensor
+    #: samples, reports, clock requests), as if its clock were that far off; 0 on a real robot
+    shift_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("period_s", "timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 seconds, got {getattr(self, name)}")
+        for name in ("burst", "window"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+
 class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
@@ -201,6 +226,7 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     #: simulate the body in a 2-D world (None: a real robot, or sensors only)
     sim: SimConfig | None = None
     watchdog: WatchdogConfig = msgspec.field(default_factory=WatchdogConfig)
+    clock: RobotClockConfig = msgspec.field(default_factory=RobotClockConfig)
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
@@ -328,6 +354,22 @@ class MissionConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
 
 
+class CeddpClockConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """The CEDDP's side of clock offsets (``[clock]`` of the CEDDP; docs/operations.md): answer
+    the robots' clock requests, correct latencies by each robot's offset, flag a robot whose
+    |offset| exceeds ``max_offset_ms``."""
+
+    #: answer clock requests on ``ceddp/clock`` (off: robots get no estimate, nothing corrected)
+    serve: bool = True
+    #: correct latency and staleness by each robot's reported offset
+    correct: bool = True
+    max_offset_ms: float = 50.0
+
+    def __post_init__(self) -> None:
+        if not self.max_offset_ms > 0:
+            raise ValueError(f"max_offset_ms must be > 0, got {self.max_offset_ms}")
+
+
 class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     #: where robots connect; empty: the endpoints of ``zenoh_config``, or DEFAULT_LISTEN without
@@ -370,6 +412,7 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     qos: QosControlConfig = msgspec.field(default_factory=QosControlConfig)
     overload: OverloadConfig = msgspec.field(default_factory=OverloadConfig)
     mission: MissionConfig | None = None
+    clock: CeddpClockConfig = msgspec.field(default_factory=CeddpClockConfig)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 

@@ -129,6 +129,12 @@ def ceddp_stats_key(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/ceddp/stats"
 
 
+def ceddp_clock_key(fleet: str) -> str:
+    """The CEDDP's clock, as a Zenoh queryable: a robot's ``ClockRequest`` gets a
+    ``ClockReply`` (the NTP-style exchange of arpz/protocol/clock.py)."""
+    return f"{fleet_prefix(fleet)}/ceddp/clock"
+
+
 def ceddp_qos_key(fleet: str) -> str:
     """QoS assignment published by the CEDDP's balancing optimiser."""
     return f"{fleet_prefix(fleet)}/ceddp/qos"

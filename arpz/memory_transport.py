@@ -19,7 +19,9 @@ from arpz.transport import (
     LivelinessCallback,
     Publisher,
     PullSubscriber,
+    QueryHandler,
     Received,
+    ReplyCallback,
     TransportError,
 )
 
@@ -56,6 +58,7 @@ class MemoryBus:
         self.subscribers: list[tuple[str, DataCallback]] = []
         self.watchers: list[tuple[str, LivelinessCallback]] = []
         self.tokens: dict[int, str] = {}
+        self.servers: list[tuple[str, QueryHandler]] = []
         self._next_id = 0
 
     def new_id(self) -> int:
@@ -187,6 +190,31 @@ class MemoryTransport:
                     self.bus.watchers.remove(entry)
 
         return self._track(_Handle(remove))
+
+    def serve(self, key: str, handler: QueryHandler) -> Handle:
+        entry = (key, handler)
+        with self.bus.lock:
+            self.bus.servers.append(entry)
+
+        def remove() -> None:
+            with self.bus.lock:
+                if entry in self.bus.servers:
+                    self.bus.servers.remove(entry)
+
+        return self._track(_Handle(remove))
+
+    def request(
+        self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
+    ) -> None:
+        """Answered at once, inside the call (no timeout can pass on an in-process bus)."""
+        if self.closed:
+            raise TransportError("request on a closed MemoryTransport")
+        with self.bus.lock:
+            handlers = [h for expr, h in self.bus.servers if key_matches(expr, key)]
+        for handler in handlers:
+            answer = handler(payload)
+            if answer is not None:
+                on_reply(answer)
 
     def _track(self, handle: _Handle) -> _Handle:
         self._handles.append(handle)

@@ -98,6 +98,22 @@ class Telemetry(msgspec.Struct, array_like=True, frozen=True):
     collided: bool
 
 
+class ClockRequest(msgspec.Struct, array_like=True, frozen=True):
+    """A robot's clock request on ``ceddp/clock`` (a Zenoh query's payload): t1, its clock at
+    sending."""
+
+    t1_ns: int
+
+
+class ClockReply(msgspec.Struct, array_like=True, frozen=True):
+    """The CEDDP's answer: the request's t1 echoed, t2 when the CEDDP received it and t3 when
+    it replied, both on the CEDDP's clock."""
+
+    t1_ns: int
+    t2_ns: int
+    t3_ns: int
+
+
 class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     """Per-topic counters kept by a robot's local cache: produced == sent + held_back."""
 
@@ -159,6 +175,24 @@ class HelloStats(msgspec.Struct, frozen=True):
     rtt_ms_max: float | None = None
 
 
+class ClockStats(msgspec.Struct, frozen=True):
+    """A robot's estimate of its clock against the CEDDP's (NTP-style exchanges on
+    ``ceddp/clock``, the fastest of the last few: arpz/protocol/clock.py)."""
+
+    #: the CEDDP's clock minus the robot's, ns (None: no reply yet); a robot stamp on the
+    #: CEDDP's clock is ``stamp_ns + offset_ns``
+    offset_ns: int | None = None
+    #: the round trip of the exchange it comes from, ns: the offset is right within delay / 2
+    delay_ns: int | None = None
+    #: exchanges the estimate was chosen from
+    samples: int = 0
+    #: the robot's clock when that exchange ended (0: none)
+    stamp_ns: int = 0
+    #: requests sent and replies received since start
+    requests: int = 0
+    replies: int = 0
+
+
 class RobotStats(msgspec.Struct, frozen=True):
     """Counters a robot reports on ``.../stats`` periodically, and with final=True at exit."""
 
@@ -188,6 +222,11 @@ class RobotStats(msgspec.Struct, frozen=True):
     incompatible_qos: list[str] = msgspec.field(default_factory=list)
     #: "channel" or "none"
     mode: str = "channel"
+    #: the robot's clock against the CEDDP's (None: clock sync off, or an older robot)
+    clock: ClockStats | None = None
+    #: the robot's arpz and eclipse-zenoh versions ("": an older robot)
+    arpz_version: str = ""
+    zenoh_version: str = ""
 
 
 class TopicRate(msgspec.Struct, frozen=True):
@@ -197,6 +236,9 @@ class TopicRate(msgspec.Struct, frozen=True):
     topic: str
     rate_hz: float
     bytes_per_s: float
+    #: samples of the topic lost so far (sequence gaps and what was sent before the CEDDP heard
+    #: the writer)
+    lost: int = 0
 
 
 class CeddpStats(msgspec.Struct, frozen=True):
@@ -217,6 +259,21 @@ class CeddpStats(msgspec.Struct, frozen=True):
     budget_hz: float | None = None
     #: dashboard frames dropped since start (the Rerun thread fell behind)
     dashboard_dropped: int = 0
+    #: the CEDDP's arpz and eclipse-zenoh versions ("": an older CEDDP)
+    arpz_version: str = ""
+    zenoh_version: str = ""
+    #: whether the CEDDP's Zenoh config carries an enabled ``access_control`` section, and
+    #: whether it sets up TLS (None: not known, an older CEDDP)
+    access_control: bool | None = None
+    tls: bool | None = None
+    #: INCOMPATIBLE_QOS the CEDDP sees, "robot: what: why" lines
+    incompatible_qos: list[str] = msgspec.field(default_factory=list)
+    #: latencies are corrected by each robot's clock offset (arpz/ceddp/clock_service.py), and
+    #: the bound on |offset| past which a robot is flagged (None: an older CEDDP)
+    clock_corrected: bool = False
+    clock_max_offset_ms: float | None = None
+    #: robots whose |offset| exceeds the bound now
+    clock_flagged: list[str] = msgspec.field(default_factory=list)
 
 
 class TopicInfo(msgspec.Struct, frozen=True):
@@ -235,6 +292,9 @@ class Announce(msgspec.Struct, frozen=True):
     commands: list[str]
     #: "channel" (every key through the reliable channel) or "none" (plain puts)
     mode: str = "channel"
+    #: the robot's clock estimate when it announced (the first one precedes its first reading,
+    #: so the CEDDP can correct latencies from the start)
+    clock: ClockStats | None = None
 
 
 class RobotQos(msgspec.Struct, frozen=True):
@@ -295,6 +355,8 @@ CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
 QOS_ASSIGNMENT_DECODER: Final = msgspec.msgpack.Decoder(QosAssignmentMsg)
 QOS_ACK_DECODER: Final = msgspec.msgpack.Decoder(QosAck)
 TELEMETRY_DECODER: Final = msgspec.msgpack.Decoder(Telemetry)
+CLOCK_REQUEST_DECODER: Final = msgspec.msgpack.Decoder(ClockRequest)
+CLOCK_REPLY_DECODER: Final = msgspec.msgpack.Decoder(ClockReply)
 
 
 def same_value(a: SensorValue, b: SensorValue, tolerance: float = 0.0) -> bool:

@@ -24,6 +24,11 @@ from arpz.errors import ArpzError
 DataCallback = Callable[[str, bytes, bytes | None], None]
 #: (key, alive) -> None
 LivelinessCallback = Callable[[str, bool], None]
+#: (request payload) -> reply payload (None: no reply), for ``serve``: it runs on a
+#: transport-owned thread and must return at once (compute and encode, nothing that waits)
+QueryHandler = Callable[[bytes], bytes | None]
+#: (reply payload) -> None, for ``request``: on a transport-owned thread, only record or queue
+ReplyCallback = Callable[[bytes], None]
 
 
 class Publisher(Protocol):
@@ -67,6 +72,17 @@ class Transport(Protocol):
     def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber: ...
     def declare_token(self, key: str) -> Handle: ...
     def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Handle: ...
+    def serve(self, key: str, handler: QueryHandler) -> Handle:
+        """Answer every request on ``key`` with ``handler(payload)`` (a Zenoh queryable)."""
+        ...
+
+    def request(
+        self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
+    ) -> None:
+        """Send a request to whoever serves ``key`` and return at once; each reply that comes
+        within ``timeout_s`` is handed to ``on_reply`` (none: nobody served it in time)."""
+        ...
+
     def close(self) -> None: ...
 
 

@@ -27,7 +27,9 @@ from arpz.transport import (
     LivelinessCallback,
     Publisher,
     PullSubscriber,
+    QueryHandler,
     Received,
+    ReplyCallback,
     SessionSettings,
     TransportError,
 )
@@ -107,6 +109,21 @@ def uses_tls(conf: zenoh.Config) -> bool:
     return any(
         isinstance(config_value(conf, f"transport/link/tls/{key}"), str) for key in TLS_FILE_KEYS
     )
+
+
+def access_control_enabled(conf: zenoh.Config) -> bool:
+    """Whether a Zenoh config turns ``access_control`` on (its ``enabled`` field is true)."""
+    return config_value(conf, "access_control/enabled") is True
+
+
+def config_security(path: str) -> tuple[bool, bool] | None:
+    """(access control enabled, TLS set up) of the Zenoh config file ``path``, for a process to
+    report about itself; None when the file cannot be read (its loader already said why)."""
+    try:
+        conf = zenoh.Config.from_file(path)
+    except zenoh.ZError:
+        return None
+    return access_control_enabled(conf), uses_tls(conf)
 
 
 def config_endpoints(conf: zenoh.Config, section: str) -> list[str]:
@@ -308,6 +325,45 @@ class ZenohTransport:
         handle = _Declared(inner)
         self._keep(handle)
         return handle
+
+    def serve(self, key: str, handler: QueryHandler) -> Handle:
+        """A queryable that replies from Zenoh's callback thread: the handler only stamps and
+        encodes, and a reply is one small non-blocking send (DROP congestion control: a full
+        queue loses the reply, which the requester sees as a timeout). Handing the query to a
+        worker would add a thread wake-up to the request's path only, an asymmetry that a
+        clock exchange would take for offset."""
+
+        def on_query(query: zenoh.Query) -> None:
+            payload = query.payload
+            try:
+                answer = handler(payload.to_bytes() if payload is not None else b"")
+                if answer is not None:
+                    query.reply(key, answer, express=True)
+            except zenoh.ZError as exc:  # the requester left, or the session is closing
+                log.debug("reply on %s failed: %s", key, zenoh_message(exc))
+
+        with _translated(f"serve {key}"):
+            handle = _Declared(self._session.declare_queryable(key, on_query, complete=True))
+        self._keep(handle)
+        return handle
+
+    def request(
+        self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
+    ) -> None:
+        def on_answer(reply: zenoh.Reply) -> None:
+            sample = reply.ok
+            if sample is not None:
+                on_reply(sample.payload.to_bytes())
+
+        with _translated(f"request on {key}"):
+            self._session.get(
+                key,
+                on_answer,
+                payload=payload,
+                timeout=timeout_s,
+                express=True,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
 
     def close(self) -> None:
         with self._lock:

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import msgspec
 
 from arpz import keys
+from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.control_queue import ControlQueue
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.ingest import Ingest
@@ -116,8 +117,12 @@ class ControlWorker:
         planners: list[Planner],
         qos: QosController | None,
         event: EventSink,
+        *,
+        clock: ClockWatch | None = None,
     ) -> None:
         self.config = config
+        #: takes each robot's clock estimate from its stats and announcements
+        self.clock = clock
         self.ingest = ingest
         self.sink = sink
         self.planners = planners
@@ -223,9 +228,13 @@ class ControlWorker:
                     record.incarnations[stats.incarnation] = stats
                     while len(record.incarnations) > MAX_INCARNATIONS:
                         del record.incarnations[next(iter(record.incarnations))]
+                if self.clock is not None:
+                    self.clock.observe(robot, stats.clock)
             elif kind == "announce":
                 record.announce = ANNOUNCE_DECODER.decode(payload)
                 self.ingest.set_kinds(robot, {t.topic: t.kind for t in record.announce.sensors})
+                if self.clock is not None:
+                    self.clock.observe(robot, record.announce.clock)
                 if record.alive:
                     self.sink.open_robot(robot, list(record.announce.commands))
                 count = len(record.announce.sensors) + len(record.announce.commands)

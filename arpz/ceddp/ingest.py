@@ -82,6 +82,12 @@ class TopicMetrics:
     w_before_join: int = 0
     #: other writers: (next_seq, highest_seq, received, lost, before_join)
     others: dict[str, tuple[int, int, int, int, int]] = field(default_factory=dict)
+    #: the robot's clock offset to this CEDDP's (arpz/ceddp/clock_service.py): latencies and
+    #: staleness are measured on the CEDDP's clock; 0 until the robot's first estimate
+    clock_offset_ns: int = 0
+    #: samples received before the robot's first clock estimate (measured on its own clock)
+    clock_uncorrected: int = 0
+    clock_known: bool = False
     latency_ms: Distribution = field(default_factory=Distribution)
     #: how long this CEDDP held a value other than the robot's latest reading, measured once
     #: per change when the new value arrives (arrival - the robot's first read of it)
@@ -136,6 +142,9 @@ class Ingest:
         #: per robot, the size bound of each announced topic
         self._kinds: dict[str, dict[str, int]] = {}
         self._prefix = keys.fleet_prefix(fleet) + "/robot/"
+        #: per robot, its clock offset in force (``set_clock_offset``) and its topics
+        self.clock_offsets: dict[str, int] = {}
+        self._robot_topics: dict[str, list[TopicMetrics]] = {}
 
     def metrics_for(self, key: str) -> TopicMetrics | None:
         metrics = self._by_key.get(key)
@@ -160,8 +169,11 @@ class Ingest:
                     ),
                     large=topic in self._large.get(robot, ()),
                     seen_before=self.seen_before.get((robot, topic), {}),
+                    clock_offset_ns=self.clock_offsets.get(robot, 0),
+                    clock_known=robot in self.clock_offsets,
                 )
                 self.topics[(robot, topic)] = metrics
+                self._robot_topics.setdefault(robot, []).append(metrics)
             self._by_key[key] = metrics
         return metrics
 
@@ -178,6 +190,25 @@ class Ingest:
             if r == robot:
                 metrics.max_bytes = self._kinds[robot].get(topic, limits["default"])
                 metrics.large = topic in self._large[robot]
+
+    def set_clock_offset(self, robot: str, offset_ns: int) -> None:
+        """The robot's clock offset to this CEDDP's (call with ``lock`` held): its latencies
+        and staleness from now on are measured on the CEDDP's clock. What arrived before its
+        first estimate is counted in ``clock_uncorrected``."""
+        self.clock_offsets[robot] = offset_ns
+        for metrics in self._robot_topics.get(robot, ()):
+            if not metrics.clock_known:
+                metrics.clock_known = True
+                metrics.clock_uncorrected = metrics.received
+            metrics.clock_offset_ns = offset_ns
+
+    def clock_uncorrected(self, robot: str) -> int:
+        """Samples of the robot measured on its own clock: all of them until its first clock
+        estimate, then those that came before it (call with ``lock`` held)."""
+        return sum(
+            m.clock_uncorrected if m.clock_known else m.received
+            for m in self._robot_topics.get(robot, ())
+        )
 
     def _room_for(self, robot: str, topic: str) -> bool:
         """Per-topic state is created only for valid names within the limits, so a client
@@ -270,7 +301,9 @@ class Ingest:
             metrics.received += 1
             metrics.w_received += 1
             metrics.bytes += len(payload)
-            metrics.latency_ms.add((arrival_ns - sample.stamp_ns) / 1e6)
+            # on the CEDDP's clock: the robot's clock offset taken out (clock_service.py)
+            latency_ns = arrival_ns - sample.stamp_ns - metrics.clock_offset_ns
+            metrics.latency_ms.add(latency_ns / 1e6)
             if follows:
                 metrics.next_seq = seq + 1
                 metrics.highest_seq = seq
@@ -290,7 +323,8 @@ class Ingest:
             # read: the robot says when that was (``since_ns``; conservative by at most the
             # acknowledgement delay)
             start_ns = (sample.since_ns if not follows else 0) or sample.changed_ns
-            metrics.staleness_ms.add((arrival_ns - (start_ns or sample.stamp_ns)) / 1e6)
+            start_ns = (start_ns or sample.stamp_ns) + metrics.clock_offset_ns
+            metrics.staleness_ms.add((arrival_ns - start_ns) / 1e6)
             metrics.held = value
         if metrics.cache.admit(value):
             self.planner.on_reading(
@@ -376,7 +410,7 @@ class Ingest:
     ) -> None:
         metrics.received += 1
         metrics.bytes += size
-        metrics.latency_ms.add((arrival_ns - stamp_ns) / 1e6)
+        metrics.latency_ms.add((arrival_ns - stamp_ns - metrics.clock_offset_ns) / 1e6)
         if writer != metrics.writer:
             previous = metrics.writer
             if previous:

@@ -14,9 +14,12 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
+from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.downlink import Downlink
+from arpz.ceddp.identity import Identity
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.planner import Planner
@@ -49,6 +52,8 @@ class MetricsTicker:
         persist_partial: Callable[[], None],
         sensor_path: Callable[[], tuple[int, float]] = lambda: (0, 0.0),
         on_budget: Callable[[BudgetChange], None] = lambda change: None,
+        clock: ClockWatch | None = None,
+        identity: Identity | None = None,
     ) -> None:
         self.config = config
         self.ingest = ingest
@@ -61,6 +66,10 @@ class MetricsTicker:
         #: (samples ingested so far, seconds the sensor path waited for samples so far)
         self._sensor_path = sensor_path
         self._on_budget = on_budget
+        #: robots' clock offsets (frames: clock_offset_ms, clock_delay_ms; CeddpStats)
+        self.clock = clock
+        #: versions and security, for CeddpStats
+        self.identity = identity
         self.governor = OverloadGovernor(config.overload)
         self._last_path = sensor_path()
         #: where CeddpStats go (opened by the server at start)
@@ -126,6 +135,7 @@ class MetricsTicker:
                         topic=slot[1],
                         rate_hz=row["rate_hz"],
                         bytes_per_s=row["bytes_per_s"],
+                        lost=m.lost + m.before_join,
                     )
                 )
             robots: dict[str, dict[str, float]] = {}
@@ -144,7 +154,15 @@ class MetricsTicker:
                 row["downlink_lost"] = float(sum(c.lost + c.lifespan_expired for c in inbound))
                 row["watchdog_stops"] = float(sum(record.stats.watchdog_stops.values()))
                 row["downlink_written"] = float(written.get(robot, 0))
+                if self.clock is not None:
+                    row.update(self.clock.frame_row(robot))
                 robots[robot] = row
+            incompatible = [
+                f"{robot}: {line}"
+                for robot, record in self.robots.items()
+                for line in record.incompatible
+            ][:64]
+            flagged = self.clock.flagged() if self.clock is not None else []
             for robot, per_key in refused.items():
                 robots.setdefault(robot, {})["refused"] = float(sum(per_key.values()))
         self._last = (now, cpu, counts)
@@ -172,12 +190,30 @@ class MetricsTicker:
                     capacity_hz=governor.capacity_hz,
                     budget_hz=governor.budget_hz,
                     dashboard_dropped=self.dashboard.dropped if self.dashboard else 0,
+                    incompatible_qos=incompatible,
+                    clock_corrected=self.clock is not None and self.clock.config.correct,
+                    clock_max_offset_ms=(
+                        self.clock.config.max_offset_ms if self.clock is not None else None
+                    ),
+                    clock_flagged=flagged,
+                    **self._identity_fields(),
                 )
                 self.stats_out.send(encode(report), report.stamp_ns)
         except ArpzError as exc:  # the session may be closing, or a full history refused it
             log.debug("could not publish CEDDP stats: %s", exc)
         for planner in self.planners:
             planner.tick(now)
+
+    def _identity_fields(self) -> dict[str, Any]:
+        identity = self.identity
+        if identity is None:
+            return {}
+        return {
+            "arpz_version": identity.arpz_version,
+            "zenoh_version": identity.zenoh_version,
+            "access_control": identity.access_control,
+            "tls": identity.tls,
+        }
 
     def _judge_load(self, interval_s: float, latency_ms_p99: float | None) -> _Load:
         """The sensor path's load over the interval, handed to the overload governor; a budget

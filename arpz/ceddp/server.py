@@ -12,6 +12,7 @@ touch shared state.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import os
@@ -25,8 +26,10 @@ import msgspec
 
 from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
+from arpz.ceddp.clock_service import ClockService, ClockWatch
 from arpz.ceddp.control import KIND_NAMES, ControlWorker, RobotRecord
 from arpz.ceddp.downlink import Downlink, DownlinkCounters
+from arpz.ceddp.identity import identity_of
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.intake import SensorIntake
 from arpz.ceddp.metrics import MetricsTicker
@@ -110,8 +113,11 @@ class CeddpServer:
             if config.qos.enabled
             else None
         )
+        #: robots' clock offsets (latency correction, the bound) and the clock they query
+        self.clock = ClockWatch(config.clock, self.ingest, self._event)
+        self.clock_service = ClockService(transport, config.fleet) if config.clock.serve else None
         self.control = ControlWorker(
-            config, self.ingest, self.sink, self.planners, self.qos, self._event
+            config, self.ingest, self.sink, self.planners, self.qos, self._event, clock=self.clock
         )
         self.intake = SensorIntake(
             config, transport, self.ingest, self._fanout, self.control, self._event
@@ -127,6 +133,8 @@ class CeddpServer:
             persist_partial=lambda: self._persist({**self.summary(), "complete": False}),
             sensor_path=lambda: (self.intake.processed, self.intake.idle_s()),
             on_budget=self.control.on_budget,
+            clock=self.clock,
+            identity=identity_of(config),
         )
         self._reports: Inlet | None = None
         self._stop = threading.Event()
@@ -164,6 +172,8 @@ class CeddpServer:
         self._load_previous_run()
         fleet = cfg.fleet
         control = self.control
+        if self.clock_service is not None:  # before the presence token: robots query at once
+            self.clock_service.start()
         self.intake.open()
         self._reports = Inlet(
             self.transport,
@@ -223,6 +233,8 @@ class CeddpServer:
             planner.stop()
         self._stop.set()
         self.intake.stop()
+        if self.clock_service is not None:
+            self.clock_service.close()
         if self._reports is not None:
             self._reports.close()
         self.control.queue.close()
@@ -308,6 +320,7 @@ class CeddpServer:
                 report = self.control.robots.get(robot, RobotRecord()).as_report()
                 report.refused.update(refused.get(robot, {}))
                 report.downlink.update(downlink.get(robot, {}))
+                report = dataclasses.replace(report, clock=self.clock.summary(robot))
                 robots[robot] = robot_summary(self.ingest, robot, report)
         return {
             "fleet": self.config.fleet,
@@ -336,6 +349,12 @@ class CeddpServer:
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
             "qos": qos_summary(self.qos) if self.qos is not None else None,
             "overload": self.metrics.governor.summary(),
+            "clock": {
+                **self.clock.fleet_summary(),
+                "served": self.clock_service is not None,
+                "requests_answered": self.clock_service.answered if self.clock_service else 0,
+                "bad_requests": self.clock_service.bad_requests if self.clock_service else 0,
+            },
             "mission": self.mission.summary() if self.mission is not None else None,
             "events": self.events,
         }

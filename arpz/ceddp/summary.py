@@ -57,6 +57,8 @@ class RobotReport:
     downlink: dict[str, DownlinkCounters] = field(default_factory=dict)
     #: the last report of each incarnation (a restarted robot is a new one), oldest first
     incarnations: dict[str, RobotStats] = field(default_factory=dict)
+    #: the robot's clock section (``ClockWatch.summary``; None: no clock watch)
+    clock: dict[str, Any] | None = None
 
 
 def incarnation_summary(
@@ -196,6 +198,10 @@ def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, 
     (staleness_p99,) = merged_quantiles([m.staleness_ms for t, m in mine if t != "hello"], 99)
     return {
         "alive": report.alive,
+        "versions": {
+            "arpz": stats.arpz_version if stats else "",
+            "zenoh": stats.zenoh_version if stats else "",
+        },
         "control_decode_errors": report.control_decode_errors,
         "joins": report.joins,
         "leaves": report.leaves,
@@ -204,6 +210,9 @@ def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, 
         "latency_ms_p50": latency_p50,
         "latency_ms_p99": latency_p99,
         "latency_ms_max": max((d.max for d in latencies if d.max is not None), default=None),
+        # latency and staleness on the CEDDP's clock (the robot's offset taken out), or not
+        "clock_corrected": bool(report.clock and report.clock["corrected"]),
+        "clock": report.clock,
         "cpu_percent": stats.cpu_percent if stats else None,
         "hello": msgspec.to_builtins(stats.hello) if stats and stats.hello else None,
         "staleness_ms_p99": staleness_p99,

@@ -23,6 +23,7 @@ from arpz.channel_io import FrameOutlet, Outlet
 from arpz.config import RobotConfig
 from arpz.messages import (
     Announce,
+    ClockStats,
     InboundCounters,
     QosAck,
     QosAssignmentMsg,
@@ -37,6 +38,7 @@ from arpz.messages import (
 )
 from arpz.reliability import QosPolicyKind
 from arpz.robot.actuation import Actuator, RecordingActuator
+from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
 from arpz.robot.hello import HelloProbe
 from arpz.robot.qos import decide
@@ -46,6 +48,7 @@ from arpz.robot.sensors import value_type_of
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog
 from arpz.transport import Transport
+from arpz.version import arpz_version, zenoh_version
 
 log = logging.getLogger(__name__)
 
@@ -89,12 +92,17 @@ class RobotAgent:
         self.incarnation = new_incarnation()
         self.writer = writer_id(config.robot_id, self.incarnation)
         fleet, robot = config.fleet, config.robot_id
+        #: the clock against the CEDDP's, and the wall clock every stamp of this robot reads
+        self.clock_sync = ClockSync(config.clock, transport, fleet)
+        self._wall_ns = self.clock_sync.wall_ns
+        self._versions = (arpz_version(), zenoh_version())
         self.hello_probe = HelloProbe(
             robot,
             self.writer,
             Outlet(transport, keys.sensor_key(fleet, robot, keys.HELLO), config.profile("hello")),
             config.hello.timeout_s,
         )
+        self.hello_probe.wall_ns = self._wall_ns
         #: the Hello round trips this robot originated
         self.hello = self.hello_probe.tracker
         report_qos = config.profile("report")
@@ -108,6 +116,8 @@ class RobotAgent:
         self._last_cpu = (time.monotonic(), time.process_time())
         self._telemetry_seq = 0
         self.sensors: list[SensorChannel] = build_sensors(config, transport, self.sim, base_dir)
+        for sensor in self.sensors:
+            sensor.wall_ns = self._wall_ns
         #: the commands this robot acts on (the Hello hop is handled by the agent itself)
         self.command_names: list[str] = list(self.actuator.commands)
         self.watchdog = CommandWatchdog(self._watchdog_deadlines())
@@ -154,6 +164,13 @@ class RobotAgent:
         self.transport.declare_token(keys.robot_mode_key(cfg.fleet, cfg.robot_id, cfg.reliability))
         self.transport.watch_liveliness(keys.all_ceddp_modes(cfg.fleet), self._on_ceddp_mode)
         self._wait_for_readers(cfg.match_timeout_s)
+        if cfg.clock.enabled and not self.clock_sync.first_estimate(cfg.clock.timeout_s):
+            log.warning(
+                "no reply to the clock request within %.1f s (is the CEDDP running, and does it "
+                "serve %s?): latencies stay uncorrected until one comes",
+                cfg.clock.timeout_s,
+                keys.ceddp_clock_key(cfg.fleet),
+            )
         self._publish_announce(0.0)
         self.commands.wait_for_writers(cfg.match_timeout_s)
         self._started = True
@@ -262,6 +279,10 @@ class RobotAgent:
             # checked at a tenth of the shortest deadline: a stop comes at most 10 % late
             period = max(min(deadlines.values()) / 10, 0.005)
             scheduler.every(period, self.commands.check_watchdog, "watchdog")
+        if cfg.clock.enabled:
+            scheduler.every(
+                cfg.clock.period_s, self.clock_sync.exchange, "clock", first_s=cfg.clock.period_s
+            )
         scheduler.every(
             cfg.stats_period_s,
             lambda now: self._publish_stats(final=False),
@@ -283,7 +304,7 @@ class RobotAgent:
         telemetry = Telemetry(
             writer=self.writer,
             seq=self._telemetry_seq,
-            stamp_ns=time.time_ns(),
+            stamp_ns=self._wall_ns(),
             x_m=pose.x_m,
             y_m=pose.y_m,
             theta_rad=pose.theta_rad,
@@ -331,7 +352,7 @@ class RobotAgent:
             incarnation=self.incarnation,
             ceddp=message.ceddp,
             epoch=message.epoch,
-            stamp_ns=time.time_ns(),
+            stamp_ns=self._wall_ns(),
             status="applied" if decision.applies else "refused",
             reason=decision.reason,
             rate_hz=current_rate,
@@ -374,7 +395,7 @@ class RobotAgent:
         return RobotStats(
             robot=self.config.robot_id,
             incarnation=self.incarnation,
-            stamp_ns=time.time_ns(),
+            stamp_ns=self._wall_ns(),
             final=final,
             topics=rated,
             commands_received=received,
@@ -392,7 +413,13 @@ class RobotAgent:
             watchdog_stopped=list(watchdog["stopped"]),
             incompatible_qos=incompatible,
             mode=self.config.reliability,
+            clock=self._clock_stats(),
+            arpz_version=self._versions[0],
+            zenoh_version=self._versions[1],
         )
+
+    def _clock_stats(self) -> ClockStats | None:
+        return self.clock_sync.stats() if self.config.clock.enabled else None
 
     def _publish_stats(self, *, final: bool) -> None:
         stats = self.stats(final=final)
@@ -414,5 +441,6 @@ class RobotAgent:
             ],
             commands=[keys.HELLO, *self.command_names],
             mode=cfg.reliability,
+            clock=self._clock_stats(),
         )
-        self._announce_out.send(encode(announce), time.time_ns())
+        self._announce_out.send(encode(announce), self._wall_ns())

@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 
 import msgspec
 
@@ -101,16 +102,18 @@ class HelloProbe:
         self._lock = threading.Lock()
         self._origin_seq = 0
         self._writer_seq = 0
+        #: the robot's wall clock (the agent's, which ``[clock] shift_s`` can shift)
+        self.wall_ns: Callable[[], int] = time.time_ns
 
     def send(self, _now_s: float) -> None:
         """A scheduler job: originate one Hello, and expire the ones past their timeout."""
         with self._lock:
             self._origin_seq += 1
             origin_seq = self._origin_seq
-        t0_ns = time.time_ns()
+        t0_ns = self.wall_ns()
         self.tracker.on_sent(origin_seq, t0_ns)
         self._put(Hello(self.writer, 0, 0, self.robot_id, origin_seq, t0_ns, 0))
-        self.tracker.expire(time.time_ns())
+        self.tracker.expire(self.wall_ns())
 
     def on_hop(self, hello: Hello) -> bool:
         """A hop from the CEDDP; False if it is no hop this robot should get (counted by the
@@ -120,7 +123,7 @@ class HelloProbe:
             self._put(msgspec.structs.replace(hello, stage=2))
             return True
         if hello.stage == 3 and hello.origin == self.robot_id:
-            self.tracker.on_returned(hello.origin_seq, time.time_ns())
+            self.tracker.on_returned(hello.origin_seq, self.wall_ns())
             return True
         log.warning("unexpected Hello stage %d from %s", hello.stage, hello.writer)
         return False
@@ -130,13 +133,13 @@ class HelloProbe:
         deadline = time.monotonic() + timeout_s
         while self.tracker.outstanding and time.monotonic() < deadline:
             time.sleep(0.01)
-        self.tracker.expire(time.time_ns(), all_outstanding=True)
+        self.tracker.expire(self.wall_ns(), all_outstanding=True)
 
     def _put(self, hello: Hello) -> None:
         with self._lock:
             self._writer_seq += 1
             seq = self._writer_seq
         stamped = msgspec.structs.replace(
-            hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns()
+            hello, writer=self.writer, seq=seq, stamp_ns=self.wall_ns()
         )
         self.outlet.send(encode(stamped), stamped.stamp_ns)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import logging
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +60,8 @@ class SensorChannel:
     unacked: collections.deque[tuple[int, int]] = field(
         default_factory=lambda: collections.deque(maxlen=100_000)
     )
+    #: the robot's wall clock for stamps (the agent's, which ``[clock] shift_s`` can shift)
+    wall_ns: Callable[[], int] = time.time_ns
 
     def counters(self) -> TopicCounters:
         c = self.cache.counters
@@ -148,7 +151,7 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
                 exc,
             )
         return
-    stamp_ns = time.time_ns()
+    stamp_ns = sensor.wall_ns()
     if sensor.last_read is None or not same_value(
         value,
         sensor.last_read,  # type: ignore[arg-type]
