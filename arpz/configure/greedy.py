@@ -12,6 +12,13 @@ next to the code and collected in docs/configure.md ("Greedy: interpretations"):
   w (P_next - P_now) / (U_next - U_now); "R_c.free > 0" is read as "the next setting fits".
 * A "full" computer (Algorithm 1, line 9) is one where some node could still be upgraded but its
   next setting does not fit in the free capacity (free == 0 with 1 % steps, as in the paper).
+* ``reading="authors"`` (the default) follows the authors' code where the pseudo-code is vague
+  (perf_ros, src/tool/greedy_1.py): the gradient of a node is the gain of the step it last took
+  (``node.ratio = new_perf - old_perf`` after each 1 % step; before its first step, the gain of
+  that step), and Algorithm 1 lines 10-11 move a node that has not reached its maximum only to a
+  computer where its MAXIMUM setting fits (``feasible(settings[1], computer_new, ...)``), then
+  upgrade it at once. ``reading="literal"`` is the pseudo-code read on its own: the gain of the
+  NEXT step, and a move wherever the current setting fits. docs/configure.md compares both.
 * Algorithm 3 puts a node on the first computer in C_min (ascending capacity, servers at 0) where
   it fits, and grows a server only when none fits: read literally, the zero-capacity servers that
   head C_min would take every node and the robots would stay empty.
@@ -20,6 +27,7 @@ next to the code and collected in docs/configure.md ("Greedy: interpretations"):
 from __future__ import annotations
 
 import time
+from typing import Literal
 
 from arpz.configure.problem import Problem
 from arpz.configure.solution import Solution, build_solution, no_solution
@@ -27,11 +35,15 @@ from arpz.configure.state import EPS, State
 
 METHOD = "greedy"
 
+#: how Algorithm 2's gradient and Algorithm 1's moves are read (module docstring)
+Reading = Literal["authors", "literal"]
+READINGS: tuple[Reading, ...] = ("authors", "literal")
 
-def solve(problem: Problem) -> Solution:
+
+def solve(problem: Problem, *, reading: Reading = "authors") -> Solution:
     start = time.perf_counter()
     if problem.kind == 1:
-        state, failure = _problem1(problem)
+        state, failure = _problem1(problem, reading)
     else:
         state, failure = _problem2(problem)
     elapsed = time.perf_counter() - start
@@ -80,21 +92,26 @@ def initial_allocation(problem: Problem, state: State) -> str:
     return ""
 
 
-def _gradient(problem: Problem, state: State, n: int) -> float:
+def _gradient(problem: Problem, state: State, n: int, reading: Reading = "literal") -> float:
+    """Weighted performance gain per CPU unit: of the next step (literal), or of the step last
+    taken (authors; the first step's before any), -inf when the node is at its maximum."""
     opts = problem.options[n]
     k = state.level[n]
     if k + 1 >= len(opts):
         return float("-inf")
-    du = opts[k + 1][0] - opts[k][0]
-    dp = problem.weight[n] * (opts[k + 1][1] - opts[k][1])
+    low = k - 1 if reading == "authors" and k > 0 else k
+    du = opts[low + 1][0] - opts[low][0]
+    dp = problem.weight[n] * (opts[low + 1][1] - opts[low][1])
     return dp / du if du > EPS else float("inf")
 
 
-def upgrade_conf_nodes(problem: Problem, state: State, configurable: list[int]) -> None:
+def upgrade_conf_nodes(
+    problem: Problem, state: State, configurable: list[int], reading: Reading = "literal"
+) -> None:
     """Algorithm 2: raise the best-gradient node one step while its computer has room."""
     pending = [n for n in configurable if state.level[n] + 1 < len(problem.options[n])]
     while pending:
-        n = max(pending, key=lambda m: _gradient(problem, state, m))
+        n = max(pending, key=lambda m: _gradient(problem, state, m, reading))
         opts = problem.options[n]
         k = state.level[n]
         if k + 1 >= len(opts):
@@ -122,44 +139,56 @@ def _full(problem: Problem, state: State, c: int) -> bool:
     return False
 
 
-def _unit_gradient(problem: Problem, state: State, u: int) -> float:
-    return max(_gradient(problem, state, n) for n in problem.units[u])
+def _unit_gradient(problem: Problem, state: State, u: int, reading: Reading = "literal") -> float:
+    return max(_gradient(problem, state, n, reading) for n in problem.units[u])
 
 
-def _relocate(problem: Problem, state: State, *, only_upgradable: bool) -> None:
+def _max_cpu(problem: Problem, u: int) -> float:
+    return sum(problem.options[n][-1][0] for n in problem.units[u])
+
+
+def _relocate(
+    problem: Problem, state: State, *, only_upgradable: bool, reading: Reading = "literal"
+) -> None:
     """Algorithm 1 lines 9-11 (only_upgradable) and 13-15: move nodes off full computers to the
-    non-full computer with the most free capacity that can hold them, best gradient first."""
+    non-full computer with the most free capacity that can hold them, best gradient first.
+
+    Lines 10-11 under the authors' reading: the target must hold the unit at its maximum
+    settings, and the moved unit is upgraded at once (greedy_1.py's ``gradients_aux``)."""
+    authors = only_upgradable and reading == "authors"
     n_comp = len(problem.computers)
     full = [c for c in range(n_comp) if _full(problem, state, c)]
     not_full = [c for c in range(n_comp) if c not in full]
     for c in full:
         here = sorted({problem.unit_of[n] for n, w in enumerate(state.computer) if w == c})
         if only_upgradable:
-            here = [u for u in here if _unit_gradient(problem, state, u) > float("-inf")]
-        here.sort(key=lambda u: -_unit_gradient(problem, state, u))
+            here = [u for u in here if _unit_gradient(problem, state, u, reading) > float("-inf")]
+        here.sort(key=lambda u: -_unit_gradient(problem, state, u, reading))
         for u in here:
+            need = _max_cpu(problem, u) if authors else state.unit_cpu(u)
             targets = [d for d in not_full if d in problem.unit_allowed[u]]
             best = None
             for d in targets:
-                if state.free(d) + EPS >= state.unit_cpu(u) and (
+                if state.free(d) + EPS >= need and (
                     best is None or state.free(d) > state.free(best) + EPS
                 ):
                     best = d
-            if best is not None:
-                state.move(u, best)
+            if best is not None and state.move(u, best) and authors:
+                moved = [n for n in problem.units[u] if len(problem.options[n]) > 1]
+                upgrade_conf_nodes(problem, state, moved, reading)
 
 
-def _problem1(problem: Problem) -> tuple[State | None, str]:
+def _problem1(problem: Problem, reading: Reading = "authors") -> tuple[State | None, str]:
     state = State(problem)
     failure = initial_allocation(problem, state)
     if failure:
         return None, failure
     configurable = [n for n in range(len(problem.nodes)) if len(problem.options[n]) > 1]
-    upgrade_conf_nodes(problem, state, configurable)
-    _relocate(problem, state, only_upgradable=True)
-    upgrade_conf_nodes(problem, state, configurable)
-    _relocate(problem, state, only_upgradable=False)
-    upgrade_conf_nodes(problem, state, configurable)
+    upgrade_conf_nodes(problem, state, configurable, reading)
+    _relocate(problem, state, only_upgradable=True, reading=reading)
+    upgrade_conf_nodes(problem, state, configurable, reading)
+    _relocate(problem, state, only_upgradable=False, reading=reading)
+    upgrade_conf_nodes(problem, state, configurable, reading)
     return state, ""
 
 
