@@ -386,6 +386,16 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     rrd: str = "ceddp.rrd"
     #: serve a live gRPC sink for a Rerun viewer on this port (0 = off)
     grpc_port: int = 0
+    #: serve the Rerun web viewer on this port, connected to ``grpc_port`` (0 = off;
+    #: docs/tools-live.md); the status page links to it
+    rerun_web_port: int = 0
+    #: serve the fleet status page, ``/api/status`` and Prometheus ``/metrics`` on this port
+    #: (0 = off; docs/tools-live.md)
+    web_port: int = 0
+    #: serve a Foxglove WebSocket server (live sensor topics and metrics) on this port (0 = off)
+    foxglove_port: int = 0
+    #: the address ``web_port`` and ``foxglove_port`` bind ("0.0.0.0": every interface)
+    live_host: str = "127.0.0.1"
     #: a JSON summary written at shutdown (None = not written), and every summary_period_s
     #: while running ("complete": false), so that a killed CEDDP leaves one to reconcile against
     summary_json: str | None = None
@@ -423,6 +433,7 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
         check_endpoints(self.connect, field="connect")
         if not 0 <= self.grpc_port <= 65535:
             raise ValueError(f"grpc_port must be 0..65535, got {self.grpc_port}")
+        self._check_live_ports()
         if self.metrics_period_s <= 0:
             raise ValueError("metrics_period_s must be > 0")
         if self.summary_period_s < 0:
@@ -432,6 +443,29 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
         for name in ("ingest_queue_limit", "control_queue_limit", "max_report_bytes"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+
+    def _check_live_ports(self) -> None:
+        """The live views' ports (docs/tools-live.md): each 0..65535, no two the same, and the
+        Rerun web viewer only with the gRPC server it shows."""
+        ports = {
+            name: getattr(self, name)
+            for name in ("grpc_port", "rerun_web_port", "web_port", "foxglove_port")
+        }
+        for name, port in ports.items():
+            if not 0 <= port <= 65535:
+                raise ValueError(f"{name} must be 0..65535 (0 = off), got {port}")
+        used: dict[int, str] = {}
+        for name, port in ports.items():
+            if port and port in used:
+                raise ValueError(f"{name} and {used[port]} are both {port}: give each its own port")
+            used.setdefault(port, name)
+        if self.rerun_web_port and not self.grpc_port:
+            raise ValueError(
+                "rerun_web_port needs grpc_port: the web viewer shows the live recording the "
+                "gRPC server serves; set grpc_port too"
+            )
+        if not self.live_host:
+            raise ValueError('live_host must be an address to bind, such as "127.0.0.1"')
 
 
 T = TypeVar("T", bound=msgspec.Struct)

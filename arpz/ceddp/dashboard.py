@@ -27,6 +27,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from arpz.errors import ConfigError
 from arpz.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
 
 log = logging.getLogger(__name__)
@@ -246,6 +247,21 @@ def rrd_recording_ids(path: Path) -> list[str]:
         # a CEDDP killed hard leaves no footer; the file still reads by scanning it
         warnings.simplefilter("ignore")
         return [e.recording_id for e in RrdReader(str(path)).recordings()]
+
+
+def serve_web_viewer(web_port: int) -> None:
+    """Serve Rerun's web viewer (from the rerun-sdk wheel, on every interface) on ``web_port``
+    (``rerun_web_port``): a browser opening it with ``?url=rerun+http://HOST:GRPC_PORT/proxy``
+    shows the live recording of the dashboard's gRPC server (``grpc_port``). The status page
+    builds that link. The viewer runs until the process exits; a port in use is a ConfigError
+    naming the setting."""
+    try:
+        rr.serve_web_viewer(web_port=web_port, open_browser=False)
+    except RuntimeError as exc:
+        raise ConfigError(
+            f"rerun_web_port {web_port} cannot be served: {exc}; choose another rerun_web_port "
+            "(or 0 to turn the Rerun web viewer off)"
+        ) from None
 
 
 def merge_rrd(files: list[Path], merged: Path, *, timeout_s: float) -> str | None:

@@ -74,6 +74,11 @@ class MetricsTicker:
         self._last_path = sensor_path()
         #: where CeddpStats go (opened by the server at start)
         self.stats_out: Outlet | None = None
+        #: the last interval's frame (None before the first tick): what the status page and
+        #: /metrics show of rates and percentiles (docs/tools-live.md); replaced, never changed
+        self.last_frame: MetricsFrame | None = None
+        #: called with every frame on this thread; each must return at once (a queue put)
+        self.frame_listeners: list[Callable[[MetricsFrame], None]] = []
         self._last: tuple[float, float, dict[tuple[str, str], tuple[int, int]]] = (
             time.monotonic(),
             time.process_time(),
@@ -168,15 +173,19 @@ class MetricsTicker:
         self._last = (now, cpu, counts)
         cpu_percent = 100.0 * (cpu - last_cpu) / interval_s
         load = self._judge_load(interval_s, percentile(latencies, 99) if latencies else None)
+        ceddp_row = robots.setdefault("ceddp", {})
+        ceddp_row["cpu_percent"] = cpu_percent
+        ceddp_row["ingest_load"] = load.load
+        if self.governor.capacity_hz is not None:
+            ceddp_row["capacity_hz"] = self.governor.capacity_hz
+        if self.governor.budget_hz is not None:
+            ceddp_row["budget_hz"] = self.governor.budget_hz
+        frame = MetricsFrame(time.time_ns(), frame_topics, robots)
+        self.last_frame = frame
         if self.dashboard is not None:
-            ceddp_row = robots.setdefault("ceddp", {})
-            ceddp_row["cpu_percent"] = cpu_percent
-            ceddp_row["ingest_load"] = load.load
-            if self.governor.capacity_hz is not None:
-                ceddp_row["capacity_hz"] = self.governor.capacity_hz
-            if self.governor.budget_hz is not None:
-                ceddp_row["budget_hz"] = self.governor.budget_hz
-            self.dashboard.submit(MetricsFrame(time.time_ns(), frame_topics, robots))
+            self.dashboard.submit(frame)
+        for listener in self.frame_listeners:
+            listener(frame)
         try:
             if self.stats_out is not None:
                 governor = self.governor

@@ -20,7 +20,7 @@ import threading
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -36,6 +36,7 @@ from arpz.ceddp.metrics import MetricsTicker
 from arpz.ceddp.mission import MissionRunner
 from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
+from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, robot_summary
 from arpz.channel_io import Inlet, Outlet
 from arpz.config import CeddpConfig
@@ -43,6 +44,10 @@ from arpz.frames import DashboardLike, Event, WorldMap, WorldView
 from arpz.messages import new_incarnation, writer_id
 from arpz.mission.judge import MissionResult
 from arpz.transport import Transport
+
+if TYPE_CHECKING:  # imported when their port is set (docs/tools-live.md)
+    from arpz.ceddp.foxglove_live import FoxgloveLive
+    from arpz.ceddp.web import StatusWeb
 
 log = logging.getLogger(__name__)
 
@@ -136,6 +141,18 @@ class CeddpServer:
             clock=self.clock,
             identity=identity_of(config),
         )
+        #: the fleet's state for the live views (read-only, docs/tools-live.md)
+        self.status = StatusReader(
+            config,
+            self.ingest,
+            self.control.robots,
+            lambda: self.metrics.last_frame,
+            processed=lambda: self.intake.processed,
+            channel=lambda: self.intake.reader.stats() if self.intake.reader else None,
+            views_dropped=self._views_dropped,
+        )
+        self.foxglove: FoxgloveLive | None = None
+        self.web: StatusWeb | None = None
         self._reports: Inlet | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -167,8 +184,39 @@ class CeddpServer:
         self.ingest.load_previous_run(seen)
         self._event(f"previous run's summary {path}: {len(seen)} topics it had received")
 
+    def _start_live_views(self) -> None:
+        """The Rerun web viewer, Foxglove and the status page, each when its port is set
+        (docs/tools-live.md), before anything else starts: a port in use raises ConfigError
+        naming its setting."""
+        cfg = self.config
+        if cfg.rerun_web_port:
+            from arpz.ceddp.dashboard import serve_web_viewer
+
+            serve_web_viewer(cfg.rerun_web_port)
+        if cfg.foxglove_port:
+            from arpz.ceddp.foxglove_live import FoxgloveLive
+
+            self.foxglove = FoxgloveLive(
+                host=cfg.live_host, port=cfg.foxglove_port, kind_of=self.status.kind_of
+            )
+            self.planners.append(self.foxglove)  # fed like a planner, started and stopped so
+            self.metrics.frame_listeners.append(self.foxglove.on_metrics)
+        if cfg.web_port:
+            from arpz.ceddp.web import StatusWeb
+
+            self.web = StatusWeb(self.status.read, host=cfg.live_host, port=cfg.web_port)
+            self.web.start()
+
+    def _views_dropped(self) -> dict[str, int]:
+        """Frames each live view dropped because it fell behind."""
+        dropped = {"rerun": self.dashboard.dropped} if self.dashboard is not None else {}
+        if self.foxglove is not None:
+            dropped["foxglove"] = self.foxglove.dropped
+        return dropped
+
     def start(self) -> None:
         cfg = self.config
+        self._start_live_views()
         self._load_previous_run()
         fleet = cfg.fleet
         control = self.control
@@ -231,6 +279,8 @@ class CeddpServer:
         """Process what is queued, log a last frame, close the dashboard, write the summary."""
         for planner in self.planners:
             planner.stop()
+        if self.web is not None:
+            self.web.close()
         self._stop.set()
         self.intake.stop()
         if self.clock_service is not None:
@@ -347,6 +397,7 @@ class CeddpServer:
                 },
             },
             "dashboard": {"rrd": self.config.rrd, "dropped": 0},
+            "foxglove": self.foxglove.counters() if self.foxglove is not None else None,
             "qos": qos_summary(self.qos) if self.qos is not None else None,
             "overload": self.metrics.governor.summary(),
             "clock": {

@@ -1,0 +1,328 @@
+"""The fleet's state now, read-only: what the status page, ``/api/status`` and ``/metrics`` show.
+
+``StatusReader.read`` copies what it needs out of the CEDDP's live state into frozen Structs and
+returns them; nothing it returns is shared with the ingest, so a web request never holds a lock
+longer than the copy. Counters (received, lost, bytes, the robots' own channel counters) are read
+at the moment of the call; figures of an interval (rates, latency and staleness percentiles, the
+CEDDP's CPU and load) come from the metrics ticker's last frame, so a request never takes the
+ticker's windows away from the dashboard. Clock offsets appear when the frame carries them
+(``clock_offset_ms`` / ``clock_delay_ms``), None otherwise.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+
+import msgspec
+
+from arpz.ceddp.control import RobotRecord
+from arpz.ceddp.ingest import Ingest
+from arpz.config import CeddpConfig
+from arpz.frames import MetricsFrame
+from arpz.messages import TopicCounters
+from arpz.protocol.reader_machine import ReaderStats
+
+#: the row of the CEDDP itself in a MetricsFrame's ``robots`` (metrics.py)
+CEDDP_ROW = "ceddp"
+
+
+class TopicStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """One robot topic: the CEDDP's counters now, the last interval's figures, and what the
+    robot reported of it (its reliable channel's side of the link)."""
+
+    topic: str
+    #: the sensor kind the robot announced (None until it did)
+    kind: str | None
+    received: int
+    bytes: int
+    #: sequence gaps plus what the writer sent before this CEDDP heard it (not the tail after
+    #: the last arrival, which only the robot's final report reveals: see the summary)
+    lost: int
+    decode_errors: int
+    cc_discarded: int
+    #: seconds since the last sample arrived (None: none yet)
+    last_sample_age_s: float | None
+    rate_hz: float | None
+    bytes_per_s: float | None
+    latency_ms_p50: float | None
+    latency_ms_p99: float | None
+    staleness_ms_p99: float | None
+    #: from the robot's last stats report (0 before the first)
+    sent: int
+    held_back: int
+    retransmitted: int
+    gapped: int
+    deadline_missed: int
+    write_failures: int
+
+
+class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """One robot: presence, the QoS assignment in force, link quality (sums over its sensor
+    topics), and its topics."""
+
+    robot: str
+    alive: bool
+    joins: int
+    leaves: int
+    #: "channel" or "none" (None until its mode token was seen)
+    mode: str | None
+    cpu_percent: float | None
+    #: the CEDDP QoS assignment the robot runs (epoch 0: none, its own config)
+    qos_epoch: int
+    qos_rate_hz: float | None
+    qos_depth: int | None
+    received: int
+    lost: int
+    #: lost / (received + lost), 0..1 (None: nothing yet)
+    loss_ratio: float | None
+    sent: int
+    retransmitted: int
+    #: samples the robot answered with GAP (a NACK came too late: lost for sure)
+    gapped: int
+    #: retransmitted / sent, 0..1 (None: nothing sent yet)
+    retransmit_ratio: float | None
+    deadline_missed: int
+    rate_hz: float | None
+    latency_ms_p99: float | None
+    staleness_ms_p99: float | None
+    last_sample_age_s: float | None
+    hello_rtt_ms_p50: float | None
+    clock_offset_ms: float | None
+    clock_delay_ms: float | None
+    incompatible_qos: list[str]
+    topics: list[TopicStatus]
+
+
+class ChannelStatus(msgspec.Struct, frozen=True, kw_only=True):
+    """The CEDDP's sensor reader of the reliable channel (all robots together)."""
+
+    delivered: int
+    lost: int
+    retransmitted: int
+    nacks: int
+    gaps: int
+    deadline_missed: int
+    matched: int
+
+
+class CeddpStatus(msgspec.Struct, frozen=True, kw_only=True):
+    cpu_percent: float | None
+    #: share of the last interval the sensor path worked, 0..1
+    ingest_load: float | None
+    capacity_hz: float | None
+    budget_hz: float | None
+    processed: int
+    #: None in plain mode (``reliability = "none"``)
+    channel: ChannelStatus | None
+
+
+class FleetStatus(msgspec.Struct, frozen=True, kw_only=True):
+    fleet: str
+    partition: str
+    stamp_ns: int
+    uptime_s: float
+    #: when the interval figures were measured (0: no interval yet)
+    metrics_stamp_ns: int
+    ceddp: CeddpStatus
+    robots: list[RobotStatus]
+    #: the live views' ports (0: off): the page builds its links from them
+    grpc_port: int
+    rerun_web_port: int
+    foxglove_port: int
+    #: per live view, frames it dropped because it fell behind (never slowing ingest)
+    views_dropped: dict[str, int]
+
+
+class StatusReader:
+    """Reads a ``FleetStatus`` from the CEDDP's parts; safe to call from any thread."""
+
+    def __init__(
+        self,
+        config: CeddpConfig,
+        ingest: Ingest,
+        robots: dict[str, RobotRecord],
+        last_frame: Callable[[], MetricsFrame | None],
+        *,
+        processed: Callable[[], int],
+        channel: Callable[[], ReaderStats | None],
+        views_dropped: Callable[[], dict[str, int]] = dict,
+    ) -> None:
+        self.config = config
+        self.ingest = ingest
+        self.robots = robots
+        self._last_frame = last_frame
+        self._processed = processed
+        self._channel = channel
+        self._views_dropped = views_dropped
+        self._started_ns = time.time_ns()
+
+    def kind_of(self, robot: str, topic: str) -> str | None:
+        """The sensor kind ``robot`` announced for ``topic`` (None: not announced yet)."""
+        with self.ingest.lock:
+            return _kind(self.robots.get(robot), topic)
+
+    def read(self) -> FleetStatus:
+        now_ns = time.time_ns()
+        frame = self._last_frame()
+        frame_topics = frame.topics if frame is not None else {}
+        frame_robots = frame.robots if frame is not None else {}
+        ingest = self.ingest
+        per_robot: dict[str, list[TopicStatus]] = {}
+        with ingest.lock:
+            records = {name: _copy(record) for name, record in self.robots.items()}
+            for (robot, topic), m in sorted(ingest.topics.items()):
+                if topic == "hello":
+                    continue
+                record = records.get(robot)
+                stats = record.stats if record is not None else None
+                counters = stats.topics.get(topic) if stats is not None else None
+                row = frame_topics.get((robot, topic), {})
+                per_robot.setdefault(robot, []).append(
+                    TopicStatus(
+                        topic=topic,
+                        kind=_kind(record, topic),
+                        received=m.received,
+                        bytes=m.bytes,
+                        lost=m.lost + m.before_join,
+                        decode_errors=m.decode_errors,
+                        cc_discarded=ingest.cache_counters(robot, topic).hits,
+                        last_sample_age_s=(
+                            round(max(now_ns - m.last_arrival_ns, 0) / 1e9, 3)
+                            if m.last_arrival_ns
+                            else None
+                        ),
+                        rate_hz=row.get("rate_hz"),
+                        bytes_per_s=row.get("bytes_per_s"),
+                        latency_ms_p50=row.get("latency_ms_p50"),
+                        latency_ms_p99=row.get("latency_ms_p99"),
+                        staleness_ms_p99=row.get("staleness_ms_p99"),
+                        **_robot_side(counters),
+                    )
+                )
+        names = sorted((set(per_robot) | set(records)) - {CEDDP_ROW})
+        robots = [
+            _robot_status(
+                name,
+                records.get(name, RobotRecord()),
+                per_robot.get(name, []),
+                frame_robots.get(name, {}),
+            )
+            for name in names
+        ]
+        ceddp_row = frame_robots.get(CEDDP_ROW, {})
+        reader = self._channel()
+        cfg = self.config
+        return FleetStatus(
+            fleet=cfg.fleet,
+            partition=cfg.partition,
+            stamp_ns=now_ns,
+            uptime_s=round((now_ns - self._started_ns) / 1e9, 3),
+            metrics_stamp_ns=frame.stamp_ns if frame is not None else 0,
+            ceddp=CeddpStatus(
+                cpu_percent=ceddp_row.get("cpu_percent"),
+                ingest_load=ceddp_row.get("ingest_load"),
+                capacity_hz=ceddp_row.get("capacity_hz"),
+                budget_hz=ceddp_row.get("budget_hz"),
+                processed=self._processed(),
+                channel=(
+                    ChannelStatus(
+                        delivered=reader.delivered,
+                        lost=reader.lost,
+                        retransmitted=reader.retransmitted,
+                        nacks=reader.nacks,
+                        gaps=reader.gaps,
+                        deadline_missed=reader.deadline_missed,
+                        matched=reader.matched,
+                    )
+                    if reader is not None
+                    else None
+                ),
+            ),
+            robots=robots,
+            grpc_port=cfg.grpc_port,
+            rerun_web_port=cfg.rerun_web_port,
+            foxglove_port=cfg.foxglove_port,
+            views_dropped=self._views_dropped(),
+        )
+
+
+def _copy(record: RobotRecord) -> RobotRecord:
+    """The fields the status reads, taken under the lock (the record itself keeps changing)."""
+    return RobotRecord(
+        alive=record.alive,
+        joins=record.joins,
+        leaves=record.leaves,
+        stats=record.stats,
+        announce=record.announce,
+        mode=record.mode,
+        incompatible=list(record.incompatible),
+    )
+
+
+def _kind(record: RobotRecord | None, topic: str) -> str | None:
+    if record is None or record.announce is None:
+        return None
+    for info in record.announce.sensors:
+        if info.topic == topic:
+            return info.kind
+    return None
+
+
+def _robot_side(counters: TopicCounters | None) -> dict[str, int]:
+    c = counters or TopicCounters()
+    return {
+        "sent": c.sent,
+        "held_back": c.held_back,
+        "retransmitted": c.retransmitted,
+        "gapped": c.gapped,
+        "deadline_missed": c.deadline_missed,
+        "write_failures": c.write_failures,
+    }
+
+
+def _robot_status(
+    name: str, record: RobotRecord, topics: list[TopicStatus], row: dict[str, float]
+) -> RobotStatus:
+    stats = record.stats
+    received = sum(t.received for t in topics)
+    lost = sum(t.lost for t in topics)
+    sent = sum(t.sent for t in topics)
+    retransmitted = sum(t.retransmitted for t in topics)
+    rates = [t.rate_hz for t in topics if t.rate_hz is not None]
+    ages = [t.last_sample_age_s for t in topics if t.last_sample_age_s is not None]
+    return RobotStatus(
+        robot=name,
+        alive=record.alive,
+        joins=record.joins,
+        leaves=record.leaves,
+        mode=record.mode,
+        cpu_percent=stats.cpu_percent if stats is not None else None,
+        qos_epoch=stats.qos_epoch if stats is not None else 0,
+        qos_rate_hz=stats.qos_rate_hz if stats is not None else None,
+        qos_depth=stats.qos_depth if stats is not None else None,
+        received=received,
+        lost=lost,
+        loss_ratio=lost / (received + lost) if received + lost else None,
+        sent=sent,
+        retransmitted=retransmitted,
+        gapped=sum(t.gapped for t in topics),
+        retransmit_ratio=retransmitted / sent if sent else None,
+        deadline_missed=sum(t.deadline_missed for t in topics),
+        rate_hz=sum(rates) if rates else None,
+        latency_ms_p99=_worst(t.latency_ms_p99 for t in topics),
+        staleness_ms_p99=_worst(t.staleness_ms_p99 for t in topics),
+        last_sample_age_s=min(ages) if ages else None,
+        hello_rtt_ms_p50=row.get("hello_rtt_ms_p50"),
+        clock_offset_ms=row.get("clock_offset_ms"),
+        clock_delay_ms=row.get("clock_delay_ms"),
+        incompatible_qos=record.incompatible
+        + [f"(robot side) {line}" for line in (stats.incompatible_qos if stats else [])],
+        topics=topics,
+    )
+
+
+def _worst(values: Iterable[float | None]) -> float | None:
+    """The largest of the topics' figures (a robot is as late as its latest topic)."""
+    present = [v for v in values if v is not None]
+    return max(present) if present else None
