@@ -16,8 +16,8 @@ import msgspec
 TOPIC_METRICS: dict[str, str] = {
     "rate_hz": "arrival rate (Hz)",
     "bytes_per_s": "bytes/s",
-    "latency_ms_p50": "latency p50 (ms)",
-    "latency_ms_p99": "latency p99 (ms)",
+    "latency_ms_p50": "latency p50 (ms, on the CEDDP's clock: robot clock offset corrected)",
+    "latency_ms_p99": "latency p99 (ms, on the CEDDP's clock: robot clock offset corrected)",
     "lost": "lost (cumulative)",
     "held_back": "held back by local cache (cumulative)",
     "cc_discarded": "discarded by cache control (cumulative)",
@@ -37,6 +37,9 @@ ROBOT_METRICS: dict[str, str] = {
     "ingest_load": "CEDDP ingest load (share of time not waiting for samples)",
     "capacity_hz": "CEDDP measured capacity (samples per busy second)",
     "budget_hz": "fleet rate budget of the overload governor (samples/s)",
+    "clock_offset_ms": "clock offset to the CEDDP (ms, CEDDP - robot; latencies corrected by it)",
+    "clock_delay_ms": "clock exchange round trip (ms; the offset is right within half of it)",
+    "clock_over_bound": "clock offset beyond [clock] max_offset_ms (1 = flagged)",
 }
 TIMELINE = "time"
 

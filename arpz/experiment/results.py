@@ -39,6 +39,10 @@ COLUMNS: tuple[str, ...] = (
     # every sensor sample of every robot
     "sample_latency_ms_p50",
     "sample_latency_ms_p99",
+    # sample latencies on the CEDDP's clock: every robot's clock offset taken out (true/false),
+    # and the largest |offset| measured (ms)
+    "clock_corrected",
+    "clock_offset_ms_max",
     "sample_loss_pct",
     "samples_produced",
     "samples_sent",
@@ -354,6 +358,7 @@ def row_from_summary(
         "hello_lost": hello.get("lost"),
         "sample_latency_ms_p50": max(p50s) if p50s else None,
         "sample_latency_ms_p99": max(p99s) if p99s else None,
+        **clock(rows),
         "sample_loss_pct": _pct(lost, sent),
         "samples_produced": _sum(rows, "produced"),
         "samples_sent": sent,
@@ -389,6 +394,20 @@ def row_from_summary(
         "measured_s": measured_s,
         "wall_s": wall_s,
         "rrd": rrd,
+    }
+
+
+def clock(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Whether every robot's sample latency was corrected by its clock offset, and the largest
+    |offset| (None: no robot reported one, e.g. a summary from before clock offsets)."""
+    offsets = [
+        abs(float(r["clock"]["offset_ms"]))
+        for r in rows
+        if isinstance(r.get("clock"), dict) and r["clock"].get("offset_ms") is not None
+    ]
+    return {
+        "clock_corrected": bool(rows) and all(r.get("clock_corrected") for r in rows),
+        "clock_offset_ms_max": max(offsets) if offsets else None,
     }
 
 

@@ -73,6 +73,10 @@ class RobotRow:
     staleness_ms_p99: float | None
     #: the largest latency of any of its samples (None from a CEDDP that does not report it)
     latency_ms_max: float | None = None
+    #: its latencies were measured on the CEDDP's clock (its clock offset taken out), and the
+    #: offset used (ms; None: none measured)
+    clock_corrected: bool = False
+    clock_offset_ms: float | None = None
 
     @property
     def reconciled(self) -> bool:
@@ -149,6 +153,9 @@ class FleetPoint:
     generator_limited: bool
     failures: list[str] = field(default_factory=list)
     latency_ms_max: float | None = None
+    #: every robot's latency was corrected by its clock offset, and the largest |offset| (ms)
+    clock_corrected: bool = False
+    clock_offset_ms_max: float | None = None
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -185,6 +192,8 @@ def robot_rows(
                 latency_ms_p99=_num(row, "latency_ms_p99"),
                 staleness_ms_p99=_num(row, "staleness_ms_p99"),
                 latency_ms_max=_num(row, "latency_ms_max"),
+                clock_corrected=bool(row.get("clock_corrected", False)),
+                clock_offset_ms=_num(row.get("clock") or {}, "offset_ms"),
             )
         )
     return rows
@@ -304,6 +313,10 @@ def fleet_point(
         latency_ms_p99=_worst(r.latency_ms_p99 for r in rows),
         staleness_ms_p99=_worst(r.staleness_ms_p99 for r in rows),
         latency_ms_max=_worst(r.latency_ms_max for r in rows),
+        clock_corrected=bool(rows) and all(r.clock_corrected for r in rows),
+        clock_offset_ms_max=_worst(
+            abs(r.clock_offset_ms) for r in rows if r.clock_offset_ms is not None
+        ),
         ceddp_cpu_cores=sum(cpus) if cpus else None,
         ceddp_rss_mb=sum(rss) if rss else None,
         ceddp_cpu_us_per_sample=per_sample_us(sum(cpus) if cpus else None, window_s, delivered),
@@ -468,7 +481,12 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"{p.sent_ratio:.3f} of it, delivered {p.delivered_per_s:,.0f}/s "
         f"({p.delivered_ratio:.3f} of offered), lost {p.lost}, latency p50 "
         f"{_fmt(p.latency_ms_p50)} ms, p99 (worst robot) {_fmt(p.latency_ms_p99)} ms, "
-        f"max {_fmt(p.latency_ms_max)} ms, staleness p99 {_fmt(p.staleness_ms_p99)} ms"
+        f"max {_fmt(p.latency_ms_max)} ms, staleness p99 {_fmt(p.staleness_ms_p99)} ms, "
+        + (
+            f"clock corrected (largest |offset| {_fmt(p.clock_offset_ms_max)} ms)"
+            if p.clock_corrected
+            else "NOT clock corrected (some robot reported no clock offset)"
+        )
     )
     lines.append(
         f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "

@@ -1,0 +1,49 @@
+"""The robot's clock exchanges against the CEDDP's clock service, on the in-memory bus."""
+
+from __future__ import annotations
+
+import time
+
+from arpz.ceddp.clock_service import ClockService
+from arpz.config import RobotClockConfig
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.robot.clock_sync import ClockSync
+
+
+def test_a_shifted_robot_measures_its_shift_against_the_ceddp() -> None:
+    bus = MemoryBus()
+    service = ClockService(MemoryTransport(bus), "f")
+    service.start()
+    sync = ClockSync(RobotClockConfig(shift_s=0.25, burst=3), MemoryTransport(bus), "f")
+    assert sync.first_estimate(1.0)
+    stats = sync.stats()
+    assert stats.offset_ns is not None and stats.delay_ns is not None
+    # the CEDDP's clock minus the robot's: -shift, within the in-process round trip
+    assert abs(stats.offset_ns + 250_000_000) <= stats.delay_ns / 2 + 1_000_000
+    assert (stats.requests, stats.replies, stats.samples) == (3, 3, 3)
+    assert service.answered == 3
+    sync.exchange()
+    assert sync.stats().samples == 6
+
+
+def test_without_a_clock_service_there_is_no_estimate_and_it_says_so() -> None:
+    sync = ClockSync(RobotClockConfig(burst=2), MemoryTransport(MemoryBus()), "f")
+    assert not sync.first_estimate(0.01)
+    stats = sync.stats()
+    assert stats.offset_ns is None and (stats.requests, stats.replies) == (2, 0)
+
+
+def test_bad_requests_and_bad_replies_are_counted_not_used() -> None:
+    bus = MemoryBus()
+    server = MemoryTransport(bus)
+    service = ClockService(server, "f")
+    assert service.answer(b"\xc1") is None and service.bad_requests == 1
+    server.serve("arpz/f/ceddp/clock", lambda payload: b"not msgpack \xc1")
+    sync = ClockSync(RobotClockConfig(burst=1), MemoryTransport(bus), "f")
+    sync.exchange()
+    assert sync.bad_replies == 1 and sync.stats().offset_ns is None
+
+
+def test_the_wall_clock_of_a_robot_is_shifted_by_shift_s() -> None:
+    sync = ClockSync(RobotClockConfig(shift_s=-2.0), MemoryTransport(MemoryBus()), "f")
+    assert abs(sync.wall_ns() - (time.time_ns() - 2_000_000_000)) < 50_000_000
