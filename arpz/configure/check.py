@@ -11,7 +11,14 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from arpz.configure.model import Model, fixed_setting, node_options
+from arpz.configure.model import (
+    Model,
+    SettingDetail,
+    fixed_setting,
+    message_bandwidth,
+    node_details,
+    node_options,
+)
 from arpz.configure.solution import Solution
 
 _EPS = 1e-6
@@ -31,6 +38,30 @@ def link_name(a: str, b: str) -> str:
     return f"{a} - {b}"
 
 
+def chosen_setting(model: Model, solution: Solution, name: str) -> SettingDetail | None:
+    """The node's setting the placement chose, looked up in the MODEL (None if it is none of
+    them), so a message following its source's setting is charged that setting's bandwidth."""
+    placement = solution.assignment.get(name)
+    node = next((n for n in model.nodes if n.name == name), None)
+    if placement is None or node is None:
+        return None
+    if solution.problem == 2:
+        fixed = fixed_setting(node)
+        candidates = [
+            SettingDetail(
+                fixed.cpu, fixed.performance, fixed.parameter, fixed.frequency_hz, fixed.bandwidth
+            )
+        ]
+    else:
+        candidates = node_details(node)
+    for detail in candidates:
+        if math.isclose(detail.cpu, placement.cpu, abs_tol=_EPS) and math.isclose(
+            detail.performance, placement.performance, abs_tol=_EPS
+        ):
+            return detail
+    return None
+
+
 def loads(model: Model, solution: Solution) -> Loads:
     computer = {c.name: 0.0 for c in model.computers}
     for placement in solution.assignment.values():
@@ -48,7 +79,10 @@ def loads(model: Model, solution: Solution) -> Loads:
         if name is None:
             unlinked.append((msg.source, msg.to, a.computer, b.computer))
         else:
-            link[name] += msg.bandwidth
+            source = None
+            if msg.bandwidth is None:
+                source = chosen_setting(model, solution, msg.source)
+            link[name] += message_bandwidth(msg, source)
     return Loads(computer=computer, link=link, unlinked=unlinked)
 
 

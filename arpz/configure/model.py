@@ -12,13 +12,14 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
 import msgspec
 import tomli_w
 
-from arpz.configure.regression import FitChoice, FitError, expand
+from arpz.configure.regression import FitChoice, FitError, expand, fit, parameter_curves
 from arpz.errors import ArpzError
 
 
@@ -35,13 +36,19 @@ class Setting(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=T
     fixed: bool = False
     #: expected message frequency at this setting, for eq. 10 (P_measured = P F_measured/F_expected)
     frequency_hz: float | None = None
-    #: the parameter value that produces this setting (documentation only, e.g. particles)
+    #: the parameter value that produces this setting (particles, Hz, goals): with a continuum,
+    #: CPU and performance are also fitted against it (Fig. 3) and a solution reports it
     parameter: float | None = None
+    #: what the node sends at this setting (Table I's BW column), in the unit of the links; a
+    #: message without its own bandwidth carries its source's
+    bandwidth: float | None = None
 
 
 class Continuum(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     fit: FitChoice = "best"
     step: int = 1
+    #: the curves of CPU and performance against the settings' ``parameter`` (Fig. 3)
+    parameter_fit: FitChoice = "best"
 
 
 class Computer(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -64,12 +71,19 @@ class Node(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True
     continuum: Continuum | None = None
     #: which running process or topic this node is, for characterisation (free text)
     process: str | None = None
+    #: ``apply``: this node is an arpz robot's sensor topic, "robot/topic"; the chosen setting's
+    #: ``frequency_hz`` is the rate the robot is told to sample it at
+    topic: str | None = None
+    #: ``apply``: this node is a computation arpz can run on a robot or on the CEDDP (the
+    #: hallway mission's "obstacle_check"); its computer decides where
+    computation: str | None = None
 
 
 class Message(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
     source: str = msgspec.field(name="from")
     to: str
-    bandwidth: float
+    #: None: the bandwidth of the source node's chosen setting (Setting.bandwidth)
+    bandwidth: float | None = None
 
 
 class Model(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -183,10 +197,10 @@ def validate(model: Model) -> list[str]:
         for k, setting in enumerate(node.settings):
             _finite_nonneg(setting.cpu, f"{where}.settings[{k}].cpu", problems)
             _finite_nonneg(setting.performance, f"{where}.settings[{k}].performance", problems)
-            if setting.frequency_hz is not None:
-                _finite_nonneg(
-                    setting.frequency_hz, f"{where}.settings[{k}].frequency_hz", problems
-                )
+            for field_name in ("frequency_hz", "bandwidth", "parameter"):
+                value = getattr(setting, field_name)
+                if value is not None:
+                    _finite_nonneg(value, f"{where}.settings[{k}].{field_name}", problems)
         if sum(s.fixed for s in node.settings) > 1:
             problems.append(f"{where}: more than one setting is marked fixed; mark at most one")
         if node.residence is not None:
@@ -213,6 +227,7 @@ def validate(model: Model) -> list[str]:
                     )
                 except FitError as exc:
                     problems.append(f"{where}.continuum: {exc}")
+                problems.extend(_continuum_extras(node, where))
         if node.coresidence is not None:
             groups.setdefault(node.coresidence, []).append(node)
 
@@ -238,7 +253,40 @@ def validate(model: Model) -> list[str]:
                 problems.append(f"{where}: unknown node {end!r}; declare it under nodes")
         if msg.source == msg.to:
             problems.append(f"{where}: a node does not send messages to itself")
-        _finite_nonneg(msg.bandwidth, f"{where}.bandwidth", problems)
+        if msg.bandwidth is not None:
+            _finite_nonneg(msg.bandwidth, f"{where}.bandwidth", problems)
+        else:
+            source = next((n for n in model.nodes if n.name == msg.source), None)
+            if source is not None and any(s.bandwidth is None for s in source.settings):
+                problems.append(
+                    f"{where}: no bandwidth, and not every setting of {msg.source} gives one; "
+                    "give the message a bandwidth or each setting of its source a bandwidth"
+                )
+    return problems
+
+
+def _continuum_extras(node: Node, where: str) -> list[str]:
+    """A continuum's parameter, frequency and bandwidth must be given on all settings or none,
+    and the parameter curves must be invertible."""
+    problems: list[str] = []
+    assert node.continuum is not None
+    for field_name in ("parameter", "frequency_hz", "bandwidth"):
+        given = [getattr(s, field_name) is not None for s in node.settings]
+        if any(given) and not all(given):
+            problems.append(
+                f"{where}: {field_name} is given on some settings only; a continuum interpolates "
+                "it, so give it on every setting or on none"
+            )
+    if all(s.parameter is not None for s in node.settings) and node.settings:
+        try:
+            parameter_curves(
+                [s.parameter or 0.0 for s in node.settings],
+                [s.cpu for s in node.settings],
+                [s.performance for s in node.settings],
+                node.continuum.parameter_fit,
+            )
+        except FitError as exc:
+            problems.append(f"{where}.continuum.parameter_fit: {exc}")
     return problems
 
 
@@ -253,6 +301,76 @@ def node_options(node: Node) -> list[tuple[float, float]]:
         node.continuum.step,
     )
     return points
+
+
+@dataclass(frozen=True)
+class SettingDetail:
+    """One setting a solver may choose, with what a solution reports and what bandwidth its
+    messages need: listed as characterised, or interpolated along a continuum."""
+
+    cpu: float
+    performance: float
+    parameter: float | None = None
+    frequency_hz: float | None = None
+    bandwidth: float | None = None
+
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(value, 4)
+
+
+def node_details(node: Node) -> list[SettingDetail]:
+    """``node_options`` with each setting's parameter, frequency and bandwidth.
+
+    Along a continuum, the parameter is the one whose fitted CPU (Fig. 3's CPU-vs-parameter
+    regression) is the setting's CPU; frequency and bandwidth are linear in the parameter
+    (Table I: Tracker's and Navigation's frequency and bandwidth grow in step with their Hz),
+    or in CPU when no parameter is given.
+    """
+    if node.continuum is None:
+        return [
+            SettingDetail(s.cpu, s.performance, s.parameter, s.frequency_hz, s.bandwidth)
+            for s in node.settings
+        ]
+    settings = node.settings
+    points = node_options(node)
+    params: list[float | None] = [None] * len(points)
+    axis = [s.cpu for s in settings]
+    at = [u for u, _ in points]
+    if all(s.parameter is not None for s in settings):
+        curves = parameter_curves(
+            [s.parameter or 0.0 for s in settings],
+            [s.cpu for s in settings],
+            [s.performance for s in settings],
+            node.continuum.parameter_fit,
+        )
+        params = [curves.parameter_at(u) for u in at]
+        axis = [s.parameter or 0.0 for s in settings]
+        at = [p or 0.0 for p in params]
+
+    def along(field_name: str) -> list[float | None]:
+        values = [getattr(s, field_name) for s in settings]
+        if any(v is None for v in values):
+            return [None] * len(points)
+        if len(set(axis)) < 2:
+            return [values[0]] * len(points)
+        line = fit(axis, values, "linear", scale=1.0)
+        return [max(line(x), 0.0) for x in at]
+
+    freq, bandwidth = along("frequency_hz"), along("bandwidth")
+    return [
+        SettingDetail(u, p, _rounded(params[i]), _rounded(freq[i]), _rounded(bandwidth[i]))
+        for i, (u, p) in enumerate(points)
+    ]
+
+
+def message_bandwidth(message: Message, source: SettingDetail | None) -> float:
+    """A message's bandwidth: its own, else its source's at the chosen setting (0 if unknown)."""
+    if message.bandwidth is not None:
+        return message.bandwidth
+    if source is None or source.bandwidth is None:
+        return 0.0
+    return source.bandwidth
 
 
 def fixed_setting(node: Node) -> Setting:

@@ -10,7 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from arpz.configure.model import Model, fixed_setting, node_options
+from arpz.configure.model import (
+    Model,
+    SettingDetail,
+    fixed_setting,
+    message_bandwidth,
+    node_details,
+)
 
 ProblemKind = Literal[1, 2]
 
@@ -29,6 +35,8 @@ class Problem:
     weight: tuple[float, ...]
     #: per node, (cpu, performance) settings sorted by CPU (one setting in Problem 2)
     options: tuple[tuple[tuple[float, float], ...], ...]
+    #: per node, ``options`` with each setting's parameter, frequency and bandwidth
+    details: tuple[tuple[SettingDetail, ...], ...]
     #: per node, the computers its residence (and its coresidence group's) allows
     allowed: tuple[tuple[int, ...], ...]
     #: coresidence groups and lone nodes: what moves as one piece
@@ -39,7 +47,10 @@ class Problem:
     link: dict[tuple[int, int], int]
     link_bandwidth: tuple[float, ...]
     link_ends: tuple[tuple[int, int], ...]
-    #: (source node, destination node, bandwidth)
+    #: (source node, destination node, bandwidth). A message whose bandwidth follows its
+    #: source's setting reserves the source's largest: the heuristics upgrade settings without
+    #: looking at links and the MILPs leave messages out of the settings' choice, so this keeps
+    #: every answer within the links (check.py verifies the exact traffic of the chosen setting)
     messages: tuple[tuple[int, int, float], ...]
     #: per node, (other node, bandwidth) for every message it sends or receives
     partners: tuple[tuple[tuple[int, float], ...], ...]
@@ -51,14 +62,24 @@ class Problem:
         all_comps = tuple(range(len(model.computers)))
 
         options: list[tuple[tuple[float, float], ...]] = []
+        details: list[tuple[SettingDetail, ...]] = []
         allowed_sets: list[set[int]] = []
         for node in model.nodes:
             if kind == 1:
-                opts = sorted(node_options(node))
+                found = sorted(node_details(node), key=lambda d: (d.cpu, d.performance))
             else:
                 fixed = fixed_setting(node)
-                opts = [(fixed.cpu, fixed.performance)]
-            options.append(tuple(opts))
+                found = [
+                    SettingDetail(
+                        fixed.cpu,
+                        fixed.performance,
+                        fixed.parameter,
+                        fixed.frequency_hz,
+                        fixed.bandwidth,
+                    )
+                ]
+            details.append(tuple(found))
+            options.append(tuple((d.cpu, d.performance) for d in found))
             if node.residence is None:
                 allowed_sets.append(set(all_comps))
             else:
@@ -91,7 +112,12 @@ class Problem:
             ends.append((a, b))
 
         messages = tuple(
-            (node_index[m.source], node_index[m.to], m.bandwidth) for m in model.messages
+            (
+                node_index[m.source],
+                node_index[m.to],
+                max(message_bandwidth(m, d) for d in details[node_index[m.source]]),
+            )
+            for m in model.messages
         )
         partners: list[list[tuple[int, float]]] = [[] for _ in model.nodes]
         for a, b, bw in messages:
@@ -108,6 +134,7 @@ class Problem:
             nodes=tuple(n.name for n in model.nodes),
             weight=tuple(n.weight for n in model.nodes),
             options=tuple(options),
+            details=tuple(details),
             allowed=allowed,
             units=tuple(units),
             unit_of=tuple(unit_of),

@@ -34,14 +34,16 @@ class FitError(ArpzError, ValueError):
 
 @dataclass(frozen=True)
 class Curve:
-    """A fitted curve P(U). ``coefficients`` are highest power first, in x = U / 100."""
+    """A fitted curve y(v). ``coefficients`` are highest power first, in x = v / scale: P(U) with
+    x = U / 100 as the paper prints Fig. 4, or y(parameter) with scale 1 for Fig. 3."""
 
     kind: Kind
     coefficients: tuple[float, ...]
     r2: float
+    scale: float = 100.0
 
     def __call__(self, cpu: float) -> float:
-        x = cpu / 100.0
+        x = cpu / self.scale
         if self.kind == "linear":
             a, b = self.coefficients
             return a * x + b
@@ -69,11 +71,14 @@ def _signed(value: float, suffix: str = "") -> str:
     return f"{sign} {abs(value):.5g}{tail}"
 
 
-def fit(cpu: Sequence[float], performance: Sequence[float], kind: FitChoice) -> Curve:
-    """Fit one curve kind (or the best by R^2) to (CPU, performance) points."""
+def fit(
+    cpu: Sequence[float], performance: Sequence[float], kind: FitChoice, *, scale: float = 100.0
+) -> Curve:
+    """Fit one curve kind (or the best by R^2) to (CPU, performance) points (or any (v, y)
+    points, x = v / scale)."""
     if kind == "best":
-        return best_fit(cpu, performance)
-    xs = np.asarray(cpu, dtype=float) / 100.0
+        return best_fit(cpu, performance, scale=scale)
+    xs = np.asarray(cpu, dtype=float) / scale
     ys = np.asarray(performance, dtype=float)
     distinct = len(set(xs.tolist()))
     if distinct < _MIN_POINTS[kind]:
@@ -93,28 +98,30 @@ def fit(cpu: Sequence[float], performance: Sequence[float], kind: FitChoice) -> 
     ss_res = float(np.sum((ys - predicted) ** 2))
     ss_tot = float(np.sum((ys - ys.mean()) ** 2))
     r2 = 1.0 - ss_res / ss_tot if ss_tot > 0 else 1.0
-    return Curve(kind, tuple(float(c) for c in coef), r2)
+    return Curve(kind, tuple(float(c) for c in coef), r2, scale)
 
 
-def candidate_fits(cpu: Sequence[float], performance: Sequence[float]) -> list[Curve]:
+def candidate_fits(
+    cpu: Sequence[float], performance: Sequence[float], *, scale: float = 100.0
+) -> list[Curve]:
     """Every curve kind the points can support, in ``KINDS`` order."""
     curves: list[Curve] = []
     for kind in KINDS:
         try:
-            curves.append(fit(cpu, performance, kind))
+            curves.append(fit(cpu, performance, kind, scale=scale))
         except FitError:
             continue
     return curves
 
 
-def best_fit(cpu: Sequence[float], performance: Sequence[float]) -> Curve:
+def best_fit(cpu: Sequence[float], performance: Sequence[float], *, scale: float = 100.0) -> Curve:
     """The curve with the highest R^2; ties go to the simpler curve.
 
     With three points a parabola interpolates exactly (R^2 = 1), so "best" picks poly2 for any
     three-setting node whose points are not exactly linear or logarithmic; name the curve in the
     model when the shape is known (the paper's Tracker, Model and Navigation are logarithmic).
     """
-    curves = candidate_fits(cpu, performance)
+    curves = candidate_fits(cpu, performance, scale=scale)
     if not curves:
         raise FitError("no curve fits: give at least two settings with distinct CPU values")
     best = curves[0]
@@ -141,3 +148,73 @@ def expand(
         value += step
     points.append(float(high))
     return curve, [(u, round(curve(u), 2)) for u in points]
+
+
+# -- Fig. 3: a node's CPU and performance as functions of its parameter ---------------------------
+
+_MONOTONE_SAMPLES = 64
+
+
+def _increasing(curve: Curve, low: float, high: float) -> bool:
+    """Strictly increasing on [low, high], sampled: only then can CPU be turned into a parameter."""
+    values = [
+        curve(low + (high - low) * i / _MONOTONE_SAMPLES) for i in range(_MONOTONE_SAMPLES + 1)
+    ]
+    return all(b > a for a, b in zip(values, values[1:], strict=False))
+
+
+@dataclass(frozen=True)
+class ParameterCurves:
+    """A node's Fig. 3 regressions: CPU(parameter) and performance(parameter), in x = parameter.
+
+    The solvers choose a CPU (Fig. 4's axis); ``parameter_at`` inverts CPU(parameter) so a
+    solution says which parameter value to run (particles, Hz, goals)."""
+
+    cpu: Curve
+    performance: Curve
+    low: float
+    high: float
+
+    def parameter_at(self, cpu: float) -> float:
+        """The parameter whose fitted CPU is ``cpu`` (bisection; clamped to the characterised
+        range, where the curve was checked to increase)."""
+        lo, hi = self.low, self.high
+        if cpu <= self.cpu(lo):
+            return lo
+        if cpu >= self.cpu(hi):
+            return hi
+        for _ in range(100):
+            mid = (lo + hi) / 2
+            if self.cpu(mid) < cpu:
+                lo = mid
+            else:
+                hi = mid
+        return (lo + hi) / 2
+
+
+def parameter_curves(
+    parameter: Sequence[float], cpu: Sequence[float], performance: Sequence[float], kind: FitChoice
+) -> ParameterCurves:
+    """Fit CPU and performance against the parameter. ``best`` keeps, among the CPU curves that
+    increase over the characterised range, the one with the highest R^2 (a parabola through
+    three points may turn back, and a CPU that falls as the parameter grows cannot be inverted).
+    """
+    low, high = min(parameter), max(parameter)
+    if kind == "best":
+        usable = [c for c in candidate_fits(parameter, cpu, scale=1.0) if _increasing(c, low, high)]
+        if not usable:
+            raise FitError("no CPU-vs-parameter curve increases over the characterised parameters")
+        cpu_curve = usable[0]
+        for curve in usable[1:]:
+            if curve.r2 > cpu_curve.r2 + _TIE:
+                cpu_curve = curve
+        perf_curve = best_fit(parameter, performance, scale=1.0)
+    else:
+        cpu_curve = fit(parameter, cpu, kind, scale=1.0)
+        if not _increasing(cpu_curve, low, high):
+            raise FitError(
+                f"the {kind} curve of CPU against the parameter does not increase over "
+                f"[{low:g}, {high:g}]: choose another parameter_fit"
+            )
+        perf_curve = fit(parameter, performance, kind, scale=1.0)
+    return ParameterCurves(cpu_curve, perf_curve, low, high)

@@ -30,6 +30,7 @@ def curves(model: Model) -> dict[str, dict[str, Any]]:
 
 def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
     measured = loads(model, solution)
+    mapped = {n.name: n for n in model.nodes}
     capacity = {c.name: c.capacity for c in model.computers}
     capacity.update(solution.server_capacity)
     bandwidth = {f"{lk.between[0]} - {lk.between[1]}": lk.bandwidth for lk in model.links}
@@ -43,8 +44,27 @@ def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
         "solve_time_s": round(solution.solve_time_s, 4),
         "message": solution.message,
         "assignment": {
-            name: {"computer": p.computer, "cpu": p.cpu, "performance": p.performance}
+            name: {
+                "computer": p.computer,
+                "cpu": p.cpu,
+                "performance": p.performance,
+                "parameter": p.parameter,
+                "frequency_hz": p.frequency_hz,
+                "bandwidth": p.bandwidth,
+            }
             for name, p in solution.assignment.items()
+        },
+        #: what ``apply`` needs without the model: each node's weight, where it runs and what
+        #: in arpz it is
+        "nodes": {
+            name: {
+                "weight": mapped[name].weight,
+                "on": _kind(model, p.computer),
+                "topic": mapped[name].topic,
+                "computation": mapped[name].computation,
+            }
+            for name, p in solution.assignment.items()
+            if name in mapped
         },
         "computers": {
             name: {"load": round(load, 6), "capacity": capacity[name]}
@@ -62,6 +82,14 @@ def as_dict(model: Model, solution: Solution) -> dict[str, Any]:
         "curves": curves(model),
         "violations": check(model, solution),
     }
+
+
+def _kind(model: Model, computer: str) -> str:
+    return next((c.kind for c in model.computers if c.name == computer), "")
+
+
+def _num(value: float | None) -> str:
+    return "-" if value is None else f"{value:g}"
 
 
 def as_text(model: Model, solution: Solution) -> str:
@@ -82,9 +110,15 @@ def as_text(model: Model, solution: Solution) -> str:
         lines.append(f"note       {solution.message}")
     lines.append("")
     width = max(len(n) for n in data["assignment"]) if data["assignment"] else 4
-    lines.append(f"{'node':<{width}}  {'computer':<12} {'cpu':>8} {'performance':>12}")
+    lines.append(
+        f"{'node':<{width}}  {'computer':<12} {'cpu':>8} {'performance':>12} {'parameter':>10} "
+        f"{'Hz':>7} {'bandwidth':>9}"
+    )
     for name, p in data["assignment"].items():
-        lines.append(f"{name:<{width}}  {p['computer']:<12} {p['cpu']:>8g} {p['performance']:>12g}")
+        lines.append(
+            f"{name:<{width}}  {p['computer']:<12} {p['cpu']:>8g} {p['performance']:>12g} "
+            f"{_num(p['parameter']):>10} {_num(p['frequency_hz']):>7} {_num(p['bandwidth']):>9}"
+        )
     lines.append("")
     lines.append(f"{'computer':<12} {'load':>8} {'capacity':>9}")
     for name, c in data["computers"].items():

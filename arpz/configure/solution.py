@@ -16,6 +16,11 @@ class Placement(msgspec.Struct, frozen=True, kw_only=True):
     computer: str
     cpu: float
     performance: float
+    #: the chosen setting's parameter value (particles, Hz, ...), expected message frequency and
+    #: bandwidth sent, where the model gives them (interpolated along a continuum)
+    parameter: float | None = None
+    frequency_hz: float | None = None
+    bandwidth: float | None = None
 
 
 class Solution(msgspec.Struct, frozen=True, kw_only=True):
@@ -55,8 +60,16 @@ def build_solution(
     objective = 0.0
     for n, name in enumerate(problem.nodes):
         cpu, perf = problem.options[n][level[n]]
+        detail = problem.details[n][level[n]]
         c = computer[n]
-        assignment[name] = Placement(computer=problem.computers[c], cpu=cpu, performance=perf)
+        assignment[name] = Placement(
+            computer=problem.computers[c],
+            cpu=cpu,
+            performance=perf,
+            parameter=detail.parameter,
+            frequency_hz=detail.frequency_hz,
+            bandwidth=detail.bandwidth,
+        )
         load[c] += cpu
         objective += problem.weight[n] * perf
     server_capacity: dict[str, float] = {}
