@@ -9,6 +9,7 @@ equations, so the coefficients printed here read like theirs (``P = 66.62 ln x +
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -160,7 +161,7 @@ def _increasing(curve: Curve, low: float, high: float) -> bool:
     values = [
         curve(low + (high - low) * i / _MONOTONE_SAMPLES) for i in range(_MONOTONE_SAMPLES + 1)
     ]
-    return all(b > a for a, b in zip(values, values[1:], strict=False))
+    return all(b > a for a, b in itertools.pairwise(values))
 
 
 @dataclass(frozen=True)
