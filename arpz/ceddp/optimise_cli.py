@@ -10,6 +10,7 @@ on stderr; ``--json`` prints exactly one JSON object on stdout so scripts can co
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 from typing import Any, cast
@@ -29,7 +30,10 @@ from arpz.ceddp.optimiser import (
     QosAssignment,
     QosLimits,
     assign_qos,
+    solve_closed,
 )
+from arpz.ceddp.topic_optimiser import TopicMethod, TopicSolution, solve_topics
+from arpz.ceddp.topic_problem import TopicProblem, load_problem, solution_document
 from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.errors import ArpzError
 
@@ -66,8 +70,16 @@ def _parser() -> _Parser:
             "(seed 001, problem 6)."
         ),
     )
-    parser.add_argument("--rmax", type=float, required=True, metavar="HZ", help="Rmax, Hz")
-    parser.add_argument("--rmin", type=float, required=True, metavar="HZ", help="Rmin, Hz")
+    parser.add_argument(
+        "--problem",
+        type=Path,
+        metavar="FILE.toml",
+        help="solve the per-topic problem of this file (rmax_hz, rmin_hz, dmax, dmin, "
+        "[[robots]] with [[robots.topics]]: name, weight, change_hz); see "
+        "examples/qos_problem.toml",
+    )
+    parser.add_argument("--rmax", type=float, metavar="HZ", help="Rmax, Hz")
+    parser.add_argument("--rmin", type=float, metavar="HZ", help="Rmin, Hz")
     parser.add_argument(
         "--dmax", type=int, default=DEFAULT_DMAX, metavar="N", help="Dmax, samples (5000)"
     )
@@ -77,7 +89,6 @@ def _parser() -> _Parser:
     parser.add_argument(
         "--topics",
         type=_topics,
-        required=True,
         metavar="T1,T2,...",
         help="topics per agent T_a (sensor topics + received localisation/command topics)",
     )
@@ -199,10 +210,87 @@ def _agree(a: QosAssignment, b: QosAssignment, rmax_hz: float) -> bool:
     return abs(a.rate_hz - b.rate_hz) <= 1e-6 * rmax_hz and a.paper_depth == b.paper_depth
 
 
+def _topic_text(problem: TopicProblem, document: dict[str, Any], fleet: str) -> str:
+    lines = [
+        "Per-topic QoS optimiser (max sum w log r; docs/qos-optimiser.md)",
+        f"  capacity  {document['capacity_hz']:.6g} samples/s (A Rmax - N Rmin), used "
+        f"{document['used_hz']:.6g}",
+        f"  seed 001  {fleet}",
+        f"  {'robot':<12} {'topic':<14} {'weight':>8} {'R (Hz)':>10} {'D':>6}  bound",
+    ]
+    for t in document["topics"]:
+        lines.append(
+            f"  {t['robot']:<12} {t['topic']:<14} {t['weight']:>8.4g} {t['R']:>10.5g} "
+            f"{t['D']:>6}  {t['bound']}"
+        )
+    timing = "; ".join(f"{m} {_duration(s)}" for m, s in document["solve_times_s"].items())
+    lines.append(f"  solve time {timing}")
+    return "\n".join(lines)
+
+
+def _topics_agree(a: TopicSolution, b: TopicSolution, rmax_hz: float) -> bool:
+    """CLARABEL stops about 1e-6 Rmax short of the exact optimum: compare to 1e-3."""
+    return all(
+        abs(x.rate_hz - y.rate_hz) <= 1e-3 * max(x.rate_hz, 1e-3 * rmax_hz)
+        for x, y in zip(a.topics, b.topics, strict=True)
+    )
+
+
+def _main_problem(args: argparse.Namespace) -> int:
+    """``--problem FILE.toml``: the per-topic problem."""
+    try:
+        problem = load_problem(args.problem)
+        limits, demands = problem.limits(), problem.demands()
+        methods: tuple[TopicMethod, ...] = (
+            ("closed", "cvxpy") if args.method == "both" else (cast(TopicMethod, args.method),)
+        )
+        results = {m: solve_topics(limits, demands, method=m) for m in methods}
+    except OptimiserError as exc:
+        return fail("ceddp optimise", str(exc), EXIT_USAGE)
+    result = results[methods[0]]
+    if len(results) == 2 and not _topics_agree(results["closed"], results["cvxpy"], limits.rmax_hz):
+        return fail("ceddp optimise", "closed form and CVXPY disagree", EXIT_DISAGREE)
+    document = solution_document(result)
+    document["solve_times_s"] = {m: r.solve_time_s for m, r in results.items()}
+    try:  # what seed 001 gives every topic of the same fleet, for comparison
+        seed = solve_closed(limits, problem.topic_counts())
+        document["fleet"] = {"R": seed.rate_hz, "D": seed.depth}
+        fleet = f"R = {seed.rate_hz:.6g} Hz, D = {seed.depth} for every topic"
+    except OptimiserError as exc:
+        document["fleet"] = None
+        fleet = f"infeasible ({exc.__class__.__name__})"
+    text = json.dumps(document)
+    if args.json is None:
+        print(_topic_text(problem, document, fleet))
+    elif args.json == JSON_TO_STDOUT:
+        print(text)
+    else:
+        Path(args.json).write_text(text + "\n", encoding="utf-8")
+        print(_topic_text(problem, document, fleet))
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run ``optimise``; returns the exit code (0 ok, 1 methods disagree, 2 bad input)."""
     try:
         args = _parser().parse_args(argv)
+        if args.problem is not None:
+            if args.topics is not None:
+                raise _UsageError("give either --problem or --topics, not both")
+            return _main_problem(args)
+        missing = [
+            flag
+            for flag, value in (
+                ("--rmax", args.rmax),
+                ("--rmin", args.rmin),
+                ("--topics", args.topics),
+            )
+            if value is None
+        ]
+        if missing:
+            raise _UsageError(
+                f"optimise: error: {', '.join(missing)} required (or give --problem FILE.toml)"
+            )
         link = _link(args)
         limits = QosLimits(rmax_hz=args.rmax, rmin_hz=args.rmin, dmax=args.dmax, dmin=args.dmin)
         agents = {f"agent{i + 1}": count for i, count in enumerate(args.topics)}

@@ -37,6 +37,7 @@ from typing import Any, Final, Literal
 import msgspec
 
 from arpz.errors import ArpzError
+from arpz.protocol.qos import QosProfile
 
 #: Fast DDS ``max_samples`` default: the "Dmax = 5000" of seed 001 (its reference 17).
 DEFAULT_DMAX: Final = 5000
@@ -168,8 +169,13 @@ class LinkQuality(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     heartbeat_period_s: float = FASTDDS_HEARTBEAT_PERIOD_S
     nack_delay_s: float = FASTDDS_NACK_DELAY_S
     residual_loss: float = DEFAULT_RESIDUAL_LOSS
+    #: mean length of a run of lost samples (measured: samples recovered per NACK); a burst of
+    #: b samples lost together must all still be held when their recovery starts: + b samples
+    burst_samples: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (math.isfinite(self.burst_samples) and self.burst_samples >= 0):
+            raise InvalidQosInput(f"burst_samples must be >= 0, got {self.burst_samples!r}")
         for name, value in (
             ("rtt_s", self.rtt_s),
             ("heartbeat_period_s", self.heartbeat_period_s),
@@ -583,13 +589,35 @@ def loss_aware_depth(link: LinkQuality, rate_hz: float) -> LossAwareDepth:
             rounds += 1
         residual = p * q**rounds
     hold_s = rounds * round_s
+    burst = math.ceil(link.burst_samples) if rounds > 0 else 0
     return LossAwareDepth(
-        depth=max(1, math.ceil(rate_hz * hold_s)),
+        depth=max(1, math.ceil(rate_hz * hold_s) + burst),
         rounds=rounds,
         round_s=round_s,
         hold_s=hold_s,
         residual_loss=residual,
         rate_hz=rate_hz,
+    )
+
+
+def channel_link(
+    profile: QosProfile,
+    *,
+    rtt_s: float,
+    loss_pct: float,
+    burst_samples: float = 0.0,
+    residual_loss: float = DEFAULT_RESIDUAL_LOSS,
+) -> LinkQuality:
+    """The link quality with the recovery timings of the reliable channel in force: arpz's
+    heartbeat period and NACK delay (0.1 s and 2 ms by default), not Fast DDS's 3 s and 5 ms,
+    which would make the loss-aware depth about 30 times too large."""
+    return LinkQuality(
+        rtt_s=rtt_s,
+        loss_pct=loss_pct,
+        heartbeat_period_s=profile.heartbeat_period_s,
+        nack_delay_s=profile.nack_delay_s,
+        residual_loss=residual_loss,
+        burst_samples=burst_samples,
     )
 
 
