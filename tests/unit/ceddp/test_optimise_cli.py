@@ -7,6 +7,7 @@ import io
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from hypothesis import given, settings
@@ -165,3 +166,120 @@ def test_module_entry_point_infeasible_exit_code() -> None:
     assert completed.returncode == 2
     assert completed.stdout == ""
     assert "Rmax/T_avg - Rmin = 80 - 50 = 30 < Rmin = 50" in completed.stderr
+
+
+# ------------------------------------------------------------------ --problem FILE.toml
+
+
+def _problem(tmp_path: Path, text: str) -> str:
+    path = tmp_path / "problem.toml"
+    path.write_text(text, encoding="utf-8")
+    return str(path)
+
+
+_ALIKE = """
+rmax_hz = 100.0
+rmin_hz = 1.0
+[[robots]]
+name = "robot1"
+topics = [{name = "a"}, {name = "b"}, {name = "c"}, {name = "d"}, {name = "e"}, {name = "f"}]
+[[robots]]
+name = "robot2"
+topics = [{name = "a"}, {name = "b"}, {name = "c"}, {name = "d"}, {name = "e"}]
+[[robots]]
+name = "robot3"
+topics = [{name = "a", weight = 1.0}, {name = "b"}, {name = "c"}, {name = "d"}, {name = "e"}]
+"""
+
+
+def test_problem_file_with_alike_topics_gives_seed_001(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # T = 6,5,5, Rmax 100: seed 001's R = 17.75 Hz, D = 886 for every topic
+    assert main(["--problem", _problem(tmp_path, _ALIKE), "--json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert len(document["topics"]) == 16
+    assert {(t["R"], t["D"]) for t in document["topics"]} == {(17.75, 886)}
+    assert document["fleet"] == {"R": 17.75, "D": 886}
+    assert document["topics"][0]["robot"] == "robot1" and document["topics"][0]["topic"] == "a"
+
+
+def test_problem_file_weights_and_both_methods(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # one robot, C = 100 - 2 = 98, weights 1 x sqrt(1) and 3 x sqrt(1): 24.5 and 73.5 Hz
+    text = (
+        'rmax_hz = 100.0\nrmin_hz = 1.0\n[[robots]]\nname = "r"\n'
+        'topics = [{name = "pir", weight = 1.0, change_hz = 1.0},'
+        ' {name = "lidar", weight = 3.0, change_hz = 1.0}]\n'
+    )
+    assert main(["--problem", _problem(tmp_path, text), "--method", "both", "--json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert [t["R"] for t in document["topics"]] == [24.5, 73.5]
+    assert set(document["solve_times_s"]) == {"closed", "cvxpy"}
+    assert main(["--problem", _problem(tmp_path, text)]) == 0
+    assert "lidar" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        (
+            'rmax_hz = 100.0\nrmin_hz = 1.0\n[[robots]]\nname = "r"\n'
+            'topics = [{name = "x", weight = "high"}]\n',
+            "robots[0].topics[0].weight",
+        ),
+        (
+            'rmax_hz = 100.0\nrmin_hz = 1.0\n[[robots]]\nname = "r"\n'
+            'topics = [{name = "x", weight = -1.0}]\n',
+            "robots[0].topics[0]: topic 'x'",
+        ),
+        ('rmin_hz = 1.0\n[[robots]]\nname = "r"\ntopics = [{name = "x"}]\n', "rmax_hz"),
+        (
+            'rmax_hz = 100.0\nrmin_hz = 1.0\n[[robots]]\nname = "r"\n'
+            'topics = [{name = "x", colour = 1}]\n',
+            "colour",
+        ),
+        ("rmax_hz = 100.0\nrmin_hz = 1.0\nrobots = []\n", "no [[robots]]"),
+        ("rmax_hz = = 1\n", "not valid TOML"),
+        (
+            'rmax_hz = 10.0\nrmin_hz = 3.0\n[[robots]]\nname = "r"\n'
+            'topics = [{name = "x"}, {name = "y"}]\n',
+            "infeasible: constraint (4)",
+        ),
+    ],
+)
+def test_bad_problem_files_exit_2_naming_the_field(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str, fragment: str
+) -> None:
+    assert main(["--problem", _problem(tmp_path, text), "--json"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert fragment in captured.err
+
+
+def test_missing_problem_file_and_mixed_options(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["--problem", str(tmp_path / "none.toml")]) == 2
+    assert "cannot read the problem file" in capsys.readouterr().err
+    argv = ["--problem", _problem(tmp_path, _ALIKE), "--topics", "6"]
+    assert main(argv) == 2
+    assert "either --problem or --topics" in capsys.readouterr().err
+
+
+def test_the_example_problem_runs_from_the_entry_point() -> None:
+    example = Path(__file__).resolve().parents[3] / "examples" / "qos_problem.toml"
+    run = subprocess.run(
+        [sys.executable, "-m", "arpz.ceddp", "optimise", "--problem", str(example), "--json"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=60,
+    )
+    assert run.returncode == 0, run.stderr
+    document = json.loads(run.stdout)
+    rates = {(t["robot"], t["topic"]): t["R"] for t in document["topics"]}
+    # the LIDAR (priority 2, changes at 20 Hz) outranks the PIR (0.05 Hz) as sqrt and weights say
+    assert rates["robot1", "lidar"] > 10 * rates["robot1", "pir"]
+    assert sum(rates.values()) == pytest.approx(document["capacity_hz"])
