@@ -412,6 +412,8 @@ class FleetObserver:
             topic_keys.update(announced_keys(self.fleet, robot, announce))
         for robot in stats:
             topic_keys.add(keys.stats_key(self.fleet, robot))
+        if any(node.name == CEDDP and node.alive for node in nodes):
+            topic_keys.add(keys.ceddp_stats_key(self.fleet))  # a plain CEDDP has no token
         topics = [
             self._entry(key, writers, readers, announces, stats, modes)
             for key in sorted(topic_keys)

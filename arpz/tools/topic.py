@@ -245,6 +245,8 @@ def info_lines(topic: TopicEntry) -> list[str]:
             verdict = "matched" if pair["compatible"] else f"INCOMPATIBLE ({pair['policy']})"
             lines.append(f"  {pair['writer']} -> {pair['reader']}: {verdict}")
     lines.append("")
+    if not topic.reliable_channel:
+        lines.append("Plain Zenoh subscribers declare no token: this topic's readers are unseen.")
     lines.append(
         "QoS shown is what each endpoint's liveliness token carries (reliability, durability, "
         "deadline, liveliness, lease); history and depth are not advertised."
@@ -434,7 +436,7 @@ class Echo:
 
 
 def counters_text(counters: dict[str, int]) -> str:
-    return "channel: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counters.items())
+    return "counters: " + ", ".join(f"{k.replace('_', ' ')} {v}" for k, v in counters.items())
 
 
 # ----------------------------------------------------------------------------- hz, bw, delay

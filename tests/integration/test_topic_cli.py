@@ -58,8 +58,8 @@ def fleet(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Fleet]:
         )
         robot2 = write_robot(tmp, "robot2", endpoint, preset="machine2", rate_hz=10, fleet=FLEET)
         with robots(tmp, [robot1, robot2]):
-            for name in ("robot1", "robot2"):
-                wait_until(lambda n=name: f"robot {n} joined" in server.output(), what=name)
+            joined = ("robot robot1 joined", "robot robot2 joined")
+            wait_until(lambda: all(j in server.output() for j in joined), what="both robots")
             yield Fleet(endpoint, server, tmp)
 
 

@@ -125,6 +125,7 @@ def test_the_graph_of_a_channel_fleet() -> None:
         "/r1/cmd/hello",
         "/r1/stats",
         "/r1/announce",
+        "/ceddp/stats",
     }
     lidar = graph.topic("/r1/lidar")
     assert lidar.ros_type == "sensor_msgs/msg/LaserScan"
