@@ -167,6 +167,7 @@ def access_control(
     for robot in robots:
         own = f"{fleet_root}/robot/{robot}"
         qos_reader = f"{fleet_root}/ceddp/qos/rel"
+        clock = f"{fleet_root}/ceddp/clock"
         # Exactly the keys a robot writes (docs/protocol.md), not its whole subtree: an allow
         # applies to a put whose key expression it includes, so with `{own}/**` a wildcard put
         # such as `{own}/*/velocity` was allowed while the `cmd/*` deny (which does not include
@@ -212,6 +213,10 @@ def access_control(
             ),
             _rule(f"{robot}-subscribe", ROBOT_SUBSCRIBES, "ingress", receives),
             _rule(f"{robot}-receive", ROBOT_RECEIVES, "egress", receives),
+            # the clock exchange (docs/operations.md, "Clock offsets"): a query to the CEDDP's
+            # clock and its reply, nothing else
+            _rule(f"{robot}-clock-query", ["query"], "ingress", [clock]),
+            _rule(f"{robot}-clock-reply", ["declare_queryable", "reply"], "egress", [clock]),
         ]
         rules.extend(own_rules)
         subjects.append({"id": robot, by: [robot]})

@@ -13,6 +13,12 @@ from typing import Any
 import pytest
 
 from tests.integration.fleet import ceddp, robots, write_robot
+from tests.integration.secure_fleet import (
+    client_config,
+    make_fleet_tls,
+    secure_ceddp,
+    write_secure_robot,
+)
 from tests.support import free_port
 
 pytestmark = pytest.mark.integration
@@ -94,3 +100,35 @@ def test_doctor_refuses_bad_input_with_exit_2() -> None:
     )
     assert done.returncode == 2
     assert "arpz doctor: error: --connect" in done.stderr
+
+
+def test_doctor_on_a_fleet_with_mutual_tls_and_access_control(tmp_path: Path) -> None:
+    """With the deploy/ certificates and router config: the doctor, holding an observer's
+    certificate, reads their expiry, sees access control in force, and every robot's clock
+    exchange passes the access control (the robots may query ``ceddp/clock``)."""
+    tls = make_fleet_tls(tmp_path / "tls", "sec", ["robot1"], observers=("doc",))
+    with secure_ceddp(tmp_path, tls, fleet="sec") as (_, endpoint):
+        config = write_secure_robot(
+            tmp_path,
+            "robot1",
+            endpoint,
+            client_config(tls, "robot1"),
+            fleet="sec",
+            preset="machine1",
+        )
+        with robots(tmp_path, [config]):
+            code, text, report, _ = doctor(
+                "--connect",
+                endpoint,
+                "--fleet",
+                "sec",
+                "--zenoh-config",
+                str(client_config(tls, "doc")),
+            )
+            print(text)
+    found = levels(report)
+    assert code == 0, text
+    assert found["access control"] == "OK" and found["tls"] == "OK", text
+    assert found["tls root_ca_certificate"] == "OK" and found["tls connect_certificate"] == "OK"
+    assert "the CEDDP reports TLS on" in text
+    assert found["clock robot1"] == "OK", text
