@@ -142,7 +142,11 @@ def serve(argv: list[str] | None) -> int:
     try:
         dashboard = Dashboard(config.rrd, grpc_port=config.grpc_port)
         server = CeddpServer(config, transport, dashboard=dashboard)
-        server.start()
+        try:
+            server.start()
+        except ConfigError as exc:  # a live view's port in use (docs/tools-live.md)
+            print(f"arpz ceddp: error: bad configuration: {exc}", file=sys.stderr)
+            return 2
         print(
             f"arpz ceddp: ready on {','.join(config.listen)} (fleet {config.fleet!r}, "
             f"rrd {config.rrd}); robots: --connect {connect_hint(config.listen)} "

@@ -193,6 +193,7 @@ class CeddpServer:
             from arpz.ceddp.dashboard import serve_web_viewer
 
             serve_web_viewer(cfg.rerun_web_port)
+            self._event(f"Rerun web viewer on http://0.0.0.0:{cfg.rerun_web_port}/")
         if cfg.foxglove_port:
             from arpz.ceddp.foxglove_live import FoxgloveLive
 
@@ -201,11 +202,13 @@ class CeddpServer:
             )
             self.planners.append(self.foxglove)  # fed like a planner, started and stopped so
             self.metrics.frame_listeners.append(self.foxglove.on_metrics)
+            self._event(f"Foxglove on ws://{cfg.live_host}:{self.foxglove.port}")
         if cfg.web_port:
             from arpz.ceddp.web import StatusWeb
 
             self.web = StatusWeb(self.status.read, host=cfg.live_host, port=cfg.web_port)
             self.web.start()
+            self._event(f"status page on http://{cfg.live_host}:{self.web.port}/ (and /metrics)")
 
     def _views_dropped(self) -> dict[str, int]:
         """Frames each live view dropped because it fell behind."""

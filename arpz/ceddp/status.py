@@ -3,16 +3,20 @@
 ``StatusReader.read`` copies what it needs out of the CEDDP's live state into frozen Structs and
 returns them; nothing it returns is shared with the ingest, so a web request never holds a lock
 longer than the copy. Counters (received, lost, bytes, the robots' own channel counters) are read
-at the moment of the call; figures of an interval (rates, latency and staleness percentiles, the
-CEDDP's CPU and load) come from the metrics ticker's last frame, so a request never takes the
-ticker's windows away from the dashboard. Clock offsets appear when the frame carries them
-(``clock_offset_ms`` / ``clock_delay_ms``), None otherwise.
+at the moment of the call, and rates are measured between reads (``RateWindow``). Figures of an
+interval (latency and staleness percentiles, the CEDDP's CPU and load) come from the metrics
+ticker's last frame, so a request never takes the ticker's windows away from the dashboard.
+Clock offsets appear when the frame carries them (``clock_offset_ms`` / ``clock_delay_ms``),
+None otherwise.
 """
 
 from __future__ import annotations
 
+import threading
 import time
-from collections.abc import Callable, Iterable
+from collections import deque
+from collections.abc import Callable, Hashable, Iterable
+from typing import Generic, TypeVar
 
 import msgspec
 
@@ -25,6 +29,9 @@ from arpz.protocol.reader_machine import ReaderStats
 
 #: the row of the CEDDP itself in a MetricsFrame's ``robots`` (metrics.py)
 CEDDP_ROW = "ceddp"
+#: the shortest span the status's rates are measured over (see RateWindow)
+RATE_WINDOW_S = 2.0
+K = TypeVar("K", bound=Hashable)
 
 
 class TopicStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -43,6 +50,7 @@ class TopicStatus(msgspec.Struct, frozen=True, kw_only=True):
     cc_discarded: int
     #: seconds since the last sample arrived (None: none yet)
     last_sample_age_s: float | None
+    #: received per second over the last RATE_WINDOW_S or more (None: no earlier read yet)
     rate_hz: float | None
     bytes_per_s: float | None
     latency_ms_p50: float | None
@@ -134,6 +142,38 @@ class FleetStatus(msgspec.Struct, frozen=True, kw_only=True):
     views_dropped: dict[str, int]
 
 
+class RateWindow(Generic[K]):
+    """Rates from successive reads of cumulative counts: the counts now against the newest
+    earlier read at least ``window_s`` old (before there is one, the oldest kept). A status
+    page polling every second gets rates over the last two seconds; the metrics ticker's
+    interval (``metrics_period_s``, often a fraction of a second) is too short for a person to
+    read a rate from. Thread-safe: web requests read concurrently."""
+
+    def __init__(self, window_s: float, *, keep: int = 256) -> None:
+        self.window_s = window_s
+        self._lock = threading.Lock()
+        self._reads: deque[tuple[float, dict[K, tuple[int, int]]]] = deque(maxlen=keep)
+
+    def rates(self, now_s: float, counts: dict[K, tuple[int, int]]) -> dict[K, tuple[float, float]]:
+        """Per key, (first count, second count) per second since the base read; keys the base
+        read did not have get no rate yet."""
+        with self._lock:
+            reads = self._reads
+            while len(reads) >= 2 and reads[1][0] <= now_s - self.window_s:
+                reads.popleft()
+            base = reads[0] if reads else None
+            reads.append((now_s, counts))
+        if base is None or now_s - base[0] <= 0.0:
+            return {}
+        span_s = now_s - base[0]
+        out = {}
+        for key, (first, second) in counts.items():
+            before = base[1].get(key)
+            if before is not None:
+                out[key] = ((first - before[0]) / span_s, (second - before[1]) / span_s)
+        return out
+
+
 class StatusReader:
     """Reads a ``FleetStatus`` from the CEDDP's parts; safe to call from any thread."""
 
@@ -156,6 +196,7 @@ class StatusReader:
         self._channel = channel
         self._views_dropped = views_dropped
         self._started_ns = time.time_ns()
+        self._rates: RateWindow[tuple[str, str]] = RateWindow(RATE_WINDOW_S)
 
     def kind_of(self, robot: str, topic: str) -> str | None:
         """The sensor kind ``robot`` announced for ``topic`` (None: not announced yet)."""
@@ -171,6 +212,8 @@ class StatusReader:
         per_robot: dict[str, list[TopicStatus]] = {}
         with ingest.lock:
             records = {name: _copy(record) for name, record in self.robots.items()}
+            counts = {slot: (m.received, m.bytes) for slot, m in ingest.topics.items()}
+            rates = self._rates.rates(time.monotonic(), counts)
             for (robot, topic), m in sorted(ingest.topics.items()):
                 if topic == "hello":
                     continue
@@ -178,6 +221,7 @@ class StatusReader:
                 stats = record.stats if record is not None else None
                 counters = stats.topics.get(topic) if stats is not None else None
                 row = frame_topics.get((robot, topic), {})
+                rate_hz, bytes_per_s = rates.get((robot, topic), (None, None))
                 per_robot.setdefault(robot, []).append(
                     TopicStatus(
                         topic=topic,
@@ -192,8 +236,8 @@ class StatusReader:
                             if m.last_arrival_ns
                             else None
                         ),
-                        rate_hz=row.get("rate_hz"),
-                        bytes_per_s=row.get("bytes_per_s"),
+                        rate_hz=rate_hz,
+                        bytes_per_s=bytes_per_s,
                         latency_ms_p50=row.get("latency_ms_p50"),
                         latency_ms_p99=row.get("latency_ms_p99"),
                         staleness_ms_p99=row.get("staleness_ms_p99"),

@@ -57,10 +57,15 @@ TOPIC_COUNTERS: tuple[tuple[str, str, str], ...] = (
 )
 #: (metric name, help, TopicStatus field, scale) of the per-topic gauges of the last interval
 TOPIC_GAUGES: tuple[tuple[str, str, str, float], ...] = (
-    ("arpz_receive_rate_hz", "Samples received per second over the last interval", "rate_hz", 1.0),
+    (
+        "arpz_receive_rate_hz",
+        "Samples received per second, over the last 2 s or more (since an earlier read)",
+        "rate_hz",
+        1.0,
+    ),
     (
         "arpz_receive_bytes_per_second",
-        "Bytes received per second over the last interval",
+        "Bytes received per second, over the last 2 s or more",
         "bytes_per_s",
         1.0,
     ),
@@ -355,9 +360,10 @@ h2{font-size:15px;margin:14px 0 6px}small{color:#667}
 <th>latency p50 (ms)</th><th>latency p99 (ms)</th><th>staleness p99 (ms)</th>
 <th>last sample (s ago)</th></tr></thead>
 <tbody></tbody></table></div>
-<small>Counters are cumulative since the CEDDP started; rates and percentiles are of the last
-metrics interval. "—": not measured (yet). Link quality: retransmitted and gapped are the robot's
-reliable channel's own counters (gapped: NACKed after its history let the sample go).</small>
+<small>Counters are cumulative since the CEDDP started; rates are over the last 2 s, percentiles
+of the last metrics interval. "—": not measured (yet). Link quality: retransmitted and gapped
+are the robot's reliable channel's own counters (gapped: NACKed after its history let the sample
+go).</small>
 </main>
 <script>
 "use strict";

@@ -17,7 +17,7 @@ from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
-from arpz.ceddp.status import FleetStatus, StatusReader
+from arpz.ceddp.status import FleetStatus, RateWindow, StatusReader
 from arpz.ceddp.web import PAGE, StatusWeb
 from arpz.config import CeddpConfig
 from arpz.errors import ConfigError
@@ -85,10 +85,33 @@ def test_the_status_reads_counters_now_and_figures_of_the_last_interval() -> Non
     assert r1.alive and not r2.alive
     assert r1.clock_offset_ms == -1.5 and r1.clock_delay_ms is None
     assert r1.topics[0].kind == "lidar" and r2.topics[0].kind is None
-    assert r1.topics[0].latency_ms_p99 == 8.0 and r1.rate_hz == 9.5
-    assert r2.rate_hz is None  # no interval figure for it in the frame
+    assert r1.topics[0].latency_ms_p99 == 8.0
+    assert r2.topics[0].latency_ms_p99 is None  # no interval figure for it in the frame
+    assert r1.rate_hz is None  # a rate needs an earlier read
     assert status.ceddp.cpu_percent == 40.0 and status.ceddp.processed == 11
     assert status.metrics_stamp_ns == 123
+
+
+def test_rates_are_measured_between_reads() -> None:
+    ingest, robots = fed_ingest()
+    status = StatusReader(
+        CeddpConfig(fleet=FLEET), ingest, robots, lambda: None, processed=int, channel=lambda: None
+    )
+    assert status.read().robots[0].topics[0].rate_hz is None
+    key = keys.sensor_key(FLEET, "r1", "lidar")
+    for seq in range(11, 16):
+        ingest.handle_sensor(key, encode(Sample("r1-w", seq, seq, float(seq))), 3_000_000 + seq)
+    rate = status.read().robots[0].topics[0].rate_hz
+    assert rate is not None and rate > 0
+
+
+def test_the_rate_window_keeps_one_read_older_than_the_window() -> None:
+    window: RateWindow[str] = RateWindow(2.0)
+    assert window.rates(0.0, {"a": (0, 0)}) == {}
+    assert window.rates(1.0, {"a": (10, 100)}) == {"a": (10.0, 100.0)}
+    assert window.rates(2.0, {"a": (20, 200), "b": (5, 5)}) == {"a": (10.0, 100.0)}
+    # at 4 s the read of 2 s is the newest at least 2 s old: the base
+    assert window.rates(4.0, {"a": (60, 600), "b": (9, 9)}) == {"a": (20.0, 200.0), "b": (2.0, 2.0)}
 
 
 def test_before_the_first_interval_the_figures_are_absent_not_zero() -> None:
