@@ -7,6 +7,7 @@ a message the user can act on.
 
 from __future__ import annotations
 
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -370,6 +371,97 @@ class CeddpClockConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
             raise ValueError(f"max_offset_ms must be > 0, got {self.max_offset_ms}")
 
 
+#: the ROS 2 message types a ``[[ros2.commands]]`` mapping may name: each converts to an arpz
+#: command value (arpz/bridge/commands.py; Twist -> [linear.x, angular.z], the simulated body's
+#: ``velocity``)
+ROS2_COMMAND_TYPES: tuple[str, ...] = (
+    "geometry_msgs/msg/Twist",
+    "std_msgs/msg/Float64",
+    "std_msgs/msg/Bool",
+    "std_msgs/msg/String",
+)
+_ROS2_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def _check_ros2_template(template: str, *, what: str) -> None:
+    """A ROS 2 topic name template: absolute, ``{robot}`` / ``{topic}`` placeholders only."""
+    probe = template.replace("{robot}", "r").replace("{topic}", "t")
+    tokens = probe.split("/")
+    if not template.startswith("/") or any(not _ROS2_NAME.match(t) for t in tokens[1:]):
+        raise ValueError(
+            f"{what} {template!r} is not an absolute ROS 2 topic name: write '/' then names of "
+            "letters, digits and '_' separated by '/', with {robot} and {topic} as placeholders "
+            "(e.g. '/{robot}/scan')"
+        )
+
+
+class Ros2CommandConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """One ROS 2 topic per robot whose messages become arpz commands to that robot
+    (docs/ros2.md "Commands")."""
+
+    #: the ROS 2 topic, ``{robot}`` replaced by each robot's id
+    topic: str = "/{robot}/cmd_vel"
+    type: str = "geometry_msgs/msg/Twist"
+    #: the arpz command (``cmd/{command}``) the robot must act on (its announcement lists it)
+    command: str = "velocity"
+
+    def __post_init__(self) -> None:
+        _check_ros2_template(self.topic, what="ros2.commands topic")
+        if "{robot}" not in self.topic:
+            raise ValueError(
+                f"ros2.commands topic {self.topic!r} must contain {{robot}}: each robot gets "
+                "its own command topic"
+            )
+        if self.type not in ROS2_COMMAND_TYPES:
+            raise ValueError(
+                f"ros2.commands type {self.type!r} is not supported: use one of "
+                + ", ".join(ROS2_COMMAND_TYPES)
+            )
+        keys.check_chunk(self.command, what="ros2.commands command")
+
+
+class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """The ROS 2 bridge (``[ros2]``, docs/ros2.md): the fleet's topics as ROS 2 topics for
+    nodes running rmw_zenoh on the same router, and ROS 2 commands to the robots."""
+
+    enabled: bool = False
+    #: ROS_DOMAIN_ID of the ROS 2 side (rmw_zenoh's first key chunk)
+    domain_id: int = 0
+    #: the one ROS 2 node the bridge appears as (``ros2 node list``)
+    node_name: str = "arpz_bridge"
+    #: arpz topic -> ROS 2 topic name: keys "robot/topic" or "*/topic" (any robot), values
+    #: absolute names with ``{robot}`` and ``{topic}`` placeholders; unnamed topics follow the
+    #: default table of docs/ros2.md (``/{robot}/scan`` for the LIDAR, ...)
+    topics: dict[str, str] = msgspec.field(default_factory=dict)
+    commands: list[Ros2CommandConfig] = msgspec.field(
+        default_factory=lambda: [Ros2CommandConfig()]
+    )
+    #: samples and commands waiting for the bridge's worker; beyond it the readers wait
+    queue_limit: int = 10_000
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.domain_id <= 232:
+            raise ValueError(f"ros2.domain_id must be 0..232 (ROS_DOMAIN_ID), got {self.domain_id}")
+        if not _ROS2_NAME.match(self.node_name):
+            raise ValueError(
+                f"ros2.node_name {self.node_name!r} is not a ROS 2 node name: letters, digits "
+                "and '_', not starting with a digit"
+            )
+        for pattern, template in self.topics.items():
+            robot, _, topic = pattern.partition("/")
+            if not topic or (robot != "*" and not _ROS2_KEY.match(robot)):
+                raise ValueError(
+                    f"ros2.topics key {pattern!r} must be 'robot/topic' or '*/topic'"
+                )
+            keys.check_chunk(topic, what="ros2.topics topic")
+            _check_ros2_template(template, what=f"ros2.topics.{pattern!r}")
+        if self.queue_limit < 1:
+            raise ValueError(f"ros2.queue_limit must be >= 1, got {self.queue_limit}")
+
+
+_ROS2_KEY = re.compile(r"^[a-z0-9][a-z0-9_\-]*$")
+
+
 class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     #: where robots connect; empty: the endpoints of ``zenoh_config``, or DEFAULT_LISTEN without
@@ -423,6 +515,8 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     overload: OverloadConfig = msgspec.field(default_factory=OverloadConfig)
     mission: MissionConfig | None = None
     clock: CeddpClockConfig = msgspec.field(default_factory=CeddpClockConfig)
+    #: the ROS 2 bridge (docs/ros2.md); off unless ``enabled``
+    ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 
@@ -466,6 +560,21 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
             )
         if not self.live_host:
             raise ValueError('live_host must be an address to bind, such as "127.0.0.1"')
+
+
+class BridgeConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """``python -m arpz.bridge --config FILE``: the ROS 2 bridge on a machine of its own, a
+    client of the fleet's router. The traffic profiles must be the fleet's (as a robot's)."""
+
+    fleet: str = "default"
+    #: the fleet's router; empty: the ``--connect`` flag or the local default
+    connect: list[str] = msgspec.field(default_factory=list)
+    zenoh_config: str | None = None
+    ros2: Ros2Config = msgspec.field(default_factory=lambda: Ros2Config(enabled=True))
+
+    def __post_init__(self) -> None:
+        keys.check_chunk(self.fleet, what="fleet")
+        check_endpoints(self.connect, field="connect")
 
 
 T = TypeVar("T", bound=msgspec.Struct)

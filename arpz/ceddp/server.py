@@ -46,6 +46,7 @@ from arpz.mission.judge import MissionResult
 from arpz.transport import Transport
 
 if TYPE_CHECKING:  # imported when their port is set (docs/tools-live.md)
+    from arpz.bridge.bridge import Bridge  # imported when [ros2] is enabled (docs/ros2.md)
     from arpz.ceddp.foxglove_live import FoxgloveLive
     from arpz.ceddp.web import StatusWeb
 
@@ -153,6 +154,14 @@ class CeddpServer:
         )
         self.foxglove: FoxgloveLive | None = None
         self.web: StatusWeb | None = None
+        #: the ROS 2 bridge on this router's session ([ros2], docs/ros2.md)
+        self.bridge: Bridge | None = None
+        if config.ros2.enabled:
+            from arpz.bridge.bridge import Bridge
+
+            self.bridge = Bridge(
+                transport, config.fleet, config, config.ros2, partition=config.partition
+            )
         self._reports: Inlet | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -226,6 +235,8 @@ class CeddpServer:
         if self.clock_service is not None:  # before the presence token: robots query at once
             self.clock_service.start()
         self.intake.open()
+        if self.bridge is not None:
+            self.bridge.start()
         self._reports = Inlet(
             self.transport,
             keys.all_reports(fleet),
@@ -297,6 +308,8 @@ class CeddpServer:
                 log.error("thread %s did not stop within 10 s", thread.name)
         self.metrics.tick()
         self._event("CEDDP stopping")
+        if self.bridge is not None:
+            self.bridge.close()
         self.sink.close()
         for outlet in (self.control.qos_out, self.metrics.stats_out):
             if outlet is not None:
@@ -410,6 +423,7 @@ class CeddpServer:
                 "bad_requests": self.clock_service.bad_requests if self.clock_service else 0,
             },
             "mission": self.mission.summary() if self.mission is not None else None,
+            "ros2": self.bridge.stats() if self.bridge is not None else None,
             "events": self.events,
         }
 

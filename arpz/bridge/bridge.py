@@ -1,0 +1,549 @@
+"""The running bridge: the fleet's sensor topics out to ROS 2, ROS 2 commands in to the robots.
+
+``Bridge`` is one ROS 2 node (``[ros2] node_name``) on a Zenoh session: inside the CEDDP it uses
+the CEDDP's own router session, standalone (``python -m arpz.bridge``) a client session.
+
+Fleet -> ROS 2. It learns every robot's topics from the robots' announcements (as the CEDDP
+does), reads their samples through the reliable channel (one wildcard ``Reader`` for the small
+sensors, one ``FrameReader`` for camera frames and point clouds), converts each reading to its
+standard ROS 2 message (arpz.rosmsg) and puts the CDR on the topic's rmw_zenoh key with
+rmw_zenoh's attachment. Each bridged topic is a publisher of the node, with a liveliness token
+carrying the topic's QoS mapped from the arpz profile, so ``ros2 topic list`` shows it.
+
+ROS 2 -> fleet. For each ``[[ros2.commands]]`` mapping, one Zenoh subscriber on every robot's
+command topic (``/{robot}/cmd_vel`` as a wildcard); a robot that acts on the mapped command gets
+a subscription token, and each message becomes an arpz ``Command`` written through a reliable
+channel writer on the robot's ``cmd/{command}`` key with the fleet's command QoS: the robot's
+reader, its lifespan check and its command watchdog treat it as any command.
+
+Every callback only queues; one worker (``arpz-ros2``) does the work in arrival order, so the
+maps of topics and robots have one owner. Bad input (an undecodable sample, a reading with no
+ROS 2 message, a command of another type, a CDR that does not decode, a topic nobody maps) is
+counted and logged once per topic and cause (arpz.throttled_log), never raised.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import queue
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import msgspec
+
+from arpz import keys
+from arpz.bridge import naming, rmw_zenoh
+from arpz.bridge.commands import command_value
+from arpz.bridge.type_hash import UnknownTypeError, type_hash
+from arpz.channel_io import Inlet, Outlet
+from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, Ros2CommandConfig, Ros2Config, TrafficQos
+from arpz.messages import (
+    ANNOUNCE_DECODER,
+    DECODE_ERRORS,
+    LARGE_SAMPLE_DECODER,
+    SAMPLE_DECODER,
+    Command,
+    encode,
+    new_incarnation,
+    writer_id,
+)
+from arpz.reliability import FrameInfo, FrameReader, MessageLostStatus, ReaderEventCallbacks
+from arpz.rosmsg.convert import ConversionError, deserialize, to_cdr
+from arpz.rosmsg.types import UnknownKindError, ros_type_for
+from arpz.throttled_log import ThrottledLog
+from arpz.transport import Handle, Publisher, Transport
+
+log = logging.getLogger(__name__)
+#: bad input: one line per topic and cause per 10 s
+throttled = ThrottledLog(log)
+
+_ANNOUNCE, _PRESENCE, _SAMPLE, _FRAME, _COMMAND, _STOP = range(6)
+#: how long a reader's thread waits for room in the worker's queue before the item is dropped
+#: (and counted): the readers' own flow control holds the robots meanwhile
+_PUT_TIMEOUT_S = 1.0
+
+
+@dataclass
+class BridgeCounters:
+    """What the bridge did, for its stats and the CEDDP's summary (``ros2``)."""
+
+    #: arpz samples and frames taken from the channel
+    samples_in: int = 0
+    #: ROS 2 messages published (one per sample converted)
+    published: int = 0
+    #: samples whose arpz payload did not decode
+    undecodable_samples: int = 0
+    #: readings with no ROS 2 message (e.g. a float32 out of range, a frame of odd size)
+    conversion_errors: int = 0
+    #: a sensor kind with no ROS 2 type, or a message of another type on a command topic
+    unknown_type: int = 0
+    #: samples of a topic no announcement mapped yet, commands for a robot that does not act on
+    #: the mapped command (or no robot of that name)
+    unmapped: int = 0
+    #: ROS 2 command messages received, and written to a robot's command key
+    commands_in: int = 0
+    commands_sent: int = 0
+    #: commands written while the robot's reader was not matched (they reached no one)
+    commands_unmatched: int = 0
+    commands_write_failures: int = 0
+    #: command payloads that are not CDR of the mapped type
+    bad_cdr: int = 0
+    #: commands without rmw_zenoh's 33-byte attachment (accepted: the attachment is metadata)
+    bad_attachment: int = 0
+    #: items the worker's queue refused after waiting (queue_limit)
+    queue_dropped: int = 0
+    #: sensor samples the reliable channel reported lost before the bridge
+    channel_lost: int = 0
+
+
+@dataclass
+class _TopicOut:
+    """One bridged sensor topic: a ROS 2 publisher of the node."""
+
+    robot: str
+    topic: str
+    kind: str
+    entity: rmw_zenoh.Entity
+    gid: bytes
+    publisher: Publisher
+    token: Handle
+    frame_id: str
+    seq: int = 0
+    conversion_errors: int = 0
+
+
+@dataclass
+class _CommandIn:
+    """One robot's command topic: a ROS 2 subscription of the node."""
+
+    robot: str
+    mapping: Ros2CommandConfig
+    entity: rmw_zenoh.Entity
+    token: Handle
+    outlet: Outlet
+    received: int = 0
+    sent: int = 0
+    seq: int = 0
+
+
+@dataclass
+class _Robot:
+    topics: dict[str, _TopicOut] = field(default_factory=dict)
+    commands: dict[str, _CommandIn] = field(default_factory=dict)
+
+
+class Bridge:
+    """Thread: ``start`` opens everything and starts the worker; ``close`` undeclares it all.
+    ``stats`` may be called from any thread."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        fleet: str,
+        traffic: TrafficQos,
+        config: Ros2Config,
+        *,
+        partition: str = "*",
+        zid: str | None = None,
+    ) -> None:
+        self.transport = transport
+        self.fleet = fleet
+        self.traffic = traffic
+        self.config = config
+        self.partition = partition
+        #: rmw_zenoh names the session in every token; any unique hex string will do for a fake
+        self.zid = zid or str(getattr(transport, "zid", "")) or new_incarnation()
+        self.writer = writer_id("ros2-bridge", new_incarnation())
+        self.counters = BridgeCounters()
+        self._lock = threading.Lock()
+        #: (what, key, payload, extra): extra is (attachment, mapping index) for a command
+        self._queue: queue.Queue[tuple[int, str, bytes, Any]] = queue.Queue(config.queue_limit)
+        self._robots: dict[str, _Robot] = {}
+        #: ROS 2 command topic -> (robot, mapping index), for the robots acting on a mapping
+        self._command_topics: dict[tuple[int, str], str] = {}
+        self._next_id = 1
+        #: ROS 2 topic -> counts of its closed incarnations (a robot that left)
+        self._retired_topics: dict[str, dict[str, Any]] = {}
+        self._retired_commands: dict[str, dict[str, Any]] = {}
+        self._handles: list[Handle] = []
+        self._inlets: list[Inlet] = []
+        self._frames: FrameReader | None = None
+        self._worker = threading.Thread(target=self._run, name="arpz-ros2", daemon=True)
+        self._hashes = {m.type: type_hash(m.type) for m in config.commands}
+        self.node = rmw_zenoh.Entity(
+            domain_id=config.domain_id,
+            zid=self.zid,
+            node_id="0",
+            entity_id="0",
+            kind=rmw_zenoh.NODE,
+            namespace="/",
+            node=config.node_name,
+        )
+
+    # -- life cycle ------------------------------------------------------------------------------
+
+    def start(self) -> None:
+        t, fleet = self.transport, self.fleet
+        self._worker.start()
+        self._handles.append(t.declare_token(self.node.token()))
+        for index, mapping in enumerate(self.config.commands):
+            expr = naming.command_key_expr(self.config.domain_id, mapping.topic)
+            self._handles.append(t.subscribe(expr, functools.partial(self._on_command, index)))
+        self._inlets.append(
+            Inlet(t, keys.all_announce(fleet), self.traffic.profile("report"), self._on_announce)
+        )
+        self._handles.append(t.watch_liveliness(keys.all_presence(fleet), self._on_presence))
+        self._inlets.append(
+            Inlet(
+                t,
+                keys.all_sensors(fleet, self.partition),
+                self.traffic.profile("sensor"),
+                lambda key, payload: self._put(_SAMPLE, key, payload),
+                on_lost=self._on_lost,
+            )
+        )
+        frames_qos = self.traffic.profile("frames")
+        if frames_qos is not None:
+            self._frames = FrameReader(
+                t,
+                keys.all_frames(fleet, self.partition),
+                frames_qos,
+                self._on_frame,
+                max_frame_bytes=LARGE_SAMPLE_BYTES,
+                events=ReaderEventCallbacks(message_lost=self._on_lost),
+            )
+        log.info(
+            "ROS 2 bridge: node /%s on domain %d (rmw_zenoh), fleet '%s'",
+            self.config.node_name,
+            self.config.domain_id,
+            fleet,
+        )
+
+    def close(self) -> None:
+        """Stop reading, let the worker finish what is queued (bounded), undeclare everything."""
+        for inlet in self._inlets:
+            inlet.close()
+        if self._frames is not None:
+            self._frames.close()
+        for handle in self._handles:
+            handle.undeclare()
+        self._queue.put((_STOP, "", b"", None))
+        self._worker.join(timeout=5.0)
+        for robot in list(self._robots):
+            self._drop_robot(robot)
+
+    def __enter__(self) -> Bridge:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- callbacks: only queue ---------------------------------------------------------------------
+
+    def _put(self, kind: int, key: str, payload: bytes) -> None:
+        """From a reader's own thread: wait for room (the channel holds the robots meanwhile)."""
+        try:
+            self._queue.put((kind, key, payload, None), timeout=_PUT_TIMEOUT_S)
+        except queue.Full:
+            self._dropped(key)
+
+    def _offer(self, kind: int, key: str, payload: bytes, extra: Any) -> None:
+        """From Zenoh's thread: never block it."""
+        try:
+            self._queue.put_nowait((kind, key, payload, extra))
+        except queue.Full:
+            self._dropped(key)
+
+    def _dropped(self, key: str) -> None:
+        with self._lock:
+            self.counters.queue_dropped += 1
+        throttled.warning(
+            "ros2 queue full", "ROS 2 bridge: queue full (queue_limit): %s dropped", key
+        )
+
+    def _on_command(self, index: int, key: str, payload: bytes, att: bytes | None) -> None:
+        self._offer(_COMMAND, key, payload, (att, index))
+
+    def _on_announce(self, key: str, payload: bytes) -> None:
+        self._put(_ANNOUNCE, key, payload)
+
+    def _on_presence(self, key: str, alive: bool) -> None:
+        self._offer(_PRESENCE, key, b"\x01" if alive else b"", None)
+
+    def _on_frame(self, payload: bytes, info: FrameInfo) -> None:
+        self._put(_FRAME, info.key, payload)
+
+    def _on_lost(self, status: MessageLostStatus) -> None:
+        with self._lock:
+            self.counters.channel_lost += status.total_count_change
+
+    # -- the worker ------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while True:
+            kind, key, payload, extra = self._queue.get()
+            if kind == _STOP:
+                return
+            try:
+                if kind in (_SAMPLE, _FRAME):
+                    self._publish(key, payload, large=kind == _FRAME)
+                elif kind == _COMMAND:
+                    attachment, index = extra
+                    self._command(index, key, payload, attachment)
+                elif kind == _ANNOUNCE:
+                    self._announce(key, payload)
+                elif kind == _PRESENCE and not payload:
+                    parsed = keys.parse_robot_key(key)
+                    if parsed is not None:
+                        self._drop_robot(parsed[0])
+            except Exception:  # a bug must not stop the bridge: loud once per cause, counted
+                throttled.exception(f"ros2 worker {kind}", "ROS 2 bridge failed on %s", key)
+
+    def _bad(self, counter: str, cause: str, message: str, *args: object) -> None:
+        with self._lock:
+            setattr(self.counters, counter, getattr(self.counters, counter) + 1)
+        throttled.warning(cause, "ROS 2 bridge: " + message, *args)
+
+    def _new_entity(self, kind: str, topic: str, ros_type: str, qos: rmw_zenoh.RmwQos) -> Any:
+        entity_id, self._next_id = self._next_id, self._next_id + 1
+        return rmw_zenoh.Entity(
+            domain_id=self.config.domain_id,
+            zid=self.zid,
+            node_id=self.node.node_id,
+            entity_id=str(entity_id),
+            kind=kind,
+            namespace=self.node.namespace,
+            node=self.node.node,
+            topic=topic,
+            ros_type=ros_type,
+            type_hash=type_hash(ros_type),
+            qos=qos,
+        )
+
+    def _announce(self, key: str, payload: bytes) -> None:
+        """A robot's topics and commands: a publisher for each new sensor topic, a subscription
+        for each command it acts on that a mapping names."""
+        try:
+            announce = ANNOUNCE_DECODER.decode(payload)
+        except DECODE_ERRORS as exc:
+            self._bad(
+                "undecodable_samples",
+                f"announce {key}",
+                "undecodable announcement %s: %s",
+                key,
+                exc,
+            )
+            return
+        robot = announce.robot
+        parsed = keys.parse_robot_key(key)
+        if parsed is None or parsed[0] != robot:
+            self._bad("unmapped", f"announce {key}", "announcement of %r on %s refused", robot, key)
+            return
+        state = self._robots.setdefault(robot, _Robot())
+        for info in announce.sensors:
+            if info.topic not in state.topics:
+                self._open_topic(state, robot, info.topic, info.kind)
+        for index, mapping in enumerate(self.config.commands):
+            if mapping.command in announce.commands and mapping.command not in state.commands:
+                self._open_command(state, robot, index, mapping)
+
+    def _open_topic(self, state: _Robot, robot: str, topic: str, kind: str) -> None:
+        try:
+            ros_type = ros_type_for(kind)
+            type_hash(ros_type)
+        except (UnknownKindError, UnknownTypeError) as exc:
+            self._bad(
+                "unknown_type", f"type {robot}/{topic}", "%s/%s not bridged: %s", robot, topic, exc
+            )
+            return
+        name = naming.topic_name(self.config, robot, topic, kind)
+        profile = self.traffic.profile("frames" if kind in LARGE_KINDS else "sensor")
+        qos = rmw_zenoh.qos_from_profile(profile)
+        entity = self._new_entity(rmw_zenoh.PUBLISHER, name, ros_type, qos)
+        # as rmw_zenoh: congestion control BLOCK only for RELIABLE + KEEP_ALL, else DROP
+        block = qos.reliability == rmw_zenoh.RELIABLE and qos.history == rmw_zenoh.KEEP_ALL
+        publisher = self.transport.publisher(entity.data_key, block=block)
+        token = self.transport.declare_token(entity.token())
+        state.topics[topic] = _TopicOut(
+            robot, topic, kind, entity, entity.gid, publisher, token, naming.frame_id(robot, topic)
+        )
+        log.info("ROS 2 bridge: %s/%s -> %s [%s]", robot, topic, name, ros_type)
+
+    def _open_command(
+        self, state: _Robot, robot: str, index: int, mapping: Ros2CommandConfig
+    ) -> None:
+        name = naming.fill(mapping.topic, robot)
+        profile = self.traffic.profile("command", downlink=True)
+        entity = self._new_entity(
+            rmw_zenoh.SUBSCRIPTION, name, mapping.type, rmw_zenoh.qos_from_profile(profile)
+        )
+        outlet = Outlet(
+            self.transport, keys.command_key(self.fleet, robot, mapping.command), profile
+        )
+        token = self.transport.declare_token(entity.token())
+        state.commands[mapping.command] = _CommandIn(robot, mapping, entity, token, outlet)
+        with self._lock:
+            self._command_topics[(index, name)] = robot
+        log.info("ROS 2 bridge: %s [%s] -> %s cmd/%s", name, mapping.type, robot, mapping.command)
+
+    def _drop_robot(self, robot: str) -> None:
+        """The robot left: its publishers, tokens and command writers go (it announces again)."""
+        state = self._robots.pop(robot, None)
+        if state is None:
+            return
+        for out in state.topics.values():
+            out.token.undeclare()
+            out.publisher.undeclare()
+            self._retire(out)
+        with self._lock:
+            for key in [k for k, r in self._command_topics.items() if r == robot]:
+                del self._command_topics[key]
+        for command in state.commands.values():
+            command.token.undeclare()
+            command.outlet.close(0.0)
+            self._retire(command)
+
+    def _publish(self, key: str, payload: bytes, *, large: bool) -> None:
+        with self._lock:
+            self.counters.samples_in += 1
+        parsed = keys.parse_robot_key(key)
+        state = self._robots.get(parsed[0]) if parsed is not None else None
+        out = state.topics.get(parsed[2]) if state is not None and parsed is not None else None
+        if out is None:
+            self._bad("unmapped", f"unmapped {key}", "%s: no announced topic, not bridged", key)
+            return
+        decoder = LARGE_SAMPLE_DECODER if large or out.kind in LARGE_KINDS else SAMPLE_DECODER
+        try:
+            sample = decoder.decode(payload)
+        except DECODE_ERRORS as exc:
+            self._bad("undecodable_samples", f"undecodable {key}", "%s: undecodable: %s", key, exc)
+            return
+        try:
+            cdr = to_cdr(out.kind, sample.value, stamp_ns=sample.stamp_ns, frame_id=out.frame_id)
+        except ConversionError as exc:
+            out.conversion_errors += 1
+            self._bad("conversion_errors", f"convert {key}", "%s: %s", key, exc)
+            return
+        out.seq += 1
+        out.publisher.put(cdr, attachment=rmw_zenoh.attachment(out.seq, sample.stamp_ns, out.gid))
+        with self._lock:
+            self.counters.published += 1
+
+    def _command(self, index: int, key: str, payload: bytes, attachment: bytes | None) -> None:
+        mapping = self.config.commands[index]
+        with self._lock:
+            self.counters.commands_in += 1
+        parsed = rmw_zenoh.parse_topic_key(key)
+        if parsed is None or (parsed.ros_type, parsed.type_hash) != (
+            mapping.type,
+            self._hashes[mapping.type],
+        ):
+            self._bad(
+                "unknown_type",
+                f"command type {key}",
+                "%s: not %s (%s): refused",
+                key,
+                mapping.type,
+                self._hashes[mapping.type],
+            )
+            return
+        with self._lock:
+            robot = self._command_topics.get((index, parsed.topic))
+        state = self._robots.get(robot) if robot is not None else None
+        command = state.commands.get(mapping.command) if state is not None else None
+        if command is None:
+            self._bad(
+                "unmapped",
+                f"command topic {parsed.topic}",
+                "%s: no robot acting on '%s' has this topic: refused",
+                parsed.topic,
+                mapping.command,
+            )
+            return
+        if attachment is None or len(attachment) != rmw_zenoh.ATTACHMENT_BYTES:
+            self._bad(
+                "bad_attachment",
+                f"attachment {parsed.topic}",
+                "%s: no rmw_zenoh attachment",
+                parsed.topic,
+            )
+        try:
+            value = command_value(mapping.type, deserialize(payload, mapping.type))
+        except (ConversionError, AttributeError, TypeError, ValueError) as exc:
+            self._bad("bad_cdr", f"cdr {parsed.topic}", "%s: %s", parsed.topic, exc)
+            return
+        command.received += 1
+        command.seq += 1
+        stamp = time.time_ns()
+        message = Command(writer=self.writer, seq=command.seq, stamp_ns=stamp, value=value)
+        before = command.outlet.unmatched
+        ok = command.outlet.send(encode(message), stamp, count_unmatched=True)
+        with self._lock:
+            self.counters.commands_unmatched += command.outlet.unmatched - before
+            if ok:
+                command.sent += 1
+                self.counters.commands_sent += 1
+            else:
+                self.counters.commands_write_failures += 1
+
+    # -- stats -----------------------------------------------------------------------------------
+
+    def _row(self, item: _TopicOut | _CommandIn) -> dict[str, Any]:
+        if isinstance(item, _TopicOut):
+            return {
+                "robot": item.robot,
+                "topic": item.topic,
+                "type": item.entity.ros_type,
+                "published": item.seq,
+                "conversion_errors": item.conversion_errors,
+                "qos": item.entity.qos.describe() if item.entity.qos else "",
+            }
+        return {
+            "robot": item.robot,
+            "command": item.mapping.command,
+            "type": item.mapping.type,
+            "received": item.received,
+            "sent": item.sent,
+        }
+
+    def _retire(self, item: _TopicOut | _CommandIn) -> None:
+        """Keep a closed topic's counts for the stats (added to a later incarnation's)."""
+        table = self._retired_topics if isinstance(item, _TopicOut) else self._retired_commands
+        row = self._row(item)
+        with self._lock:
+            table[item.entity.topic] = _merged(table.get(item.entity.topic), row)
+
+    def stats(self) -> dict[str, Any]:
+        """The bridge's counters, its topics and command topics (live and closed), and the
+        sensor channel's view."""
+        robots = dict(self._robots)  # the worker may add entries meanwhile: copy, then read
+        live_topics = [o for state in robots.values() for o in list(state.topics.values())]
+        live_commands = [c for state in robots.values() for c in list(state.commands.values())]
+        with self._lock:
+            counters = asdict(self.counters)
+            topics = dict(self._retired_topics)
+            commands = dict(self._retired_commands)
+        for out in live_topics:
+            topics[out.entity.topic] = _merged(topics.get(out.entity.topic), self._row(out))
+        for cmd in live_commands:
+            commands[cmd.entity.topic] = _merged(commands.get(cmd.entity.topic), self._row(cmd))
+        channel = self._inlets[1].stats() if len(self._inlets) > 1 else None
+        return {
+            "node": f"/{self.config.node_name}",
+            "domain_id": self.config.domain_id,
+            "counters": counters,
+            "topics": topics,
+            "commands": commands,
+            "channel": msgspec.to_builtins(channel) if channel is not None else None,
+        }
+
+
+def _merged(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, Any]:
+    """``new`` with the counts of ``old`` (an earlier incarnation of the topic) added."""
+    if old is None:
+        return new
+    return {k: v + old[k] if isinstance(v, int) and k in old else v for k, v in new.items()}
