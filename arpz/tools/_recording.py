@@ -13,7 +13,9 @@ docs/protocol.md). Channel metadata: ``arpz_key`` (the Zenoh key), ``arpz_kind``
 
 from __future__ import annotations
 
+import fnmatch
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO, Final
@@ -32,6 +34,8 @@ from arpz.protocol.qos import (
 )
 from arpz.rosmsg.convert import message_definition
 from arpz.rosmsg.types import ros_type_for
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
 
 PROFILE: Final = "ros2"
 CDR: Final = "cdr"
@@ -105,6 +109,19 @@ class Topic:
             "arpz_qos": msgspec.json.encode(self.qos).decode() if self.qos else "none",
             "offered_qos_profiles": offered_qos_yaml(self.qos),
         }
+
+
+def matches(topic: Topic, patterns: Sequence[str]) -> bool:
+    """A topic selected by shell patterns on its MCAP topic or its arpz key (no patterns: all)."""
+    return not patterns or any(
+        fnmatch.fnmatchcase(topic.name, p) or fnmatch.fnmatchcase(topic.key, p) for p in patterns
+    )
+
+
+def open_client(endpoints: Sequence[str], zenoh_config: str | None) -> ZenohTransport:
+    """A client session to the fleet's router, as a robot opens one (trying for 5 s)."""
+    settings = SessionSettings(mode="client", connect=endpoints, config_file=zenoh_config)
+    return ZenohTransport.open(settings, timeout_s=5.0)
 
 
 def report_kind(what: str) -> str | None:

@@ -14,7 +14,6 @@ Usage: ``python -m arpz record --out fleet.mcap [--duration S] [TOPIC_PATTERN ..
 from __future__ import annotations
 
 import argparse
-import fnmatch
 import logging
 import queue
 import sys
@@ -47,10 +46,9 @@ from arpz.reliability import (
 )
 from arpz.rosmsg.convert import ConversionError, is_exact, to_cdr
 from arpz.throttled_log import ThrottledLog
-from arpz.tools._recording import McapSink, Topic, report_kind
-from arpz.transport import Handle, SessionSettings, Transport, TransportError
+from arpz.tools._recording import McapSink, Topic, matches, open_client, report_kind
+from arpz.transport import Handle, Transport, TransportError
 from arpz.version import arpz_version
-from arpz.zenoh_transport import ZenohTransport
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -299,12 +297,7 @@ class Recorder:
     def _selected(self, topic: Topic) -> bool:
         """Announcements and liveliness are always recorded (play needs them); the patterns
         select among the rest, matched against the MCAP topic or the arpz key."""
-        if not self.patterns or topic.kind in ("announce", "liveliness"):
-            return True
-        return any(
-            fnmatch.fnmatchcase(topic.name, p) or fnmatch.fnmatchcase(topic.key, p)
-            for p in self.patterns
-        )
+        return topic.kind in ("announce", "liveliness") or matches(topic, self.patterns)
 
     def _topic(self, key: str, robot: str, kind: str, source: str) -> Topic | None:
         tally = self.tallies.get(key)
@@ -393,7 +386,11 @@ class Recorder:
             decoder = LARGE_SAMPLE_DECODER if kind in LARGE_KINDS else SAMPLE_DECODER
             sample = decoder.decode(item.payload)
             size = self.camera_size
-            if size is not None and size[0] * size[1] * 3 != len(sample.value):  # type: ignore[arg-type]
+            if not (
+                isinstance(sample.value, bytes)
+                and size
+                and size[0] * size[1] * 3 == len(sample.value)
+            ):
                 size = None
             data = to_cdr(
                 kind, sample.value, stamp_ns=sample.stamp_ns, frame_id=f"{robot}/{name}", size=size
@@ -587,9 +584,8 @@ def main(argv: list[str] | None = None) -> int:
         return cli.fail("record", str(exc))
     cli.configure_logging("WARNING")
     stop = cli.stop_on_signals()
-    settings = SessionSettings(mode="client", connect=endpoints, config_file=args.zenoh_config)
     try:
-        transport = ZenohTransport.open(settings, timeout_s=5.0)
+        transport = open_client(endpoints, args.zenoh_config)
     except TransportError as exc:
         return cli.fail("record", str(exc), 1)
     sink = McapSink(

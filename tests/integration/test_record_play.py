@@ -1,0 +1,287 @@
+"""``arpz record`` and ``arpz play`` against real fleets through a real router.
+
+1. A robot with every sensor kind (the seven of seed 001 Table 1, a camera and a point cloud) is
+   recorded while a CEDDP runs; the file is read back with INDEPENDENT readers (the mcap library
+   with mcap-ros2-support's CDR decoder, and rosbags' rosbag2 reader), and its counts are
+   checked against the robot's own final counters.
+2. The hallway mission is recorded, commands included, and played into a fresh CEDDP running
+   the same planner: the commands it sends are the recorded ones.
+"""
+
+from __future__ import annotations
+
+import bisect
+import json
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from tests.integration.fleet import Process, ceddp, settle
+
+pytestmark = pytest.mark.integration
+
+SENSORS = {
+    "lidar": "sensor_msgs/msg/LaserScan",
+    "dht11": "sensor_msgs/msg/Temperature",
+    "imu": "sensor_msgs/msg/Imu",
+    "ultrasonic": "sensor_msgs/msg/Range",
+    "flame": "std_msgs/msg/Bool",
+    "pir": "std_msgs/msg/Bool",
+    "light": "sensor_msgs/msg/Illuminance",
+    "cam": "sensor_msgs/msg/Image",
+    "cloud": "sensor_msgs/msg/PointCloud2",
+}
+
+
+def record(endpoint: str, out: Path, cwd: Path, *args: str) -> Process:
+    proc = Process(
+        "record",
+        [
+            "-m",
+            "arpz.tools.record",
+            *("--connect", endpoint, "--fleet", "itest", "--out", str(out)),
+            *("--json", str(out.with_suffix(".json"))),
+            *args,
+        ],
+        cwd,
+    )
+    proc.wait_for("recording fleet")
+    return proc
+
+
+def robot(cwd: Path, name: str, text: str) -> Process:
+    config = cwd / f"{name}.toml"
+    config.write_text(f'robot_id = "{name}"\nfleet = "itest"\nstats_period_s = 0.2\n{text}')
+    proc = Process(name, ["-m", "arpz.robot", "--config", str(config)], cwd)
+    proc.wait_for("running")
+    return proc
+
+
+def messages(path: Path) -> dict[str, list[tuple[Any, Any, Any]]]:
+    """topic -> [(schema, channel, message)], read by the mcap library alone."""
+    out: dict[str, list[tuple[Any, Any, Any]]] = {}
+    with path.open("rb") as stream:
+        for schema, channel, message in make_reader(stream).iter_messages(log_time_order=True):
+            out.setdefault(channel.topic, []).append((schema, channel, message))
+    return out
+
+
+@pytest.fixture(scope="module")
+def every_kind(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A recording of one robot with every sensor kind, from before it started to after its
+    final report (so every sample it sent should be in the file)."""
+    tmp = tmp_path_factory.mktemp("every_kind")
+    out = tmp / "fleet.mcap"
+    with ceddp(tmp) as (_, endpoint):
+        recorder = record(endpoint, out, tmp, "--camera-size", "64x48")
+        kinds = {name: name for name in list(SENSORS)[:7]} | {
+            "cam": "camera",
+            "cloud": "pointcloud",
+        }
+        options = {"cam": "{ width = 64, height = 48 }", "cloud": "{ points = 100 }"}
+        sensors = "".join(
+            f'[[sensors]]\nname = "{name}"\nkind = "{kind}"\nrate_hz = 20.0\n'
+            f"options = {options.get(name, '{}')}\n"
+            for name, kind in kinds.items()
+        )
+        # no local cache: every reading goes out, so every topic has many samples to count
+        text = f'connect = ["{endpoint}"]\n{sensors}[local_cache]\nenabled = false\n'
+        proc = robot(tmp, "robot1", text)
+        settle(3.0)
+        assert proc.interrupt() == 0, proc.output()
+        settle(0.5)  # the final report reaches the recorder
+        assert recorder.interrupt() == 0, recorder.output()
+    return out
+
+
+def test_an_independent_reader_decodes_every_sensor_topic(every_kind: Path) -> None:
+    with every_kind.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        assert reader.get_header().profile == "ros2"
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
+        assert {s.name for s in summary.schemas.values()} == set(SENSORS.values())
+        channels = {c.topic: c for c in summary.channels.values()}
+        # one channel per key: 9 sensors, and the robot's announce, stats, presence and mode
+        assert set(channels) == {f"/robot1/{name}" for name in SENSORS} | {
+            "/robot1/arpz/announce",
+            "/robot1/arpz/stats",
+            "/robot1/arpz/presence",
+            "/robot1/arpz/mode/channel",
+        }
+        for name in SENSORS:
+            metadata = channels[f"/robot1/{name}"].metadata
+            where = "frames" if name in ("cam", "cloud") else "sensor"
+            assert metadata["arpz_key"] == f"arpz/itest/robot/robot1/{where}/{name}"
+            assert "reliability: 1" in metadata["offered_qos_profiles"]  # RELIABLE
+            assert json.loads(metadata["arpz_qos"])["reliability"] == "reliable"
+        decoded: dict[str, list[Any]] = {}
+        for schema, channel, message, ros in reader.iter_decoded_messages(
+            topics=[f"/robot1/{name}" for name in SENSORS]
+        ):
+            assert schema.name == SENSORS[channel.topic.rsplit("/", 1)[1]]
+            if hasattr(ros, "header"):  # the robot's stamp is the log time
+                stamp = ros.header.stamp
+                assert message.log_time == stamp.sec * 10**9 + stamp.nanosec
+            assert message.publish_time >= message.log_time  # arrival after the robot's stamp
+            decoded.setdefault(channel.topic, []).append(ros)
+    scan = decoded["/robot1/lidar"][0]
+    assert (
+        len(scan.ranges) == 1
+        and 0.5 < scan.ranges[0] < 10
+        and scan.header.frame_id == "robot1/lidar"
+    )
+    assert all(18 <= m.temperature <= 30 for m in decoded["/robot1/dht11"])
+    assert all(8 < m.linear_acceleration.z < 12 for m in decoded["/robot1/imu"])
+    assert all(m.radiation_type == 0 and 0.5 < m.range < 2 for m in decoded["/robot1/ultrasonic"])
+    assert {m.illuminance for m in decoded["/robot1/light"]} <= {0.0, 100.0}
+    image = decoded["/robot1/cam"][0]
+    assert (image.width, image.height, image.encoding, len(image.data)) == (64, 48, "rgb8", 9216)
+    cloud = decoded["/robot1/cloud"][0]
+    assert (cloud.width, cloud.point_step, len(cloud.data)) == (100, 12, 1200)
+    xyz = np.frombuffer(bytes(cloud.data), dtype="<f4").reshape(-1, 3)
+    assert np.all(np.hypot(xyz[:, 0], xyz[:, 1]) > 1.5)  # the simulated room's walls: 2..6 m
+
+
+def test_the_counts_match_the_robots_own_counters(every_kind: Path) -> None:
+    recorded = messages(every_kind)
+    stats = [msgspec.msgpack.decode(m.data) for _, _, m in recorded["/robot1/arpz/stats"]]
+    final = [s for s in stats if s["final"]]
+    assert len(final) == 1, "the robot's final report is in the recording"
+    summary = json.loads(every_kind.with_suffix(".json").read_text())
+    for name in SENSORS:
+        topic = f"/robot1/{name}"
+        sent = final[0]["topics"][name]["sent"]
+        assert sent >= 20, name
+        assert summary["topics"][topic]["lost"] == 0, name
+        # every sample the robot sent during the recording is in the file, once
+        assert len(recorded[topic]) == summary["topics"][topic]["messages"] == sent, name
+        seqs = [m.sequence for _, _, m in recorded[topic]]
+        assert sorted(seqs) == list(range(1, sent + 1)), name
+
+
+def test_rosbags_opens_the_recording_as_a_rosbag2(every_kind: Path) -> None:
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    counts: dict[str, int] = {}
+    with Reader(every_kind) as bag:
+        by_topic = {c.topic: c for c in bag.connections}
+        assert by_topic["/robot1/lidar"].msgtype == "sensor_msgs/msg/LaserScan"
+        assert by_topic["/robot1/cam"].ext.offered_qos_profiles[0].depth == 1  # frames_qos
+        cdr = [c for c in bag.connections if c.ext.serialization_format == "cdr"]
+        for connection, _, raw in bag.messages(connections=cdr):
+            store.deserialize_cdr(raw, connection.msgtype)
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+    recorded = messages(every_kind)
+    assert counts == {f"/robot1/{n}": len(recorded[f"/robot1/{n}"]) for n in SENSORS}
+
+
+# -- record, play, same decisions ----------------------------------------------------------------
+
+MISSION = '[mission]\nworld = "hallway_small"\ntime_limit_s = 60\n'
+#: long enough for the leader's first corner (about 4.5 s after the start, 2 s of turning)
+MISSION_S = 8.0
+
+
+def commands(path: Path) -> dict[str, list[tuple[int, tuple[float, float]]]]:
+    """robot -> [(stamp_ns, (v, omega))] of the CEDDP's velocity commands in a recording."""
+    out: dict[str, list[tuple[int, tuple[float, float]]]] = {}
+    for topic, items in messages(path).items():
+        if topic.endswith("/cmd/velocity"):
+            for _, channel, message in items:
+                assert channel.message_encoding == "msgpack"
+                _, _, stamp_ns, (v, omega) = msgspec.msgpack.decode(message.data)
+                out.setdefault(topic.split("/")[1], []).append((stamp_ns, (v, omega)))
+    return out
+
+
+def replay_offset_ns(original: Path, replay: Path) -> int:
+    """How much later the replay ran than the original: play shifts every stamp by one constant
+    (at --rate 1), measured here on the leader's front beam, which both files hold."""
+    first = [messages(path)["/robot1/lidar_0"][0][2].log_time for path in (original, replay)]
+    return first[1] - first[0]
+
+
+def compare(
+    recorded: list[tuple[int, tuple[float, float]]],
+    replayed: list[tuple[int, tuple[float, float]]],
+    offset_ns: int,
+) -> tuple[int, int]:
+    """(commands compared, commands equal): each recorded command from the start of motion on
+    against the replayed command nearest to it on the replay's time line (its stamp + offset);
+    commands beyond either end are not compared."""
+    start = next(s for s, (v, _) in recorded if v > 0)
+    times = [s - offset_ns for s, _ in replayed]
+    compared = equal = 0
+    for stamp, (v, omega) in recorded:
+        i = bisect.bisect_left(times, stamp)
+        near = [k for k in (i - 1, i) if 0 <= k < len(times)]
+        j = min(near, key=lambda k: abs(times[k] - stamp))
+        if stamp < start or abs(times[j] - stamp) > 30_000_000:  # the ticks are 50 ms apart
+            continue
+        compared += 1
+        v_b, omega_b = replayed[j][1]
+        equal += v_b == v and abs(omega_b - omega) <= 0.01
+    return compared, equal
+
+
+def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> None:
+    """The hallway mission's 3 robots are recorded for MISSION_S with the CEDDP's commands, then
+    played into a fresh CEDDP running the same planner; its commands are recorded too.
+
+    Tolerance: the replay CEDDP's 20 Hz planner ticks fall at another phase than the original's
+    relative to the beams' arrivals, so a decision taken on a beam that arrived between two ticks
+    can move by one tick, and on a loaded machine the replay (like the original) can hold the
+    fleet for a few ticks when a beam is late (a "stale" stop). Hence: each recorded command
+    from the start of motion on is compared with the replayed command nearest to it on the
+    replay's time line (play shifts all stamps by one constant, measured on a beam both files
+    hold), and at least 95 % must be equal (v exactly, omega within 0.01 rad/s); the recording
+    must hold a corner turn, so the decisions compared include more than driving straight."""
+    original, replay = tmp_path / "original.mcap", tmp_path / "replay.mcap"
+    first = tmp_path / "first"
+    first.mkdir()
+    with ceddp(first, extra=MISSION) as (_, endpoint):
+        recorder = record(endpoint, original, first, "--duration", str(MISSION_S))
+        fleet = [
+            robot(
+                first,
+                f"robot{i}",
+                f'connect = ["{endpoint}"]\nseed = {i}\n[sim]\nworld = "hallway_small"\n',
+            )
+            for i in (1, 2, 3)
+        ]
+        try:
+            recorder.popen.wait(timeout=MISSION_S + 20)
+            assert recorder.popen.returncode == 0, recorder.output()
+        finally:
+            for proc in fleet:
+                proc.kill()
+    second = tmp_path / "second"
+    second.mkdir()
+    with ceddp(second, extra=MISSION) as (_, endpoint):
+        recorder = record(endpoint, replay, second, "*/cmd/*", "/robot1/lidar_0")
+        play = Process(
+            "play",
+            ["-m", "arpz.tools.play", str(original), "--connect", endpoint],
+            second,
+        )
+        play.popen.wait(timeout=MISSION_S + 20)
+        assert play.popen.returncode == 0, play.output()
+        assert "published" in play.output()
+        assert recorder.interrupt() == 0, recorder.output()
+    before, after = commands(original), commands(replay)
+    offset_ns = replay_offset_ns(original, replay)
+    assert sorted(before) == sorted(after) == ["robot1", "robot2", "robot3"]
+    for name in before:
+        assert any(abs(omega) >= 0.5 for _, (_, omega) in before[name]), "no turn recorded"
+        compared, equal = compare(before[name], after[name], offset_ns)
+        assert compared >= 0.9 * MISSION_S * 20 - 40, (name, compared)  # 20 Hz, less the start
+        assert equal >= 0.95 * compared, (name, equal, compared)
