@@ -756,6 +756,11 @@ def stream_loop(
                 if time.monotonic() >= next_report:
                     handler.report(stream)
                     next_report += 1.0
+            # stop reading, then take what was already delivered: the final counters and the
+            # messages shown agree exactly
+            stream.close()
+            while not handler.done and (message := stream.get(0.0)) is not None:
+                handler.on_message(message)
             handler.final(stream)
     finally:
         out.close()

@@ -253,7 +253,7 @@ class PlainStream(TopicStream):
         }
 
     def close(self) -> None:
-        self._handle.undeclare()
+        self._handle.undeclare()  # idempotent, as the channel readers' close
 
 
 def open_stream(

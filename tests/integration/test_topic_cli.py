@@ -11,6 +11,7 @@ preset at 10 Hz.
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -207,3 +208,22 @@ def test_an_unknown_topic_is_an_error_with_close_matches(fleet: Fleet) -> None:
     assert run.returncode == 2
     assert "arpz topic: error: no topic '/robot1/imuu'" in run.stderr
     assert "did you mean /robot1/imu" in run.stderr
+
+
+def test_ctrl_c_stops_a_stream_cleanly_with_its_counters(fleet: Fleet) -> None:
+    args = ["-m", "arpz.tools.topic", "hz", "/robot2/ultrasonic", "--json"]
+    args += ["--connect", fleet.endpoint, "--fleet", FLEET]
+    proc = subprocess.Popen(
+        [sys.executable, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    try:
+        assert proc.stdout is not None
+        first = json.loads(proc.stdout.readline())  # the first second's figures: running
+        assert first["messages"] > 0
+        proc.send_signal(signal.SIGINT)
+        rest, err = proc.communicate(timeout=10)
+    finally:
+        proc.kill()
+    assert proc.returncode == 0, err
+    summary = json.loads(rest.splitlines()[-1])
+    assert summary["final"] is True and summary["counters"]["delivered"] == summary["messages"]
