@@ -507,6 +507,8 @@ def certificate_files(config_file: str | None) -> dict[str, str]:
     """The certificate files the session's Zenoh config names (key -> path)."""
     if not config_file:
         return {}
+    if not Path(config_file).is_file():
+        raise ArpzError(f"--zenoh-config {config_file}: no such file")
     conf = load_zenoh_config(config_file, source="--zenoh-config")
     files = {}
     for key in CERT_KEYS:
