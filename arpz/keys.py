@@ -140,6 +140,22 @@ def ceddp_qos_key(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/ceddp/qos"
 
 
+def ceddp_config_key(fleet: str) -> str:
+    """A configurator's solution (seed 002), applied by the robots: ``python -m arpz.configure
+    apply`` publishes it."""
+    return f"{fleet_prefix(fleet)}/ceddp/config"
+
+
+def config_ack_key(fleet: str, robot: str) -> str:
+    """A robot's answer to a configuration; two chunks below the robot, so the CEDDP's report
+    subscription (``robot/*/*``) does not take it for a report."""
+    return f"{robot_prefix(fleet, robot)}/config/ack"
+
+
+def all_config_acks(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/config/ack"
+
+
 # Wildcards used by the CEDDP to see the whole fleet.
 def all_sensors(fleet: str, partition: str = "*") -> str:
     return f"{fleet_prefix(fleet)}/robot/{check_partition(partition)}/sensor/*"

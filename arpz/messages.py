@@ -339,6 +339,40 @@ class QosAck(msgspec.Struct, frozen=True):
     depth: int
 
 
+class RobotConfiguration(msgspec.Struct, frozen=True):
+    """What seed 002's configurator asks of one robot: each listed sensor topic sampled at its
+    rate, and each listed computation run "robot" or "ceddp" (arpz/robot/configuration.py)."""
+
+    rates_hz: dict[str, float] = msgspec.field(default_factory=dict)
+    computations: dict[str, str] = msgspec.field(default_factory=dict)
+
+
+class ConfigurationMsg(msgspec.Struct, frozen=True):
+    """A configurator's solution for the fleet, on ``arpz/{fleet}/ceddp/config`` (a key of its
+    own beside the QoS assignment, latched: a robot that joins later receives it too)."""
+
+    sender: str
+    epoch: int
+    stamp_ns: int
+    #: what was solved (model, problem, method), for the robots' logs
+    source: str
+    robots: dict[str, RobotConfiguration]
+
+
+class ConfigurationAck(msgspec.Struct, frozen=True):
+    """A robot's answer on ``robot/{robot}/config/ack``: what it runs now, what it refused."""
+
+    robot: str
+    incarnation: str
+    sender: str
+    epoch: int
+    stamp_ns: int
+    rates_hz: dict[str, float]
+    computations: dict[str, str]
+    #: "what: why" for every item it could not apply
+    refused: list[str] = msgspec.field(default_factory=list)
+
+
 #: what decoding untrusted bytes may raise: msgspec raises UnicodeDecodeError, not DecodeError,
 #: for a msgpack string that is not valid UTF-8 (found by the property tests)
 #: what a decoder raises on bad bytes; RecursionError: msgpack nested deeper than msgspec follows
@@ -354,6 +388,8 @@ ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)
 QOS_ASSIGNMENT_DECODER: Final = msgspec.msgpack.Decoder(QosAssignmentMsg)
 QOS_ACK_DECODER: Final = msgspec.msgpack.Decoder(QosAck)
+CONFIGURATION_DECODER: Final = msgspec.msgpack.Decoder(ConfigurationMsg)
+CONFIGURATION_ACK_DECODER: Final = msgspec.msgpack.Decoder(ConfigurationAck)
 TELEMETRY_DECODER: Final = msgspec.msgpack.Decoder(Telemetry)
 CLOCK_REQUEST_DECODER: Final = msgspec.msgpack.Decoder(ClockRequest)
 CLOCK_REPLY_DECODER: Final = msgspec.msgpack.Decoder(ClockReply)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import Literal
 
 from arpz.configure.check import Loads, check, loads
+from arpz.configure.eq10 import Eq10Node, Eq10Summary, summarise
 from arpz.configure.model import (
     Computer,
     Continuum,
@@ -18,14 +19,24 @@ from arpz.configure.model import (
     ModelError,
     Node,
     Setting,
+    SettingDetail,
     decode_model,
     dump_json,
     dump_toml,
     load_model,
+    node_details,
     validate,
 )
 from arpz.configure.problem import Problem
-from arpz.configure.regression import Curve, FitError, best_fit, expand, fit
+from arpz.configure.regression import (
+    Curve,
+    FitError,
+    ParameterCurves,
+    best_fit,
+    expand,
+    fit,
+    parameter_curves,
+)
 from arpz.configure.solution import Placement, Solution
 
 Method = Literal["greedy", "exact", "improved"]
@@ -55,6 +66,8 @@ __all__ = [
     "Computer",
     "Continuum",
     "Curve",
+    "Eq10Node",
+    "Eq10Summary",
     "FitError",
     "Link",
     "Loads",
@@ -63,9 +76,11 @@ __all__ = [
     "Model",
     "ModelError",
     "Node",
+    "ParameterCurves",
     "Placement",
     "Problem",
     "Setting",
+    "SettingDetail",
     "Solution",
     "best_fit",
     "check",
@@ -76,6 +91,9 @@ __all__ = [
     "fit",
     "load_model",
     "loads",
+    "node_details",
+    "parameter_curves",
     "solve",
+    "summarise",
     "validate",
 ]

@@ -1,4 +1,4 @@
-"""``python -m arpz.configure solve|instance|fit|figure5|characterise``.
+"""``python -m arpz.configure solve|instance|fit|figure5|characterise|apply``.
 
 Exit codes: 0 done; 2 bad input (model file, CSV, arguments), with a message naming the file and
 the problem; 3 no solution found (infeasible, or the time limit hit first); 1 a solver returned an
@@ -197,6 +197,10 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--expected", help="a previous model file: report eq. 10 against it")
     p.set_defaults(func=cmd_characterise)
+
+    from arpz.configure.apply import add_parser as add_apply_parser
+
+    add_apply_parser(sub)
     return top
 
 

@@ -28,6 +28,7 @@ import msgspec
 
 from arpz import keys
 from arpz.cli import fail
+from arpz.configure.eq10 import Eq10Node, summarise, summary_text
 from arpz.configure.model import (
     Computer,
     Link,
@@ -275,7 +276,7 @@ def eq10(obs: Observations, expected: Model | None = None) -> list[Eq10Row]:
     return rows
 
 
-def eq10_text(rows: list[Eq10Row]) -> str:
+def eq10_text(rows: list[Eq10Row], weights: dict[str, float] | None = None) -> str:
     if not rows:
         return "eq. 10: no announced topics heard\n"
     lines = [
@@ -290,11 +291,28 @@ def eq10_text(rows: list[Eq10Row]) -> str:
             f" {r.f_held_back_hz:>8.2f} {r.f_measured_hz:>8.2f}"
             f" {r.p_expected:>7.2f} {r.p_measured:>7.2f} {dev:>6.1f}"
         )
-    mean_dev = _mean(
-        [abs(r.p_measured - r.p_expected) / r.p_expected * 100 for r in rows if r.p_expected]
-    )
-    lines.append(f"mean |deviation| {mean_dev:.1f} % (the paper reports 2.5 %)")
-    return "\n".join(lines) + "\n"
+    lines.append("per node (each robot agent: its topics' frequencies summed), eq. 10:")
+    return "\n".join(lines) + "\n" + summary_text(summarise(eq10_nodes(rows, weights)))
+
+
+def eq10_nodes(rows: list[Eq10Row], weights: dict[str, float] | None = None) -> list[Eq10Node]:
+    """Eq. 10 per node, as the paper applies it: a robot agent's frequency is the sum of its
+    topics', its weight the expected model's (equal weights without one)."""
+    robots = sorted({r.robot for r in rows})
+    nodes = []
+    for robot in robots:
+        mine = [r for r in rows if r.robot == robot]
+        name = f"{robot}_agent"
+        nodes.append(
+            Eq10Node(
+                name=name,
+                weight=(weights or {}).get(name, 1.0 / len(robots)),
+                p_expected=mine[0].p_expected,
+                f_expected_hz=sum(r.f_expected_hz for r in mine),
+                f_measured_hz=sum(r.f_measured_hz for r in mine),
+            )
+        )
+    return nodes
 
 
 def main(args: argparse.Namespace) -> int:
@@ -345,5 +363,6 @@ def main(args: argparse.Namespace) -> int:
     for node in model.nodes:
         s = node.settings[0]
         print(f"  {node.name:<20} cpu {s.cpu:>7.2f} %  messages {s.frequency_hz or 0:>8.2f} Hz")
-    print(eq10_text(eq10(obs, expected)), end="")
+    weights = {n.name: n.weight for n in expected.nodes} if expected is not None else None
+    print(eq10_text(eq10(obs, expected), weights), end="")
     return 0

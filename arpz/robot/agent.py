@@ -40,6 +40,7 @@ from arpz.reliability import QosPolicyKind
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
+from arpz.robot.configuration import for_agent as configuration_for
 from arpz.robot.hello import HelloProbe
 from arpz.robot.qos import decide
 from arpz.robot.scheduler import Job, Scheduler
@@ -140,6 +141,8 @@ class RobotAgent:
         #: each sensor with its scheduler job (a QoS assignment changes the job's period)
         self._sensor_jobs: list[tuple[SensorChannel, Job]] = []
         self.scheduler = self._make_scheduler()
+        #: a configurator's solution (seed 002) applied live: arpz/robot/configuration.py
+        self.configuration = configuration_for(self)
         self._started = False
 
     def _now_s(self) -> float:
@@ -160,6 +163,7 @@ class RobotAgent:
         wait (bounded) for the CEDDP's readers, announce; sensing starts in ``run``."""
         cfg = self.config
         self.commands.start(self.command_names)
+        self.configuration.start()
         self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
         self.transport.declare_token(keys.robot_mode_key(cfg.fleet, cfg.robot_id, cfg.reliability))
         self.transport.watch_liveliness(keys.all_ceddp_modes(cfg.fleet), self._on_ceddp_mode)
@@ -241,6 +245,7 @@ class RobotAgent:
         if self.config.hello.enabled:
             self.hello_probe.drain(self.config.hello.timeout_s)
         self.commands.close()
+        self.configuration.close()
         self.actuator.stop()
         for sensor in self.sensors:
             sensor.close()

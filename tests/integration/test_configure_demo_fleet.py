@@ -60,4 +60,4 @@ def test_characterise_a_running_demo_fleet(tmp_path):
     # real processes use real CPU and their topics real bandwidth
     assert nodes["ceddp"].settings[0].cpu > 0
     assert all(m.bandwidth > 0 for m in model.messages)
-    assert "mean |deviation|" in proc.stdout
+    assert "overall sum(w P)" in proc.stdout
