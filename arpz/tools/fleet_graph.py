@@ -39,7 +39,13 @@ from arpz.messages import (
     RobotStats,
 )
 from arpz.protocol import wire
-from arpz.protocol.qos import MatchQos, QosProfile, decode_match_qos
+from arpz.protocol.qos import (
+    MatchQos,
+    QosPolicyKind,
+    QosProfile,
+    decode_match_qos,
+    incompatible_policy,
+)
 from arpz.reliability import DurabilityPolicy, Reader
 from arpz.rosmsg.types import UnknownKindError, ros_types_for
 from arpz.transport import Handle, Transport
@@ -267,6 +273,28 @@ class FleetGraph:
             "topics": [t.as_dict() for t in self.topics],
             "other_fleets": list(self.other_fleets),
         }
+
+
+def matches(topic: TopicEntry) -> list[dict[str, object]]:
+    """Every writer x reader pair of a topic with its verdict (arpz.protocol.qos matching); a
+    plain publisher and a channel reader never match (the reader refuses its samples)."""
+    out: list[dict[str, object]] = []
+    for writer in topic.writers:
+        for reader in topic.readers:
+            policy: QosPolicyKind | None
+            if writer.qos is None or reader.qos is None:
+                policy = None if writer.qos is reader.qos else QosPolicyKind.RELIABILITY
+            else:
+                policy = incompatible_policy(writer.qos.as_profile(), reader.qos.as_profile())
+            out.append(
+                {
+                    "writer": writer.guid or writer.node,
+                    "reader": reader.guid or reader.node,
+                    "compatible": policy is None,
+                    "policy": policy.name if policy is not None else None,
+                }
+            )
+    return out
 
 
 def resolve(graph: FleetGraph, given: str) -> TopicEntry:
@@ -676,6 +704,7 @@ __all__ = [
     "discovering",
     "inbound_rate",
     "match_qos_dict",
+    "matches",
     "owner_of",
     "payload_type",
     "resolve",

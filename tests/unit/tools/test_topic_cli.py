@@ -11,8 +11,9 @@ import pytest
 from arpz.messages import ClockStats, LargeSample, RobotStats, Sample, encode
 from arpz.tools import topic
 from arpz.tools.fleet_graph import CEDDP, Endpoint, FleetGraph, TopicEntry
-from arpz.tools.topic import Bw, Delay, Echo, Hz, Output, decode, echo_text, message_document
+from arpz.tools.topic_figures import Bw, Delay, Echo, Hz, clock_correction
 from arpz.tools.topic_stream import Message, TopicStream
+from arpz.tools.topic_text import Output, decode, echo_text, message_document
 
 
 def entry(arpz_type: str = "Sample", kind: str | None = "lidar", owner: str = "r1") -> TopicEntry:
@@ -172,7 +173,7 @@ def test_the_correction_of_the_ceddps_own_keys_is_this_hosts_offset() -> None:
             raise AssertionError("the CEDDP's keys need no robot stats")
 
     ceddp = entry("CeddpStats", None, owner=CEDDP)
-    correction, note = topic.clock_correction(NoStats(), ceddp, Host())()  # type: ignore[arg-type]
+    correction, note = clock_correction(NoStats(), ceddp, Host())()  # type: ignore[arg-type]
     assert correction == -3_000 and "corrected" in note
 
 
@@ -192,7 +193,7 @@ def test_a_robots_correction_is_its_offset_minus_this_hosts(offset_ns: int | Non
         def offset_ns(self) -> int | None:
             return 1_000_000
 
-    correction, note = topic.clock_correction(Discovery(), entry(), Host())()  # type: ignore[arg-type]
+    correction, note = clock_correction(Discovery(), entry(), Host())()  # type: ignore[arg-type]
     if offset_ns is None:
         assert correction is None and note.endswith("offset unknown, uncorrected")
     else:

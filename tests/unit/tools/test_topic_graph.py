@@ -22,9 +22,10 @@ from arpz.tools.fleet_graph import (
     FleetObserver,
     UnknownTopicError,
     clock_offset,
+    matches,
     topic_name,
 )
-from arpz.tools.topic import list_lines, matches
+from arpz.tools.topic_text import list_lines
 from arpz.traffic import COMMAND_QOS, REPORT_QOS, SENSOR_QOS
 
 F = "f1"
