@@ -2,11 +2,11 @@
 standard types, and the CEDDP's metrics, on a Foxglove WebSocket server (foxglove-sdk).
 
 ``FoxgloveLive`` is a planner: the ingest hands it each reading cache control let through
-(changes, and the robots' keep-alive refreshes), as it hands them to every planner. It only puts
+(every change of a topic's value), as it hands them to every planner. It only puts
 the reading in a bounded queue; a full queue drops the reading and counts it (``dropped``), so a
-slow viewer never slows the ingest. One worker thread converts and logs, and only for channels
-some client subscribed to. The metrics ticker hands it each interval's ``MetricsFrame`` the same
-way.
+slow viewer never slows the ingest. Once a topic's channel is advertised, its readings are
+queued only while some client subscribes to it. One worker thread converts and logs. The metrics
+ticker hands it each interval's ``MetricsFrame`` the same way.
 
 Channels (docs/tools-live.md): ``/{robot}/{topic}`` per sensor topic and ``/{robot}/metrics`` per
 robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas where one fits the sensor kind,
@@ -229,6 +229,9 @@ class FoxgloveLive(Planner):
     # -- the ingest's and the ticker's side: never blocks -------------------------------------
 
     def on_reading(self, reading: Reading) -> None:
+        topic = self._topics.get((reading.robot, reading.topic))
+        if topic is not None and not topic.channel.has_sinks():
+            return  # advertised, and nobody subscribed: nothing to show, nothing to queue
         self._offer(reading)
 
     def on_metrics(self, frame: MetricsFrame) -> None:
