@@ -8,6 +8,7 @@ a message the user can act on.
 from __future__ import annotations
 
 import re
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -64,6 +65,9 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     max_silence_s: float | None = None
     #: the fastest this sensor can be read; a QoS assignment above it is refused
     max_rate_hz: float | None = None
+    #: how much this topic matters to the per-topic QoS optimiser (``[qos] mode = "per_topic"``
+    #: of the CEDDP): its share of the rate budget grows in proportion (docs/qos-optimiser.md)
+    priority: float = 1.0
     seed: int | None = None
     #: free-form options handed to the driver (e.g. a GPIO pin for a hardware driver)
     options: dict[str, Any] = msgspec.field(default_factory=dict)
@@ -78,6 +82,8 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"tolerance must be >= 0, got {self.tolerance}")
         if self.max_silence_s is not None and self.max_silence_s <= 0:
             raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
+        if not (math.isfinite(self.priority) and self.priority > 0):
+            raise ValueError(f"priority must be a finite number > 0, got {self.priority}")
         if self.driver == "replay" and not self.trace:
             raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
         if self.driver == "replay" and self.kind in LARGE_KINDS:
@@ -290,12 +296,29 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
     link_rtt_ms: float = 5.0
     link_loss_pct: float = 0.0
     robots: dict[str, QosLimitsConfig] = msgspec.field(default_factory=dict)
+    #: "fleet": seed 001's one R and D for every topic; "per_topic": a rate and a depth for each
+    #: topic by its priority and measured change rate, with the link quality measured from the
+    #: reliable channel's counters and re-solved when it changes (docs/qos-optimiser.md)
+    mode: Literal["fleet", "per_topic"] = "fleet"
+    #: per_topic: a measured input (loss, round trip, burst, change rate) must move by this
+    #: share of its value in force (and loss by at least ``loss_step_pct`` points) in two
+    #: measurements in a row before the problem is re-solved
+    hysteresis: float = 0.5
+    loss_step_pct: float = 1.0
+    #: per_topic: sensor samples a robot must have sent before its link is measured again
+    measure_samples: int = 200
+    #: per_topic: the shortest time between two re-solves caused by measurements
+    min_resolve_interval_s: float = 2.0
 
     def __post_init__(self) -> None:
         if not 0 < self.rmin_hz <= self.rmax_hz:
             raise ValueError(f"need 0 < rmin_hz <= rmax_hz, got {self.rmin_hz} and {self.rmax_hz}")
         if not 1 <= self.dmin <= self.dmax:
             raise ValueError(f"need 1 <= dmin <= dmax, got {self.dmin} and {self.dmax}")
+        if not (self.hysteresis > 0 and self.loss_step_pct >= 0):
+            raise ValueError("hysteresis must be > 0 and loss_step_pct >= 0")
+        if self.measure_samples < 1 or self.min_resolve_interval_s < 0:
+            raise ValueError("measure_samples must be >= 1 and min_resolve_interval_s >= 0")
 
 
 class OverloadConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):

@@ -281,6 +281,10 @@ class TopicInfo(msgspec.Struct, frozen=True):
     kind: str
     rate_hz: float
     value_type: str
+    #: the sensor's priority for the per-topic QoS optimiser, and the fastest it can be read
+    #: (None: no limit); older robots leave them out
+    priority: float = 1.0
+    max_rate_hz: float | None = None
 
 
 class Announce(msgspec.Struct, frozen=True):
@@ -323,6 +327,11 @@ class QosAssignmentMsg(msgspec.Struct, frozen=True):
     #: the fleet's rate budget of the overload governor this assignment fits (samples/s), or
     #: None when the configured limits alone apply
     budget_hz: float | None = None
+    #: "fleet" (seed 001: ``robots`` alone) or "per_topic": then ``topics`` gives, per robot,
+    #: each sensor topic's own rate, deadline and depth (``robots`` keeps a fleet-wide summary
+    #: for older robots: the mean rate of the robot's topics and its largest depth)
+    mode: str = "fleet"
+    topics: dict[str, dict[str, RobotQos]] = msgspec.field(default_factory=dict)
 
 
 class QosAck(msgspec.Struct, frozen=True):

@@ -127,6 +127,9 @@ class ControlWorker:
         self.sink = sink
         self.planners = planners
         self.qos = qos
+        if qos is not None:
+            # the loss-aware depth bounds recovery with the sensor channel's own timings
+            qos.channel = config.profile("sensor") or qos.channel
         self._event = event
         self.robots: dict[str, RobotRecord] = {}
         self.counters = ControlCounters()
@@ -230,8 +233,12 @@ class ControlWorker:
                         del record.incarnations[next(iter(record.incarnations))]
                 if self.clock is not None:
                     self.clock.observe(robot, stats.clock)
+                if self.qos is not None and record.alive:
+                    self._measure_link(stats)
             elif kind == "announce":
                 record.announce = ANNOUNCE_DECODER.decode(payload)
+                if self.qos is not None:
+                    self.qos.set_sensors(robot, record.announce.sensors)
                 self.ingest.set_kinds(robot, {t.topic: t.kind for t in record.announce.sensors})
                 if self.clock is not None:
                     self.clock.observe(robot, record.announce.clock)
@@ -257,6 +264,18 @@ class ControlWorker:
                 record.control_decode_errors,
                 exc,
             )
+
+    def _measure_link(self, stats: RobotStats) -> None:
+        """A report measures the robot's link (resends per send) and, with the sensor reader's
+        NACKs, the loss bursts; past the hysteresis the QoS problem is re-solved."""
+        assert self.qos is not None
+        counts = None
+        if self.sensor_reader is not None:
+            reader = self.sensor_reader.stats()
+            counts = (reader.retransmitted, reader.nacks)
+        reason = self.qos.observe(stats, counts)
+        if reason is not None:
+            self.reassign_qos(reason, force=True)
 
     def _handle_mode(self, key: str, alive: bool) -> None:
         """A robot's mode token: INCOMPATIBLE_QOS when it is not this CEDDP's mode."""
@@ -368,6 +387,13 @@ class ControlWorker:
         rates = ", ".join(
             f"{robot} {q.rate_hz:.2f} Hz D={q.depth}" for robot, q in message.robots.items()
         )
+        if message.topics:  # per topic: each robot's range of rates
+            rates = ", ".join(
+                f"{robot} {min(q.rate_hz for q in own.values()):.2f}-"
+                f"{max(q.rate_hz for q in own.values()):.2f} Hz over {len(own)} topics"
+                for robot, own in message.topics.items()
+                if own
+            )
         self._event(
             f"QoS epoch {message.epoch} ({reason}): T_avg={message.t_avg:.3f}, {rates}", "INFO"
         )

@@ -1,34 +1,84 @@
-"""Live QoS control: when the fleet changes, re-solve seed 001's problem (6) and assign R and D.
+"""Live QoS control: re-solve the QoS problem when the fleet or its links change, assign R and D.
 
 Pure logic: the server tells the controller which robots are alive and how many topics each uses
-(eq. 1: its sensor topics plus the command topics it receives, from its ``Announce``); the
-controller returns a new ``QosAssignmentMsg`` when the answer changed, or None. An infeasible
-fleet keeps the previous assignment and records the optimiser's error (which names the bound and
-the smallest change that would fix it). Robots answer with ``QosAck``; refusals are kept.
+(eq. 1: its sensor topics plus the command topics it receives, from its ``Announce``) and passes
+on every robot report; the controller returns a new ``QosAssignmentMsg`` when the answer
+changed, or None. An infeasible fleet keeps the previous assignment and records the optimiser's
+error (which names the bound and the smallest change that would fix it). Robots answer with
+``QosAck``; refusals are kept.
+
+Two modes (``[qos] mode``):
+
+- ``fleet``: seed 001's problem (6), one R and D per robot (arpz.ceddp.optimiser).
+- ``per_topic``: a rate and a depth for every sensor topic (arpz.ceddp.topic_optimiser), weighted
+  by the topic's priority (robot config) and its measured change rate (the local cache's sends),
+  each robot's samples costing 1/(1 - loss) transmissions on its measured link.
+
+In both, the loss-aware depth ("loss_aware" and "max" policies) uses the heartbeat period and
+NACK delay of the sensor profile in force, and each robot's link as measured from the channel's
+counters (``arpz.ceddp.link_meter``) once measured, the configured ``link_rtt_ms`` and
+``link_loss_pct`` before. A measurement changes the assignment only through hysteresis: it must
+move by ``hysteresis`` of the value in force (loss by at least ``loss_step_pct`` points) in two
+measurements in a row, and re-solves it causes are ``min_resolve_interval_s`` apart; the
+assignment then carries the measurements in its reason (an epoch in the summary and on the
+dashboard).
 """
 
 from __future__ import annotations
 
 import logging
+import math
 import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
+from arpz.ceddp.link_meter import BurstMeter, LinkEstimate, LinkMeter
 from arpz.ceddp.optimiser import (
     LinkQuality,
     OptimiserError,
     QosLimits,
     assign_qos,
+    channel_link,
+    loss_aware_depth,
     rmax_for_budget,
+    solve_closed,
 )
+from arpz.ceddp.topic_optimiser import TopicDemand, TopicSolution, solve_topics_closed
 from arpz.config import QosControlConfig, QosLimitsConfig
-from arpz.messages import QosAck, QosAssignmentMsg, RobotQos
+from arpz.messages import QosAck, QosAssignmentMsg, RobotQos, RobotStats, TopicInfo
+from arpz.protocol.qos import QosProfile
+from arpz.traffic import SENSOR_QOS
 
 log = logging.getLogger(__name__)
 
+#: a topic that sends at least this share of its readings changes at (nearly) every reading:
+#: its true change rate is not known (it may be faster than it is read)
+_EVERY_READING = 0.9
+#: lowest change rate a topic is credited with (a value that never changes still refreshes)
+_MIN_CHANGE_HZ = 0.01
+#: weight of a new change-rate measurement in the running estimate
+_CHANGE_WEIGHT = 0.3
+#: link measurements kept for the summary
+MAX_LINK_CHANGES = 256
+#: puts a measurement in force once the re-solve it causes is decided
+_Commit = Callable[[], None]
+
+
+@dataclass
+class _TopicChange:
+    smoothed_hz: float | None = None
+    in_force_hz: float | None = None
+    pending: int = 0
+
 
 class QosController:
-    def __init__(self, config: QosControlConfig, ceddp: str) -> None:
+    def __init__(
+        self, config: QosControlConfig, ceddp: str, *, channel: QosProfile | None = None
+    ) -> None:
         self.config = config
         self.ceddp = ceddp
+        #: the sensor profile in force: its heartbeat period and NACK delay bound recovery
+        self.channel = channel or SENSOR_QOS
         self.epoch = 0
         self.current: QosAssignmentMsg | None = None
         self.history: list[QosAssignmentMsg] = []
@@ -38,6 +88,27 @@ class QosController:
         self._last_topics: dict[str, int] | None = None
         #: the fleet's rate budget (samples/s) the overload governor measured; None: no budget
         self.budget_hz: float | None = None
+        #: the measured links: the latest estimate per robot, and those the assignment uses
+        self.meter = LinkMeter(min_samples=config.measure_samples)
+        self.bursts = BurstMeter()
+        self.links_in_force: dict[str, LinkEstimate] = {}
+        self._link_pending: dict[str, int] = {}
+        self._changes: dict[tuple[str, str], _TopicChange] = {}
+        self._last_measured_resolve_s = -math.inf
+        #: every re-solve a measurement caused: (epoch, reason), for the summary
+        self.measured_changes: list[tuple[int, str]] = []
+        #: each robot's sensor topics (from its announcement), for the per-topic problem
+        self.sensors: dict[str, list[TopicInfo]] = {}
+
+    @property
+    def per_topic(self) -> bool:
+        return self.config.mode == "per_topic"
+
+    @property
+    def closed_loop(self) -> bool:
+        """Measurements change the assignment: per topic always (they set the costs), per
+        fleet only when the depth depends on the link."""
+        return self.per_topic or self.config.depth_policy != "paper"
 
     def limits_for(self, robot: str, rmax_cap_hz: float | None = None) -> QosLimits:
         """The robot's limits from the config, with Rmax lowered to ``rmax_cap_hz`` if given."""
@@ -53,6 +124,121 @@ class QosController:
             dmin=cfg.dmin if own.dmin is None else own.dmin,
         )
 
+    def link_for(self, robot: str) -> LinkQuality:
+        """The robot's link as the assignment uses it: measured (in force), else configured;
+        always with the channel's own heartbeat period and NACK delay."""
+        measured = self.links_in_force.get(robot)
+        if measured is None:
+            return channel_link(
+                self.channel,
+                rtt_s=self.config.link_rtt_ms / 1000,
+                loss_pct=self.config.link_loss_pct,
+            )
+        return channel_link(
+            self.channel,
+            rtt_s=measured.rtt_s,
+            loss_pct=min(measured.loss_pct, 99.0),
+            burst_samples=measured.burst_samples,
+        )
+
+    # -- measurements ----------------------------------------------------------------------------
+
+    def observe(
+        self, stats: RobotStats, reader_counts: tuple[int, int] | None = None
+    ) -> str | None:
+        """Take a robot's report (and the sensor reader's (retransmitted, nacks)); returns the
+        reason for a re-solve when a measurement moved past the hysteresis, else None."""
+        if not self.closed_loop or stats.final:
+            return None
+        burst = (
+            self.bursts.observe(*reader_counts)
+            if reader_counts is not None
+            else self.bursts.burst_samples
+        )
+        reasons = []
+        estimate = self.meter.observe(stats, burst)
+        if estimate is not None:
+            reasons += self._link_moved(stats.robot, estimate)
+        if self.per_topic:
+            reasons += self._changes_moved(stats)
+        if not reasons:
+            return None
+        now = time.monotonic()
+        if now - self._last_measured_resolve_s < self.config.min_resolve_interval_s:
+            return None  # pending measurements stay pending: asked again at the next report
+        self._last_measured_resolve_s = now
+        for _, commit in reasons:
+            commit()
+        return "measured: " + "; ".join(text for text, _ in reasons)
+
+    def _moved(self, old: float, new: float, floor: float) -> bool:
+        return abs(new - old) >= max(floor, self.config.hysteresis * abs(old))
+
+    def _link_moved(self, robot: str, estimate: LinkEstimate) -> list[tuple[str, _Commit]]:
+        cfg = self.config
+        old = self.links_in_force.get(robot)
+        old_loss = old.loss_pct if old is not None else cfg.link_loss_pct
+        old_rtt = old.rtt_s if old is not None else cfg.link_rtt_ms / 1000
+        old_burst = old.burst_samples if old is not None else 0.0
+        moved = (
+            self._moved(old_loss, estimate.loss_pct, cfg.loss_step_pct)
+            or self._moved(old_rtt, estimate.rtt_s, 0.002)
+            or self._moved(old_burst, estimate.burst_samples, 1.0)
+        )
+        if old is None and not moved:
+            self.links_in_force[robot] = estimate  # the first measurement agrees: in force
+        if not moved:
+            self._link_pending[robot] = 0
+            return []
+        self._link_pending[robot] = self._link_pending.get(robot, 0) + 1
+        if self._link_pending[robot] < 2:
+            return []
+        before = "configured" if old is None else old.describe()
+
+        def commit() -> None:
+            self._link_pending[robot] = 0
+            self.links_in_force[robot] = estimate
+
+        return [(f"link {robot}: {before} -> {estimate.describe()}", commit)]
+
+    def _changes_moved(self, stats: RobotStats) -> list[tuple[str, _Commit]]:
+        moved: list[tuple[str, _Commit]] = []
+        limit = 1 + 2 * self.config.hysteresis
+        for topic, counters in stats.topics.items():
+            state = self._changes.setdefault((stats.robot, topic), _TopicChange())
+            produced = counters.produced_rate_hz
+            if produced <= 0:
+                continue
+            if counters.rate_hz >= _EVERY_READING * produced:
+                measured: float | None = None  # changes at every reading: not known
+            else:
+                measured = max(_MIN_CHANGE_HZ, counters.rate_hz)
+            if measured is None or state.smoothed_hz is None:
+                state.smoothed_hz = measured
+            else:
+                state.smoothed_hz += _CHANGE_WEIGHT * (measured - state.smoothed_hz)
+            new, old = state.smoothed_hz, state.in_force_hz
+            differs = (new is None) != (old is None) or (
+                new is not None and old is not None and max(new / old, old / new) >= limit
+            )
+            state.pending = state.pending + 1 if differs else 0
+            if state.pending < 2:
+                continue
+
+            def commit(state: _TopicChange = state, new: float | None = new) -> None:
+                state.in_force_hz = new
+                state.pending = 0
+
+            text = "every reading" if new is None else f"{new:.2f} Hz"
+            was = "every reading" if old is None else f"{old:.2f} Hz"
+            moved.append((f"{stats.robot}/{topic} changes {was} -> {text}", commit))
+        return moved
+
+    # -- solving ---------------------------------------------------------------------------------
+
+    def set_sensors(self, robot: str, sensors: Sequence[TopicInfo]) -> None:
+        self.sensors[robot] = list(sensors)
+
     def update(
         self, topics_per_robot: dict[str, int], reason: str, *, force: bool = False
     ) -> QosAssignmentMsg | None:
@@ -61,28 +247,20 @@ class QosController:
         if not topics or (topics == self._last_topics and not force):
             return None
         self._last_topics = topics
-        link = LinkQuality(rtt_s=self.config.link_rtt_ms / 1000, loss_pct=self.config.link_loss_pct)
-        robots: dict[str, RobotQos] = {}
-        t_avg = 0.0
+        for robot in [r for r in self.links_in_force if r not in topics]:
+            del self.links_in_force[robot]
+            self.meter.forget(robot)
         cap = (
             None
             if self.budget_hz is None
             else rmax_for_budget(self.budget_hz, topics, self.config.rmin_hz)
         )
         try:
-            for robot in topics:
-                assignment = assign_qos(
-                    self.limits_for(robot, cap),
-                    topics,
-                    depth_policy=self.config.depth_policy,
-                    link=link if self.config.depth_policy != "paper" else None,
-                )
-                robots[robot] = RobotQos(
-                    rate_hz=assignment.rate_hz,
-                    deadline_s=assignment.deadline_s,
-                    depth=assignment.depth,
-                )
-                t_avg = assignment.t_avg
+            if self.per_topic:
+                robots, per_topic, t_avg = self._solve_per_topic(topics, cap)
+            else:
+                robots, t_avg = self._solve_fleet(topics, cap)
+                per_topic = {}
         except OptimiserError as exc:
             message = f"QoS optimiser: no assignment for {topics} ({reason}): {exc}"
             self.errors.append(message)
@@ -98,9 +276,97 @@ class QosController:
             topics_per_robot=topics,
             robots=robots,
             budget_hz=self.budget_hz,
+            mode=self.config.mode,
+            topics=per_topic,
         )
         self.history.append(self.current)
+        if reason.startswith("measured: "):
+            self.measured_changes.append((self.epoch, reason))
+            del self.measured_changes[:-MAX_LINK_CHANGES]
         return self.current
+
+    def _solve_fleet(
+        self, topics: dict[str, int], cap: float | None
+    ) -> tuple[dict[str, RobotQos], float]:
+        robots: dict[str, RobotQos] = {}
+        t_avg = 0.0
+        uses_link = self.config.depth_policy != "paper"
+        for robot in topics:
+            assignment = assign_qos(
+                self.limits_for(robot, cap),
+                topics,
+                depth_policy=self.config.depth_policy,
+                link=self.link_for(robot) if uses_link else None,
+            )
+            robots[robot] = RobotQos(
+                rate_hz=assignment.rate_hz,
+                deadline_s=assignment.deadline_s,
+                depth=assignment.depth,
+            )
+            t_avg = assignment.t_avg
+        return robots, t_avg
+
+    def _demands(self, topics: dict[str, int], limits: QosLimits) -> list[TopicDemand]:
+        """Every topic of eq. 1: the sensors with their weights and costs, the received topics
+        at seed 001's R (their rate is not the optimiser's to set)."""
+        seed_rate = solve_closed(limits, list(topics.values())).rate_hz
+        demands = []
+        for robot, count in topics.items():
+            loss = self.link_for(robot).loss_pct / 100
+            cost = 1 / (1 - loss)
+            sensors = self.sensors.get(robot, [])
+            for info in sensors:
+                change = self._changes.get((robot, info.topic))
+                demands.append(
+                    TopicDemand(
+                        robot=robot,
+                        topic=info.topic,
+                        weight=info.priority,
+                        change_hz=None if change is None else change.in_force_hz,
+                        cost=cost,
+                        max_rate_hz=info.max_rate_hz,
+                    )
+                )
+            for index in range(count - len(sensors)):
+                demands.append(
+                    TopicDemand(
+                        robot=robot, topic=f"(received {index + 1})", fixed_hz=seed_rate, cost=cost
+                    )
+                )
+        return demands
+
+    def _solve_per_topic(
+        self, topics: dict[str, int], cap: float | None
+    ) -> tuple[dict[str, RobotQos], dict[str, dict[str, RobotQos]], float]:
+        limits = self.limits_for("", cap)  # one budget for the fleet: the [qos] limits
+        solution: TopicSolution = solve_topics_closed(limits, self._demands(topics, limits))
+        per_topic: dict[str, dict[str, RobotQos]] = {robot: {} for robot in topics}
+        for t in solution.topics:
+            if not t.assigned:
+                continue
+            depth = t.depth
+            if self.config.depth_policy != "paper":
+                loss = loss_aware_depth(self.link_for(t.robot), t.rate_hz).depth
+                if self.config.depth_policy == "loss_aware":
+                    depth = max(limits.dmin, loss)
+                else:
+                    depth = max(depth, loss)
+                depth = min(limits.dmax, depth)
+            per_topic[t.robot][t.topic] = RobotQos(
+                rate_hz=t.rate_hz, deadline_s=t.deadline_s, depth=depth
+            )
+        robots = {}
+        for robot, own in per_topic.items():
+            if not own:  # no sensor announced yet: seed 001's share of a received topic
+                fixed = [t for t in solution.topics if t.robot == robot]
+                own_rates = [t.rate_hz for t in fixed]
+                own_depths = [t.depth for t in fixed]
+            else:
+                own_rates = [q.rate_hz for q in own.values()]
+                own_depths = [q.depth for q in own.values()]
+            mean = sum(own_rates) / len(own_rates)
+            robots[robot] = RobotQos(rate_hz=mean, deadline_s=1 / mean, depth=max(own_depths))
+        return robots, per_topic, solution.t_avg
 
     def on_ack(self, ack: QosAck) -> str:
         """Record a robot's answer; returns a line for the event log."""
@@ -112,3 +378,26 @@ class QosController:
             f"robot {ack.robot} applied QoS epoch {ack.epoch}: "
             f"{ack.rate_hz:.2f} Hz, depth {ack.depth}"
         )
+
+    def links_summary(self) -> dict[str, object]:
+        """For summary.json: each robot's measured link (latest and in force) and every
+        re-solve a measurement caused."""
+        return {
+            "latest": {r: _link_dict(e) for r, e in self.meter.latest.items()},
+            "in_force": {r: _link_dict(e) for r, e in self.links_in_force.items()},
+            "channel": {
+                "heartbeat_period_s": self.channel.heartbeat_period_s,
+                "nack_delay_s": self.channel.nack_delay_s,
+            },
+            "measured_changes": [{"epoch": e, "reason": r} for e, r in self.measured_changes],
+        }
+
+
+def _link_dict(e: LinkEstimate) -> dict[str, float]:
+    return {
+        "loss_pct": round(e.loss_pct, 3),
+        "rtt_ms": round(e.rtt_s * 1000, 3),
+        "burst_samples": round(e.burst_samples, 2),
+        "sent": e.sent,
+        "resent": e.resent,
+    }

@@ -233,6 +233,8 @@ def qos_summary(qos: QosController) -> dict[str, Any]:
         "acks": {robot: msgspec.to_builtins(a) for robot, a in qos.acks.items()},
         "refusals": [msgspec.to_builtins(a) for a in qos.refusals],
         "errors": list(qos.errors),
+        "mode": qos.config.mode,
+        "links": qos.links_summary(),
     }
 
 

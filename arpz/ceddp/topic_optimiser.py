@@ -59,7 +59,7 @@ TopicMethod = Literal["closed", "cvxpy"]
 TOPIC_METHODS: Final[tuple[str, ...]] = ("closed", "cvxpy")
 CAPACITY: Final = "(4) sum_i c_i r_i <= A Rmax - N Rmin"
 #: where a topic's rate sits at the optimum
-AT_FLOOR, AT_CEILING, SHARE = "floor", "ceiling", "share"
+AT_FLOOR, AT_CEILING, SHARE, FIXED = "floor", "ceiling", "share", "fixed"
 
 
 class TopicDemand(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fields=True):
@@ -76,9 +76,9 @@ class TopicDemand(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
     cost: float = 1.0
     #: the fastest the sensor can be read (its ``max_rate_hz``); None: only Rmax bounds it
     max_rate_hz: float | None = None
-    #: a topic whose rate nobody sets (a command the robot receives): it counts in eq. 1 and
-    #: takes its share of the budget like any other, but its share is not sent to the robot
-    assigned: bool = True
+    #: a topic whose rate is not the optimiser's to set (a command the robot receives, eq. 1):
+    #: it takes exactly this rate's share of the budget (the live CEDDP gives it seed 001's R)
+    fixed_hz: float | None = None
 
     def __post_init__(self) -> None:
         where = f"topic {self.topic!r} of robot {self.robot!r}"
@@ -92,6 +92,10 @@ class TopicDemand(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_fiel
             )
         if not (math.isfinite(self.cost) and self.cost >= 1):
             raise InvalidQosInput(f"{where}: cost must be >= 1 transmission, got {self.cost}")
+        if self.fixed_hz is not None and not (math.isfinite(self.fixed_hz) and self.fixed_hz > 0):
+            raise InvalidQosInput(
+                f"{where}: fixed_hz must be a finite rate > 0, got {self.fixed_hz}"
+            )
         if self.max_rate_hz is not None and not (
             math.isfinite(self.max_rate_hz) and self.max_rate_hz > 0
         ):
@@ -112,6 +116,7 @@ class TopicQos(msgspec.Struct, frozen=True, kw_only=True):
     weight: float
     #: "floor" (at its lowest rate), "ceiling" (at Rmax or the sensor's limit) or "share"
     bound: str
+    #: False for a topic with ``fixed_hz`` (counted, not assigned)
     assigned: bool = True
 
 
@@ -173,6 +178,10 @@ def _prepare(limits: QosLimits, demands: Sequence[TopicDemand]) -> _Prepared:
     floor = max(rmin, 2 * limits.dmin * rmax / limits.dmax - rmax / (limits.dmax * 10**6))
     lows, highs = [], []
     for d in demands:
+        if d.fixed_hz is not None:  # not ours to set: its rate is both bounds
+            lows.append(Fraction(d.fixed_hz))
+            highs.append(Fraction(d.fixed_hz))
+            continue
         high = rmax if d.max_rate_hz is None else min(rmax, Fraction(d.max_rate_hz))
         if high < floor:
             raise InfeasibleQosError(
@@ -193,7 +202,7 @@ def _prepare(limits: QosLimits, demands: Sequence[TopicDemand]) -> _Prepared:
         raise InfeasibleQosError(
             f"infeasible: constraint {CAPACITY} cannot hold with every topic at its lowest rate "
             f"{float(floor):g} Hz: the {len(demands)} topics of {robots} robots need "
-            f"{float(need):.6g} transmissions/s, the capacity is {robots} x {float(rmax):g} - "
+            f"{float(need):.6g} samples/s, the capacity is {robots} x {float(rmax):g} - "
             f"{len(demands)} x {float(rmin):g} = {float(capacity):.6g}: raise rmax_hz, lower "
             "rmin_hz (or dmin), or use fewer topics",
             constraint=CAPACITY,
@@ -271,8 +280,8 @@ def _solution(
             deadline_s=float(1 / r),
             depth=depth,
             weight=float(w),
-            bound=_bound(r, lo, hi),
-            assigned=d.assigned,
+            bound=FIXED if d.fixed_hz is not None else _bound(r, lo, hi),
+            assigned=d.fixed_hz is None,
         )
         for d, r, depth, w, lo, hi in zip(
             demands, rates, depths, p.weights, p.lows, p.highs, strict=True

@@ -334,10 +334,12 @@ class RobotAgent:
             return  # an assignment for a fleet this robot is not (yet) part of
         if decision.applies and decision.qos is not None:
             for sensor, job in self._sensor_jobs:
-                sensor.rate_hz = decision.qos.rate_hz
+                # per topic (mode "per_topic") or the robot's one R and D (seed 001)
+                own = decision.for_topic(sensor.config.name) or decision.qos
+                sensor.rate_hz = own.rate_hz
                 # the scheduler picks the new period up at the sensor's next tick
-                job.period_s = 1.0 / decision.qos.rate_hz
-                sensor.output.retune(depth=decision.qos.depth, deadline_s=decision.qos.deadline_s)
+                job.period_s = 1.0 / own.rate_hz
+                sensor.output.retune(depth=own.depth, deadline_s=own.deadline_s)
             self.qos = decision.qos
             self.qos_epoch = message.epoch
             log.info(
@@ -441,6 +443,8 @@ class RobotAgent:
                     kind=s.config.kind,
                     rate_hz=s.rate_hz,
                     value_type=value_type_of(s.config.kind),
+                    priority=s.config.priority,
+                    max_rate_hz=s.config.max_rate_hz,
                 )
                 for s in self.sensors
             ],

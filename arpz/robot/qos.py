@@ -2,12 +2,14 @@
 
 Pure logic. The robot refuses (and keeps what it runs) when a sensor cannot be read at the
 assigned rate (its ``max_rate_hz``) or the assignment is malformed; otherwise it applies R to
-every sensor, 1/R as the deadline and D as the writer depth.
+every sensor, 1/R as the deadline and D as the writer depth. A per-topic assignment
+(``mode = "per_topic"``) gives each sensor its own R, deadline and D; a sensor it does not name
+keeps the robot's fleet-wide entry.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from arpz.config import SensorConfig
 from arpz.messages import QosAssignmentMsg, RobotQos
@@ -18,23 +20,36 @@ class QosDecision:
     applies: bool
     reason: str
     qos: RobotQos | None
+    #: per sensor topic, when the assignment gives topics their own QoS
+    per_topic: dict[str, RobotQos] = field(default_factory=dict)
+
+    def for_topic(self, topic: str) -> RobotQos | None:
+        """The QoS this sensor must run at: its own entry, else the robot's."""
+        return self.per_topic.get(topic, self.qos)
+
+
+def _well_formed(qos: RobotQos) -> bool:
+    return qos.rate_hz > 0 and qos.depth >= 1 and qos.deadline_s > 0
 
 
 def decide(robot: str, message: QosAssignmentMsg, sensors: list[SensorConfig]) -> QosDecision:
     qos = message.robots.get(robot)
     if qos is None:
         return QosDecision(False, "not addressed to this robot", None)
-    if not (qos.rate_hz > 0 and qos.depth >= 1 and qos.deadline_s > 0):
-        return QosDecision(False, f"malformed assignment {qos}", None)
-    too_slow = [
-        f"{s.name} (max {s.max_rate_hz:g} Hz)"
-        for s in sensors
-        if s.max_rate_hz is not None and s.max_rate_hz < qos.rate_hz
-    ]
+    per_topic = dict(message.topics.get(robot, {})) if message.mode == "per_topic" else {}
+    bad = [name for name, q in per_topic.items() if not _well_formed(q)]
+    if not _well_formed(qos) or bad:
+        what = f"topics {', '.join(sorted(bad))}" if bad else str(qos)
+        return QosDecision(False, f"malformed assignment {what}", None)
+    too_slow = []
+    for s in sensors:
+        rate = per_topic.get(s.name, qos).rate_hz
+        if s.max_rate_hz is not None and s.max_rate_hz < rate:
+            too_slow.append(f"{s.name} (max {s.max_rate_hz:g} Hz) at {rate:.2f} Hz")
     if too_slow:
         return QosDecision(
             False,
-            f"cannot run at {qos.rate_hz:.2f} Hz: {', '.join(too_slow)} cannot be read that fast",
+            f"cannot run {', '.join(too_slow)}: the sensor cannot be read that fast",
             qos,
         )
-    return QosDecision(True, "", qos)
+    return QosDecision(True, "", qos, per_topic)

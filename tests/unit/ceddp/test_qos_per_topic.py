@@ -1,0 +1,232 @@
+"""Per-topic live QoS control and its closed loop: the link measured from the channel's
+counters, hysteresis, and the robot's side of a per-topic assignment. Hand-computed values in
+the comments."""
+
+from __future__ import annotations
+
+import msgspec
+import pytest
+
+from arpz.ceddp.link_meter import BurstMeter, LinkMeter
+from arpz.ceddp.qos_control import QosController
+from arpz.config import QosControlConfig, SensorConfig
+from arpz.messages import (
+    ClockStats,
+    QosAssignmentMsg,
+    RobotQos,
+    RobotStats,
+    TopicCounters,
+    TopicInfo,
+)
+from arpz.protocol.qos import QosProfile
+from arpz.robot.qos import decide
+
+PAPER = {"robot1": 7, "robot2": 6, "robot3": 6}
+
+
+def _infos(count: int, **priorities: float) -> list[TopicInfo]:
+    names = [f"s{i}" for i in range(count)]
+    return [
+        TopicInfo(
+            topic=n, kind="lidar", rate_hz=10.0, value_type="float", priority=priorities.get(n, 1.0)
+        )
+        for n in names
+    ]
+
+
+def _controller(**kw: object) -> QosController:
+    config = QosControlConfig(
+        enabled=True,
+        mode="per_topic",
+        min_resolve_interval_s=0.0,
+        **kw,  # type: ignore[arg-type]
+    )
+    qos = QosController(config, "ceddp:x")
+    for robot, count in PAPER.items():
+        qos.set_sensors(robot, _infos(count - 1))  # one received topic each (eq. 1)
+    return qos
+
+
+class _Robot:
+    """Cumulative counters of one robot, reported as RobotStats."""
+
+    def __init__(self, name: str, topics: int) -> None:
+        self.name, self.topics = name, topics
+        self.sent = self.resent = 0
+
+    def report(
+        self,
+        sent: int,
+        resent: int,
+        *,
+        rtt_ms: float = 1.0,
+        rate: float = 14.0,
+        produced: float = 14.0,
+    ) -> RobotStats:
+        self.sent += sent
+        self.resent += resent
+        per = self.sent // self.topics
+        counters = TopicCounters(
+            produced=per,
+            sent=per,
+            retransmitted=0,
+            rate_hz=rate,
+            produced_rate_hz=produced,
+        )
+        topics = {f"s{i}": counters for i in range(self.topics)}
+        topics["s0"] = msgspec.structs.replace(
+            counters, sent=self.sent - per * (self.topics - 1), retransmitted=self.resent
+        )
+        return RobotStats(
+            robot=self.name,
+            incarnation="i1",
+            stamp_ns=0,
+            final=False,
+            topics=topics,
+            clock=ClockStats(offset_ns=0, delay_ns=int(rtt_ms * 1e6), samples=4),
+        )
+
+
+# ------------------------------------------------------------------ per-topic assignment
+
+
+def test_alike_topics_get_seed_001_per_topic() -> None:
+    # T = 7,6,6, Rmax 100: every sensor topic R = 300/19 - 1, D = 738 (as seed 001)
+    message = _controller().update(PAPER, "start")
+    assert message is not None and message.mode == "per_topic"
+    assert set(message.topics) == set(PAPER)
+    assert len(message.topics["robot1"]) == 6  # the received topic is counted, not assigned
+    for own in message.topics.values():
+        for q in own.values():
+            assert q.rate_hz == pytest.approx(300 / 19 - 1, rel=1e-12)
+            assert q.depth == 738
+    assert message.robots["robot2"].rate_hz == pytest.approx(300 / 19 - 1)
+
+
+def test_priority_moves_budget_between_topics() -> None:
+    # robot1's s0 priority 3: the sensors share C - 3 R* = 19 R* - 3 R* = 16 R* in weights
+    # 3 + 15 x 1 = 18: s0 = 3 x 16/18 R* = 8/3 R*, every other sensor 8/9 R*
+    qos = _controller()
+    qos.set_sensors("robot1", _infos(6, s0=3.0))
+    message = qos.update(PAPER, "start")
+    assert message is not None
+    seed = 300 / 19 - 1
+    assert message.topics["robot1"]["s0"].rate_hz == pytest.approx(8 / 3 * seed)
+    assert message.topics["robot2"]["s1"].rate_hz == pytest.approx(8 / 9 * seed)
+
+
+def test_a_robot_applies_its_own_topics() -> None:
+    message = QosAssignmentMsg(
+        ceddp="c",
+        epoch=1,
+        stamp_ns=0,
+        reason="",
+        t_avg=2.0,
+        topics_per_robot={"r": 2},
+        robots={"r": RobotQos(rate_hz=5.0, deadline_s=0.2, depth=9)},
+        mode="per_topic",
+        topics={"r": {"fast": RobotQos(rate_hz=8.0, deadline_s=0.125, depth=12)}},
+    )
+    sensors = [SensorConfig(name="fast", kind="lidar"), SensorConfig(name="other", kind="pir")]
+    decision = decide("r", message, sensors)
+    assert decision.applies
+    assert decision.for_topic("fast") == RobotQos(rate_hz=8.0, deadline_s=0.125, depth=12)
+    assert decision.for_topic("other") == RobotQos(rate_hz=5.0, deadline_s=0.2, depth=9)
+    slow = [SensorConfig(name="fast", kind="lidar", max_rate_hz=6.0), sensors[1]]
+    refused = decide("r", message, slow)
+    assert not refused.applies and "fast (max 6 Hz) at 8.00 Hz" in refused.reason
+    bad = msgspec.structs.replace(
+        message, topics={"r": {"fast": RobotQos(rate_hz=0.0, deadline_s=1.0, depth=1)}}
+    )
+    assert "malformed" in decide("r", bad, sensors).reason
+
+
+# ------------------------------------------------------------------ the link, measured
+
+
+def test_link_meter_measures_loss_rtt_and_restarts() -> None:
+    meter = LinkMeter(min_samples=100)
+    robot = _Robot("r", 2)
+    assert meter.observe(robot.report(0, 0), 1.0) is None  # the base
+    assert meter.observe(robot.report(50, 0), 1.0) is None  # not enough samples yet
+    # 50 + 150 = 200 sent, 25 resent: 25 / 225 = 11.1 %
+    estimate = meter.observe(robot.report(150, 25, rtt_ms=12.0), 3.0)
+    assert estimate is not None
+    assert estimate.loss_pct == pytest.approx(100 * 25 / 225)
+    assert estimate.rtt_s == pytest.approx(0.012)
+    assert estimate.burst_samples == 3.0
+    restarted = msgspec.structs.replace(robot.report(0, 0), incarnation="i2")
+    assert meter.observe(restarted, 1.0) is None  # counters start again
+
+
+def test_burst_meter_is_resends_per_nack() -> None:
+    bursts = BurstMeter()
+    assert bursts.observe(0, 0) == 1.0
+    assert bursts.observe(40, 10) == 4.0  # 40 samples recovered by 10 NACKs
+    assert bursts.observe(40, 10) == 4.0  # nothing new: kept
+
+
+def test_loss_aware_depth_uses_the_profile_in_force() -> None:
+    # per fleet, "loss_aware", configured link 10 % and 20 ms: arpz's default sensor profile
+    # (heartbeat 0.1 s, NACK 2 ms) gives ceil(R x 9 x 0.122) = ceil(16.24) = 17 at R = 14.79;
+    # a profile with Fast DDS's 3 s heartbeat and 5 ms gives ceil(14.79 x 9 x 3.025) = 403
+    config = QosControlConfig(
+        enabled=True, depth_policy="loss_aware", link_rtt_ms=20.0, link_loss_pct=10.0
+    )
+    ours = QosController(config, "c").update(PAPER, "start")
+    slow = QosProfile(heartbeat_period_s=3.0, nack_delay_s=0.005)
+    fastdds = QosController(config, "c", channel=slow).update(PAPER, "start")
+    assert ours is not None and fastdds is not None
+    assert ours.robots["robot1"].depth == 17
+    assert fastdds.robots["robot1"].depth == 403
+
+
+def test_a_worse_link_resolves_once_with_its_measurements_and_not_again() -> None:
+    qos = _controller(measure_samples=100)
+    assert qos.update(PAPER, "start") is not None
+    robot = _Robot("robot2", 5)
+    reasons = []
+    # a clean link at 4 ms: within the hysteresis of the configured 5 ms (2.5 ms), no loss
+    for _ in range(3):
+        reasons.append(qos.observe(robot.report(100, 0, rtt_ms=4.0)))
+    assert [r for r in reasons if r] == []  # 4 ms is within 2.5 ms of 5 ms: nothing to do
+    # the link turns bad: 10 % loss. One window is not enough (it must persist) ...
+    assert qos.observe(robot.report(100, 11, rtt_ms=4.0)) is None
+    # ... the second one re-solves, naming the measurement
+    reason = qos.observe(robot.report(100, 11, rtt_ms=4.0))
+    assert reason is not None and "link robot2" in reason and "loss 9.91 %" in reason
+    message = qos.update(PAPER, reason, force=True)
+    assert message is not None and qos.measured_changes[-1] == (message.epoch, reason)
+    # robot2's samples now cost 1/(1 - 0.0991) transmissions: its topics get less
+    assert message.topics["robot2"]["s0"].rate_hz < message.topics["robot1"]["s0"].rate_hz
+    # the same bad link, and small wobbles around it, change nothing more
+    for resent in (11, 12, 10, 11, 13, 11):
+        assert qos.observe(robot.report(100, resent, rtt_ms=4.5)) is None
+    summary = qos.links_summary()
+    assert summary["in_force"]["robot2"]["loss_pct"] == pytest.approx(9.91, abs=0.01)  # type: ignore[index]
+
+
+def test_change_rates_weigh_topics_after_they_persist() -> None:
+    # robot3's sensors all send 1 Hz of 14 read per second: they change rarely
+    qos = _controller()
+    assert qos.update(PAPER, "start") is not None
+    robot = _Robot("robot3", 5)
+    assert qos.observe(robot.report(10, 0, rate=1.0, produced=14.0)) is None
+    reason = qos.observe(robot.report(10, 0, rate=1.0, produced=14.0))
+    assert reason is not None and "robot3/s0 changes every reading -> 1.00 Hz" in reason
+    message = qos.update(PAPER, reason, force=True)
+    assert message is not None
+    # weight sqrt(1) against sqrt(Rmax) = 10 for topics that change at every reading
+    assert message.topics["robot3"]["s0"].rate_hz < message.topics["robot1"]["s0"].rate_hz / 5
+
+
+@pytest.mark.parametrize("priority", [0.0, -1.0, float("nan")])
+def test_sensor_priority_is_validated(priority: float) -> None:
+    with pytest.raises(ValueError, match="priority"):
+        SensorConfig(name="x", kind="pir", priority=priority)
+
+
+def test_per_topic_mode_is_a_config_choice() -> None:
+    with pytest.raises(msgspec.ValidationError, match="mode"):
+        msgspec.convert({"mode": "per_robot"}, QosControlConfig)
+    assert msgspec.convert({"mode": "per_topic"}, QosControlConfig).mode == "per_topic"
