@@ -30,6 +30,7 @@ COMMANDS: dict[str, Command] = {
     "record": Command("arpz.tools.record", "record a running fleet into MCAP"),
     "play": Command("arpz.tools.play", "play an MCAP recording back into a fleet"),
     "doctor": Command("arpz.tools.doctor", "check a running fleet and say what is wrong"),
+    "bridge": Command("arpz.bridge.__main__", "the ROS 2 bridge (rmw_zenoh), standalone"),
     "perf": Command("arpz.perf.__main__", "performance tests: channel, ingest, fleet scaling"),
     "netem": Command("arpz.netem.__main__", "the lossy-link emulator (a UDP/TCP proxy)"),
     "experiment": Command("arpz.experiment.__main__", "experiment grids, results and figures"),
