@@ -162,7 +162,8 @@ def split_path(out: Path, index: int, splitting: bool) -> Path:
 
 class McapSink:
     """Writes messages into one MCAP file after another, starting the next one when the current
-    one exceeds ``split_bytes`` or ``split_s`` of log time (0: never). Every file is whole on its
+    one has reached ``split_bytes`` (it may pass it by one chunk) or holds ``split_s`` of log
+    time (0: never). Every file is whole on its
     own: each repeats the schemas and channels of the topics it holds. Not thread-safe: one
     writer thread owns it."""
 
@@ -188,7 +189,10 @@ class McapSink:
         path = split_path(self.out, len(self.files), self.splitting)
         path.parent.mkdir(parents=True, exist_ok=True)
         self._stream = path.open("wb")
-        self._writer = Writer(self._stream, compression=COMPRESSION)
+        # the file grows a chunk at a time: with a size limit, chunks of an eighth of it keep
+        # each file within one chunk of the limit
+        chunk = max(4096, min(2**20, self.split_bytes // 8)) if self.split_bytes else 2**20
+        self._writer = Writer(self._stream, chunk_size=chunk, compression=COMPRESSION)
         self._writer.start(profile=PROFILE, library="arpz record")
         self._writer.add_metadata(METADATA_NAME, self.metadata)
         self._channels, self._schemas, self._first_ns = {}, {}, None

@@ -124,6 +124,7 @@ class Recorder:
         traffic: TrafficQos | None = None,
         mode: str | None = None,
         camera_size: tuple[int, int] | None = None,
+        mode_wait_s: float = _MODE_WAIT_S,
         clock_ns: Callable[[], int] = time.time_ns,
     ) -> None:
         self.transport = transport
@@ -134,6 +135,7 @@ class Recorder:
         self.mode = mode
         #: (width, height) of the fleet's camera frames; None: guessed from each frame's length
         self.camera_size = camera_size
+        self.mode_wait_s = mode_wait_s
         self._clock_ns = clock_ns
         self._queue: queue.Queue[_Item] = queue.Queue(_QUEUE_LIMIT)
         self._lock = threading.Lock()
@@ -163,7 +165,7 @@ class Recorder:
             with self._lock:
                 self._modes[key] = key.rsplit("/", 1)[-1]
 
-    def decide_mode(self, wait_s: float = _MODE_WAIT_S) -> str:
+    def decide_mode(self) -> str:
         """The fleet's mode: the CEDDP's token, else the robots' (all alike), else channel."""
         fleet = self.fleet
         ceddp_prefix = f"{keys.fleet_prefix(fleet)}/ceddp/mode/"
@@ -173,6 +175,7 @@ class Recorder:
         self._handles.append(
             self.transport.watch_liveliness(keys.all_robot_modes(fleet), self._on_mode)
         )
+        wait_s = self.mode_wait_s
         deadline = time.monotonic() + wait_s
         while time.monotonic() < deadline:
             with self._lock:

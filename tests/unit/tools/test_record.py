@@ -1,0 +1,311 @@
+"""``arpz record`` and ``arpz play`` over the in-memory bus: what goes into the MCAP file, how it
+is split, and what play publishes back (the real-router tests are
+tests/integration/test_record_play.py)."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+from rosbags.rosbag2.metadata import parse_qos
+
+from arpz import keys
+from arpz.channel_io import Inlet, Outlet
+from arpz.config import TrafficQos
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.messages import (
+    ANNOUNCE_DECODER,
+    SAMPLE_DECODER,
+    Announce,
+    Command,
+    Sample,
+    TopicInfo,
+    encode,
+)
+from arpz.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
+from arpz.tools import record as record_tool
+from arpz.tools._recording import McapSink, Topic, offered_qos_yaml, split_path
+from arpz.tools.play import Player, RecordingError, recording_files
+from arpz.tools.record import Recorder
+from tests.support import wait_until
+
+FLEET = "t"
+TRAFFIC = TrafficQos()
+
+
+@pytest.fixture
+def bus() -> Iterator[MemoryBus]:
+    yield MemoryBus()
+
+
+class FakeRobot:
+    """What a robot agent puts on the wire, with the same Outlets and keys."""
+
+    def __init__(self, transport: MemoryTransport, name: str = "robot1", mode: str = "channel"):
+        self.transport, self.name = transport, name
+        channel = mode == "channel"
+        self.tokens = [
+            transport.declare_token(keys.presence_key(FLEET, name)),
+            transport.declare_token(keys.robot_mode_key(FLEET, name, mode)),
+        ]
+        self.announce = Outlet(
+            transport, keys.announce_key(FLEET, name), TRAFFIC.report_qos if channel else None
+        )
+        self.outlets = {
+            topic: Outlet(
+                transport,
+                keys.sensor_key(FLEET, name, topic),
+                TRAFFIC.sensor_qos if channel else None,
+            )
+            for topic in ("lidar", "pir")
+        }
+        self.seqs = {"lidar": 0, "pir": 0}
+
+    def send_announce(self) -> None:
+        message = Announce(
+            robot=self.name,
+            incarnation="abc",
+            sensors=[
+                TopicInfo("lidar", "lidar", 10.0, "float"),
+                TopicInfo("pir", "pir", 10.0, "str"),
+            ],
+            commands=["hello", "velocity"],
+        )
+        self.announce.send(encode(message), time.time_ns())
+
+    def send(self, topic: str, value: float | str, *, skip: int = 0) -> Sample:
+        self.seqs[topic] += 1 + skip
+        sample = Sample(f"{self.name}:abc", self.seqs[topic], time.time_ns(), value)
+        self.outlets[topic].send(encode(sample), sample.stamp_ns)
+        return sample
+
+
+def recorder(bus: MemoryBus, out: Path, **kwargs: object) -> Recorder:
+    sink = McapSink(out, split_bytes=0, split_s=0.0, metadata={"fleet": FLEET})
+    rec = Recorder(MemoryTransport(bus), FLEET, sink, mode="channel", **kwargs)  # type: ignore[arg-type]
+    rec.start()
+    return rec
+
+
+def run_until(rec: Recorder, done: object) -> None:
+    stop = threading.Event()
+    thread = threading.Thread(target=rec.run, args=(stop,))
+    thread.start()
+    try:
+        wait_until(done, what="the recording")  # type: ignore[arg-type]
+    finally:
+        stop.set()
+        thread.join()
+
+
+def by_topic(path: Path) -> dict[str, list[tuple[object, object]]]:
+    out: dict[str, list[tuple[object, object]]] = {}
+    with path.open("rb") as stream:
+        for _, channel, message in make_reader(stream).iter_messages(log_time_order=True):
+            out.setdefault(channel.topic, []).append((channel, message))
+    return out
+
+
+def test_sensor_topics_become_ros2_channels_and_the_rest_stays_arpz(
+    bus: MemoryBus, tmp_path: Path
+) -> None:
+    out = tmp_path / "r.mcap"
+    rec = recorder(bus, out)
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
+    sent = [robot.send("lidar", 2.37), robot.send("lidar", 2.38), robot.send("pir", "detect")]
+    command = Command("ceddp:1", 1, time.time_ns(), [0.8, 0.0])
+    ceddp = Outlet(
+        MemoryTransport(bus), keys.command_key(FLEET, "robot1", "velocity"), TRAFFIC.command_qos
+    )
+    wait_until(lambda: ceddp.matched, what="the command reader")
+    ceddp.send(encode(command), command.stamp_ns)
+    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 7)
+    files = rec.close()
+    assert files == [out]
+    topics = by_topic(out)
+    assert set(topics) == {
+        "/robot1/lidar",
+        "/robot1/pir",
+        "/robot1/cmd/velocity",
+        "/robot1/arpz/announce",
+        "/robot1/arpz/presence",
+        "/robot1/arpz/mode/channel",
+    }
+    channel, message = topics["/robot1/lidar"][0]
+    assert channel.message_encoding == "cdr"  # type: ignore[attr-defined]
+    assert channel.metadata["arpz_key"] == "arpz/t/robot/robot1/sensor/lidar"  # type: ignore[attr-defined]
+    assert message.log_time == sent[0].stamp_ns and message.sequence == 1  # type: ignore[attr-defined]
+    assert message.publish_time >= message.log_time  # type: ignore[attr-defined]
+    channel, message = topics["/robot1/cmd/velocity"][0]
+    assert channel.message_encoding == "msgpack"  # type: ignore[attr-defined]
+    assert channel.metadata["arpz_type"] == "arpz.messages.Command"  # type: ignore[attr-defined]
+    assert message.data == encode(command) and message.log_time == command.stamp_ns  # type: ignore[attr-defined]
+    summary = rec.summary()
+    assert summary["topics"]["/robot1/lidar"]["messages"] == 2
+    assert summary["lost"] == 0
+    assert "sensor_msgs/msg/LaserScan" in record_tool.format_summary(summary)
+
+
+def test_a_topic_never_announced_is_recorded_as_arpz_samples(
+    bus: MemoryBus, tmp_path: Path
+) -> None:
+    rec = recorder(bus, tmp_path / "r.mcap")
+    robot = FakeRobot(MemoryTransport(bus))  # no announcement
+    wait_until(lambda: robot.outlets["lidar"].matched, what="matching")
+    sample = robot.send("lidar", 1.0)
+    run_until(rec, lambda: not rec._queue.qsize() and rec._pending)
+    rec.close()  # what still waits for an announcement is written raw
+    channel, message = by_topic(tmp_path / "r.mcap")["/robot1/lidar"][0]
+    assert channel.metadata["arpz_type"] == "arpz.messages.Sample"  # type: ignore[attr-defined]
+    assert SAMPLE_DECODER.decode(message.data) == sample  # type: ignore[attr-defined]
+
+
+def test_patterns_select_topics_but_never_the_announcements(bus: MemoryBus, tmp_path: Path) -> None:
+    rec = recorder(bus, tmp_path / "r.mcap", patterns=["/robot1/pir"])
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
+    robot.send("lidar", 1.0)
+    robot.send("pir", "detect")
+    run_until(rec, lambda: "arpz/t/robot/robot1/sensor/pir" in rec.tallies)
+    rec.close()
+    assert set(by_topic(tmp_path / "r.mcap")) == {
+        "/robot1/pir",
+        "/robot1/arpz/announce",
+        "/robot1/arpz/presence",
+        "/robot1/arpz/mode/channel",
+    }
+    assert rec.summary()["skipped_by_pattern"] == 1
+
+
+def test_plain_mode_counts_losses_from_the_payload_seq(bus: MemoryBus, tmp_path: Path) -> None:
+    sink = McapSink(tmp_path / "r.mcap", split_bytes=0, split_s=0.0, metadata={})
+    rec = Recorder(MemoryTransport(bus), FLEET, sink, mode_wait_s=0.2)
+    robot = FakeRobot(MemoryTransport(bus), mode="none")
+    rec.start()  # decides the mode from the robot's token (no CEDDP here)
+    assert rec.mode == "none"
+    robot.send_announce()
+    robot.send("lidar", 1.0)
+    robot.send("lidar", 1.1, skip=2)  # seq 4 after seq 1: two lost
+    run_until(rec, lambda: "arpz/t/robot/robot1/sensor/lidar" in rec.tallies)
+    rec.close()
+    lidar = rec.summary()["topics"]["/robot1/lidar"]
+    assert (lidar["messages"], lidar["lost"]) == (2, 2)
+    channel, _ = by_topic(tmp_path / "r.mcap")["/robot1/lidar"][0]
+    assert channel.metadata["arpz_qos"] == "none"  # type: ignore[attr-defined]
+
+
+def test_a_recording_is_split_by_size_and_every_part_is_whole(tmp_path: Path) -> None:
+    out = tmp_path / "big.mcap"
+    topic = Topic("arpz/t/robot/r/sensor/lidar", "r", "lidar", TRAFFIC.sensor_qos)
+    from arpz.rosmsg.convert import to_cdr
+
+    with McapSink(out, split_bytes=4000, split_s=0.0, metadata={}) as sink:
+        for i in range(400):
+            data = to_cdr("lidar", 1.0 + i / 100, stamp_ns=i, frame_id="r/lidar")
+            sink.write(topic, data, log_ns=i, publish_ns=i, sequence=i)
+    assert len(sink.files) > 1
+    assert sink.files[0] == tmp_path / "big_0.mcap" == split_path(out, 0, True)
+    assert recording_files(out) == sink.files
+    total = 0
+    for path in sink.files:
+        with path.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert [s.name for s in summary.schemas.values()] == ["sensor_msgs/msg/LaserScan"]
+        total += summary.statistics.message_count
+    assert total == 400
+
+
+def test_split_by_duration_of_log_time(tmp_path: Path) -> None:
+    topic = Topic("arpz/t/robot/r/cmd/velocity", "r", "command", TRAFFIC.command_qos)
+    with McapSink(tmp_path / "d.mcap", split_bytes=0, split_s=1.0, metadata={}) as sink:
+        for i in range(5):
+            sink.write(topic, b"\x90", log_ns=i * 600_000_000, publish_ns=0, sequence=0)
+    assert [p.name for p in sink.files] == ["d_0.mcap", "d_1.mcap", "d_2.mcap"]
+
+
+def test_offered_qos_profiles_read_back_as_rosbag2_qos() -> None:
+    qos = QosProfile(depth=4, durability=DurabilityPolicy.TRANSIENT_LOCAL, lifespan_s=0.5)
+    [parsed] = parse_qos(offered_qos_yaml(qos))
+    assert (parsed.history.name, parsed.depth) == ("KEEP_LAST", 4)
+    assert (parsed.reliability.name, parsed.durability.name) == ("RELIABLE", "TRANSIENT_LOCAL")
+    assert (parsed.lifespan.sec, parsed.lifespan.nsec) == (0, 500_000_000)
+    assert parsed.deadline.sec == 2**31 - 1  # arpz's 0 (none) is rmw's infinite
+    [plain] = parse_qos(offered_qos_yaml(None))
+    assert plain.reliability.name == "BEST_EFFORT"
+    best_effort = QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT)
+    assert parse_qos(offered_qos_yaml(best_effort))[0].reliability.name == "BEST_EFFORT"
+
+
+def test_play_publishes_the_recording_as_the_robot_did(bus: MemoryBus, tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    rec = recorder(bus, out)
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
+    sent = [robot.send("lidar", 2.37), robot.send("pir", "detect"), robot.send("lidar", 2.5)]
+    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 6)
+    rec.close()
+    for token in robot.tokens:
+        token.undeclare()
+
+    fresh = MemoryBus()  # a new fleet: a CEDDP-like reader of everything a robot sends
+    listener = MemoryTransport(fresh)
+    got: list[tuple[str, bytes]] = []
+    alive: list[tuple[str, bool]] = []
+    lock = threading.Lock()
+
+    def on_message(key: str, payload: bytes) -> None:
+        with lock:
+            got.append((key, payload))
+
+    inlets = [
+        Inlet(listener, keys.all_sensors(FLEET), TRAFFIC.sensor_qos, on_message),
+        Inlet(listener, keys.all_reports(FLEET), TRAFFIC.report_qos, on_message),
+    ]
+    listener.watch_liveliness(keys.all_presence(FLEET), lambda k, a: alive.append((k, a)))
+    player = Player(MemoryTransport(fresh), recording_files(out), rate=4.0)
+    player.open(match_timeout_s=2.0)
+    started_ns = time.time_ns()
+    player.run(threading.Event())
+    player.close()
+    wait_until(lambda: len(got) >= 4, what="the replayed messages")
+    for inlet in inlets:
+        inlet.close()
+    announce = [ANNOUNCE_DECODER.decode(p) for k, p in got if k.endswith("/announce")]
+    assert announce and announce[0].incarnation != "abc"  # a replay is a new incarnation
+    samples = [SAMPLE_DECODER.decode(p) for k, p in got if "/sensor/" in k]
+    assert [s.value for s in samples] == [s.value for s in sent]
+    assert [s.seq for s in samples] == [1, 1, 2]  # numbered by the replay's writer, per key
+    assert all(s.stamp_ns >= started_ns for s in samples)  # re-stamped into the replay's time
+    # at x4 the gaps between the recorded stamps shrink fourfold
+    recorded_gap = sent[2].stamp_ns - sent[0].stamp_ns
+    assert samples[2].stamp_ns - samples[0].stamp_ns == pytest.approx(recorded_gap / 4, abs=2)
+    assert ("arpz/t/robot/robot1/presence", True) in alive
+    assert alive[-1] == ("arpz/t/robot/robot1/presence", False)  # the robot left at the end
+    assert player.summary()["published"] == 4
+
+
+def test_play_says_what_is_wrong_with_a_file(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="no such recording"):
+        recording_files(tmp_path / "none.mcap")
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(b"not mcap")
+    with pytest.raises(RecordingError, match="not a readable MCAP file"):
+        Player(MemoryTransport(MemoryBus()), [bad])
+
+
+def test_the_command_line_refuses_bad_options(capsys: pytest.CaptureFixture[str]) -> None:
+    assert record_tool.main(["--out", "x.txt", "--connect", "tcp/127.0.0.1:1"]) == 2
+    assert "give a file name ending in .mcap" in capsys.readouterr().err
+    assert record_tool.main(["--out", "x.mcap", "--camera-size", "wide"]) == 2
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
+    assert record_tool.main(["--out", "x.mcap", "--connect", "foo"]) == 2
+    assert "arpz record: error: " in capsys.readouterr().err
