@@ -298,22 +298,19 @@ def matches(topic: TopicEntry) -> list[dict[str, object]]:
 
 
 def resolve(graph: FleetGraph, given: str) -> TopicEntry:
-    """Find a topic by ROS name (with or without the leading '/') or by its arpz key."""
+    """Find a topic by ROS name (with or without the leading '/') or by its arpz key. A name two
+    topics share (a sensor called ``stats``) is refused with both keys, which always work."""
     text = given.strip()
-    by_key = {t.key: t for t in graph.topics}
-    if text.startswith(f"{keys.ROOT}/"):
-        if text in by_key:
-            return by_key[text]
-        candidates = list(by_key)
-    else:
-        name = "/" + text.strip("/")
-        for topic in graph.topics:
-            if topic.name == name:
-                return topic
-        candidates = [t.name for t in graph.topics]
-    close = difflib.get_close_matches(
-        text if text.startswith(keys.ROOT) else "/" + text.strip("/"), candidates, n=5, cutoff=0.5
-    )
+    by_key = text.startswith(f"{keys.ROOT}/")
+    wanted = text if by_key else "/" + text.strip("/")
+    found = [t for t in graph.topics if (t.key if by_key else t.name) == wanted]
+    if len(found) == 1:
+        return found[0]
+    if found:
+        both = ", ".join(t.key for t in found)
+        raise UnknownTopicError(f"{given!r} names {len(found)} topics ({both}): give the arpz key")
+    candidates = [t.key if by_key else t.name for t in graph.topics]
+    close = difflib.get_close_matches(wanted, candidates, n=5, cutoff=0.5)
     hint = f"; did you mean {', '.join(close)}?" if close else ""
     if not graph.topics:
         hint = f"; fleet {graph.fleet!r} has no topics (is --fleet right?{_fleets_hint(graph)})"

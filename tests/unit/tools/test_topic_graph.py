@@ -260,3 +260,19 @@ def test_the_clock_offset_comes_from_the_robots_stats() -> None:
     )
     offset = clock_offset(measured)
     assert offset is not None and (offset.offset_ns, offset.delay_ns) == (-2_000_000, 300_000)
+
+
+def test_a_name_two_topics_share_asks_for_the_key() -> None:
+    obs = channel_fleet()
+    announce = Announce(
+        robot="r1",
+        incarnation="abc",
+        sensors=[TopicInfo(topic="stats", kind="imu", rate_hz=1.0, value_type="float")],
+        commands=[],
+    )
+    obs.on_report(keys.announce_key(F, "r1"), encode(announce))
+    graph = obs.graph()
+    with pytest.raises(UnknownTopicError, match=r"names 2 topics .*give the arpz key"):
+        graph.topic("/r1/stats")
+    assert graph.topic(keys.sensor_key(F, "r1", "stats")).kind == "imu"
+    assert graph.topic(keys.stats_key(F, "r1")).arpz_type == "RobotStats"
