@@ -39,7 +39,7 @@ from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, robot_summary
 from arpz.channel_io import Inlet, Outlet
-from arpz.config import CeddpConfig
+from arpz.config import CeddpConfig, ConfigError
 from arpz.frames import DashboardLike, Event, WorldMap, WorldView
 from arpz.messages import new_incarnation, writer_id
 from arpz.mission.judge import MissionResult
@@ -194,28 +194,37 @@ class CeddpServer:
         self._event(f"previous run's summary {path}: {len(seen)} topics it had received")
 
     def _start_live_views(self) -> None:
-        """The Rerun web viewer, Foxglove and the status page, each when its port is set
+        """The status page, Foxglove and the Rerun web viewer, each when its port is set
         (docs/tools-live.md), before anything else starts: a port in use raises ConfigError
-        naming its setting."""
+        naming its setting, and what was opened before it is closed again."""
         cfg = self.config
-        if cfg.rerun_web_port:
-            from arpz.ceddp.dashboard import serve_web_viewer
+        try:
+            if cfg.web_port:
+                from arpz.ceddp.web import StatusWeb
 
-            serve_web_viewer(cfg.rerun_web_port)
-            self._event(f"Rerun web viewer on http://0.0.0.0:{cfg.rerun_web_port}/")
-        if cfg.foxglove_port:
-            from arpz.ceddp.foxglove_live import FoxgloveLive
+                self.web = StatusWeb(self.status.read, host=cfg.live_host, port=cfg.web_port)
+            if cfg.foxglove_port:
+                from arpz.ceddp.foxglove_live import FoxgloveLive
 
-            self.foxglove = FoxgloveLive(
-                host=cfg.live_host, port=cfg.foxglove_port, kind_of=self.status.kind_of
-            )
+                self.foxglove = FoxgloveLive(
+                    host=cfg.live_host, port=cfg.foxglove_port, kind_of=self.status.kind_of
+                )
+            if cfg.rerun_web_port:  # last: Rerun's viewer cannot be stopped once it serves
+                from arpz.ceddp.dashboard import serve_web_viewer
+
+                serve_web_viewer(cfg.rerun_web_port)
+                self._event(f"Rerun web viewer on http://0.0.0.0:{cfg.rerun_web_port}/")
+        except ConfigError:
+            if self.foxglove is not None:
+                self.foxglove.stop()
+            if self.web is not None:
+                self.web.close()
+            raise
+        if self.foxglove is not None:
             self.planners.append(self.foxglove)  # fed like a planner, started and stopped so
             self.metrics.frame_listeners.append(self.foxglove.on_metrics)
             self._event(f"Foxglove on ws://{cfg.live_host}:{self.foxglove.port}")
-        if cfg.web_port:
-            from arpz.ceddp.web import StatusWeb
-
-            self.web = StatusWeb(self.status.read, host=cfg.live_host, port=cfg.web_port)
+        if self.web is not None:
             self.web.start()
             self._event(f"status page on http://{cfg.live_host}:{self.web.port}/ (and /metrics)")
 

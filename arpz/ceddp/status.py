@@ -209,41 +209,48 @@ class StatusReader:
         frame_topics = frame.topics if frame is not None else {}
         frame_robots = frame.robots if frame is not None else {}
         ingest = self.ingest
-        per_robot: dict[str, list[TopicStatus]] = {}
-        with ingest.lock:
+        with ingest.lock:  # only copies under the lock: the ingest waits for nothing else
             records = {name: _copy(record) for name, record in self.robots.items()}
-            counts = {slot: (m.received, m.bytes) for slot, m in ingest.topics.items()}
-            rates = self._rates.rates(time.monotonic(), counts)
-            for (robot, topic), m in sorted(ingest.topics.items()):
-                if topic == "hello":
-                    continue
-                record = records.get(robot)
-                stats = record.stats if record is not None else None
-                counters = stats.topics.get(topic) if stats is not None else None
-                row = frame_topics.get((robot, topic), {})
-                rate_hz, bytes_per_s = rates.get((robot, topic), (None, None))
-                per_robot.setdefault(robot, []).append(
-                    TopicStatus(
-                        topic=topic,
-                        kind=_kind(record, topic),
-                        received=m.received,
-                        bytes=m.bytes,
-                        lost=m.lost + m.before_join,
-                        decode_errors=m.decode_errors,
-                        cc_discarded=ingest.cache_counters(robot, topic).hits,
-                        last_sample_age_s=(
-                            round(max(now_ns - m.last_arrival_ns, 0) / 1e9, 3)
-                            if m.last_arrival_ns
-                            else None
-                        ),
-                        rate_hz=rate_hz,
-                        bytes_per_s=bytes_per_s,
-                        latency_ms_p50=row.get("latency_ms_p50"),
-                        latency_ms_p99=row.get("latency_ms_p99"),
-                        staleness_ms_p99=row.get("staleness_ms_p99"),
-                        **_robot_side(counters),
-                    )
+            copied = [
+                (
+                    slot,
+                    (m.received, m.bytes),
+                    m.lost + m.before_join,
+                    m.decode_errors,
+                    ingest.cache_counters(*slot).hits,
+                    m.last_arrival_ns,
                 )
+                for slot, m in ingest.topics.items()
+                if slot[1] != "hello"
+            ]
+        rates = self._rates.rates(time.monotonic(), {row[0]: row[1] for row in copied})
+        per_robot: dict[str, list[TopicStatus]] = {}
+        for (robot, topic), (received, size), lost, errors, hits, last_ns in sorted(copied):
+            record = records.get(robot)
+            stats = record.stats if record is not None else None
+            counters = stats.topics.get(topic) if stats is not None else None
+            row = frame_topics.get((robot, topic), {})
+            rate_hz, bytes_per_s = rates.get((robot, topic), (None, None))
+            per_robot.setdefault(robot, []).append(
+                TopicStatus(
+                    topic=topic,
+                    kind=_kind(record, topic),
+                    received=received,
+                    bytes=size,
+                    lost=lost,
+                    decode_errors=errors,
+                    cc_discarded=hits,
+                    last_sample_age_s=(
+                        round(max(now_ns - last_ns, 0) / 1e9, 3) if last_ns else None
+                    ),
+                    rate_hz=rate_hz,
+                    bytes_per_s=bytes_per_s,
+                    latency_ms_p50=row.get("latency_ms_p50"),
+                    latency_ms_p99=row.get("latency_ms_p99"),
+                    staleness_ms_p99=row.get("staleness_ms_p99"),
+                    **_robot_side(counters),
+                )
+            )
         names = sorted((set(per_robot) | set(records)) - {CEDDP_ROW})
         robots = [
             _robot_status(

@@ -168,3 +168,11 @@ def test_ros_messages_become_json_with_a_matching_schema() -> None:
     schema = json_schema("sensor_msgs/msg/LaserScan", message)
     assert schema["title"] == "sensor_msgs/msg/LaserScan"
     assert schema["properties"]["header"]["properties"]["frame_id"] == {"type": "string"}
+
+
+def test_an_advertised_topic_nobody_subscribes_to_is_not_queued(live: FoxgloveLive) -> None:
+    live.on_reading(reading("lidar", 1.0))
+    wait_until(lambda: ("r1", "lidar") in live._topics, timeout_s=5, what="channel advertised")
+    for seq in range(2, 5000):
+        live.on_reading(reading("lidar", 1.0, seq))
+    assert live.dropped == 0 and live._queue.qsize() == 0

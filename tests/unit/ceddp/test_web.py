@@ -208,3 +208,19 @@ def test_the_live_ports_are_validated(fields: dict[str, int], message: str) -> N
 
     with pytest.raises(ConfigError, match=message):
         from_dict(fields, CeddpConfig, source="test.toml")
+
+
+def test_a_view_that_cannot_start_closes_the_ones_opened_before_it() -> None:
+    from arpz.ceddp.server import CeddpServer
+    from arpz.memory_transport import MemoryBus, MemoryTransport
+
+    web_port = free_port()
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        config = CeddpConfig(fleet=FLEET, web_port=web_port, foxglove_port=busy.getsockname()[1])
+        server = CeddpServer(config, MemoryTransport(MemoryBus()))
+        with pytest.raises(ConfigError, match="foxglove_port"):
+            server.start()
+    with socket.socket() as again:  # the status page's port was let go
+        again.bind(("127.0.0.1", web_port))
