@@ -379,13 +379,18 @@ class FleetObserver:
                 self.decode_errors += 1
 
     def add_stats(self, robot: str, stats: RobotStats) -> None:
+        """Keep the two newest reports of the robot's newest incarnation, whatever order they
+        come in (the channel's history and the plain subscription race each other)."""
         with self._lock:
             known = self._stats.setdefault(robot, [])
             if known and known[-1].incarnation != stats.incarnation:
+                if stats.stamp_ns < known[-1].stamp_ns:
+                    return  # an older incarnation's report
                 known.clear()
-            if known and stats.stamp_ns <= known[-1].stamp_ns:
-                return  # a resend or an older report (TRANSIENT_LOCAL history)
+            if any(s.stamp_ns == stats.stamp_ns for s in known):
+                return  # the same report twice
             known.append(stats)
+            known.sort(key=lambda s: s.stamp_ns)
             del known[:-2]
 
     def announced(self, robot: str) -> bool:
@@ -644,19 +649,22 @@ class Discovery:
             self.close()
             raise
 
-    def settle(self, *, min_s: float = 0.3, max_s: float = 3.0) -> FleetGraph:
+    def settle(
+        self, *, min_s: float = 0.3, max_s: float = 3.0, stop: threading.Event | None = None
+    ) -> FleetGraph:
         """Wait until every present robot has announced itself and reported twice (or
-        ``max_s``), at least ``min_s`` (the tokens' history), and return the graph."""
+        ``max_s``, or ``stop``), at least ``min_s`` (the tokens' history); return the graph."""
         start = time.monotonic()
-        while True:
+        while stop is None or not stop.is_set():
             elapsed = time.monotonic() - start
             robots = self.observer.present_robots()
             done = elapsed >= min_s and all(
                 self.observer.announced(r) and self.observer.stats_count(r) >= 2 for r in robots
             )
             if done or elapsed >= max_s:
-                return self.observer.graph()
+                break
             time.sleep(0.05)
+        return self.observer.graph()
 
     def graph(self) -> FleetGraph:
         return self.observer.graph()

@@ -290,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         return fail(TOOL, str(exc), 1)
     try:
         with discovering(transport, args.fleet) as discovery:
-            graph = discovery.settle(max_s=args.discovery_s)
+            graph = discovery.settle(max_s=args.discovery_s, stop=stop)
             return COMMANDS[args.command](args, Context(transport, discovery, graph, stop))
     except UnknownTopicError as exc:
         return fail(TOOL, str(exc), 2)

@@ -3,9 +3,12 @@ topic the user typed, and matching (no Zenoh: observations in, graph out)."""
 
 from __future__ import annotations
 
+from contextlib import closing
+
 import pytest
 
 from arpz import keys
+from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.messages import (
     Announce,
     ClockStats,
@@ -17,11 +20,13 @@ from arpz.messages import (
 )
 from arpz.protocol import wire
 from arpz.protocol.qos import QOS_SENSOR_DATA, QosProfile, encode_match_qos
+from arpz.reliability import Writer
 from arpz.tools.fleet_graph import (
     CEDDP,
     FleetObserver,
     UnknownTopicError,
     clock_offset,
+    discovering,
     matches,
     topic_name,
 )
@@ -215,13 +220,16 @@ def test_undecodable_reports_are_counted_not_raised() -> None:
     assert obs.graph().topics == ()
 
 
-def test_older_and_repeated_stats_do_not_make_a_rate() -> None:
+def test_repeated_stats_make_no_rate_and_order_does_not_matter() -> None:
     obs = FleetObserver(F)
     obs.on_report(keys.stats_key(F, "r1"), encode(stats("r1", 10.0, sent=1, delivered=0)))
     obs.on_report(keys.stats_key(F, "r1"), encode(stats("r1", 10.0, sent=1, delivered=0)))
-    obs.on_report(keys.stats_key(F, "r1"), encode(stats("r1", 9.0, sent=1, delivered=0)))
     assert obs.stats_count("r1") == 1
     assert obs.graph().topic("/r1/stats").measured_rate_hz is None
+    obs.on_report(keys.stats_key(F, "r1"), encode(stats("r1", 9.5, sent=1, delivered=0)))
+    obs.on_report(keys.stats_key(F, "r1"), encode(stats("r1", 9.0, sent=1, delivered=0)))
+    assert obs.stats_count("r1") == 2
+    assert obs.graph().topic("/r1/stats").measured_rate_hz == pytest.approx(2.0)  # 9.5 -> 10
 
 
 def test_matching_follows_the_qos_rules() -> None:
@@ -276,3 +284,32 @@ def test_a_name_two_topics_share_asks_for_the_key() -> None:
         graph.topic("/r1/stats")
     assert graph.topic(keys.sensor_key(F, "r1", "stats")).kind == "imu"
     assert graph.topic(keys.stats_key(F, "r1")).arpz_type == "RobotStats"
+
+
+def test_discovery_over_a_transport_finds_the_reports_and_hides_its_own_readers() -> None:
+    """Through the channel (TRANSIENT_LOCAL: reports written before discovery started arrive at
+    once) and with the robot's presence token; discovery's own readers are not in the graph."""
+    bus = MemoryBus()
+    with (
+        closing(MemoryTransport(bus)) as robot,
+        closing(MemoryTransport(bus)) as tool,
+        Writer(robot, keys.announce_key(F, "r1"), REPORT_QOS) as announce_out,
+        Writer(robot, keys.stats_key(F, "r1"), REPORT_QOS) as stats_out,
+    ):
+        robot.declare_token(keys.presence_key(F, "r1"))
+        announce = Announce(
+            robot="r1",
+            incarnation="abc",
+            sensors=[TopicInfo(topic="lidar", kind="lidar", rate_hz=5.0, value_type="float")],
+            commands=[],
+        )
+        announce_out.write(encode(announce))
+        stats_out.write(encode(stats("r1", 1.0, sent=5.0, delivered=0)))
+        stats_out.write(encode(stats("r1", 1.5, sent=5.0, delivered=0)))
+        with discovering(tool, F) as discovery:
+            graph = discovery.settle(max_s=5.0)
+        lidar = graph.topic("/r1/lidar")
+        assert (lidar.ros_type, lidar.measured_rate_hz) == ("sensor_msgs/msg/LaserScan", 5.0)
+        assert [n.name for n in graph.nodes] == ["r1"]
+        assert graph.topic("/r1/stats").readers == ()  # discovery's own reader is hidden
+        assert [w.guid for w in graph.topic("/r1/stats").writers] == [stats_out.guid]
