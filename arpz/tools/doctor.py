@@ -26,6 +26,7 @@ included), 2 for bad input. The rules are pure functions (``diagnose``,
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import datetime
 import importlib
 import subprocess
@@ -258,47 +259,42 @@ def delivery_check(obs: Observation) -> Check:
 
 def clock_checks(obs: Observation, bound_ms: float) -> list[Check]:
     """One line per robot: its clock offset to the CEDDP, failed beyond ``bound_ms``."""
-    checks = []
-    for robot, stats in sorted(obs.robot_stats.items()):
-        name = f"clock {robot}"
-        clock = stats.clock
-        if clock is None:
-            checks.append(
-                Check(
-                    WARN,
-                    name,
-                    "no clock offset reported (clock sync off, or an older robot): its "
-                    "latencies are measured on its own clock",
-                )
-            )
-        elif clock.offset_ns is None or clock.delay_ns is None:
-            checks.append(
-                Check(
-                    WARN,
-                    name,
-                    f"no reply to {clock.requests} clock requests on "
-                    f"{keys.ceddp_clock_key(obs.fleet)} (an older CEDDP, or access control "
-                    "denies the query): latencies uncorrected",
-                )
-            )
-        else:
-            offset_ms, delay_ms = clock.offset_ns / 1e6, clock.delay_ns / 1e6
-            figures = (
-                f"offset {offset_ms:+.1f} ms to the CEDDP (round trip {delay_ms:.1f} ms, best of "
-                f"{clock.samples})"
-            )
-            if abs(offset_ms) > bound_ms:
-                checks.append(
-                    Check(
-                        FAIL,
-                        name,
-                        f"{figures} exceeds the bound of {bound_ms:g} ms: set up NTP or chrony "
-                        "on the robot (the CEDDP corrects its latencies meanwhile)",
-                    )
-                )
-            else:
-                checks.append(Check(OK, name, f"{figures}, within {bound_ms:g} ms"))
-    return checks
+    return [
+        clock_check(obs.fleet, robot, stats, bound_ms)
+        for robot, stats in sorted(obs.robot_stats.items())
+    ]
+
+
+def clock_check(fleet: str, robot: str, stats: RobotStats, bound_ms: float) -> Check:
+    name = f"clock {robot}"
+    clock = stats.clock
+    if clock is None:
+        return Check(
+            WARN,
+            name,
+            "no clock offset reported (clock sync off, or an older robot): its latencies are "
+            "measured on its own clock",
+        )
+    if clock.offset_ns is None or clock.delay_ns is None:
+        return Check(
+            WARN,
+            name,
+            f"no reply to {clock.requests} clock requests on {keys.ceddp_clock_key(fleet)} (an "
+            "older CEDDP, or access control denies the query): latencies uncorrected",
+        )
+    offset_ms, delay_ms = clock.offset_ns / 1e6, clock.delay_ns / 1e6
+    figures = (
+        f"offset {offset_ms:+.1f} ms to the CEDDP (round trip {delay_ms:.1f} ms, best of "
+        f"{clock.samples})"
+    )
+    if abs(offset_ms) > bound_ms:
+        return Check(
+            FAIL,
+            name,
+            f"{figures} exceeds the bound of {bound_ms:g} ms: set up NTP or chrony on the robot "
+            "(the CEDDP corrects its latencies meanwhile)",
+        )
+    return Check(OK, name, f"{figures}, within {bound_ms:g} ms")
 
 
 # -- certificates ---------------------------------------------------------------------------------
@@ -351,30 +347,35 @@ def certificate_checks(
     expiry: Callable[[str], datetime.datetime] = certificate_expiry,
 ) -> list[Check]:
     """One line per certificate file (``files``: Zenoh config key -> path)."""
-    checks = []
-    for what, path in files.items():
-        name = f"tls {what}"
-        try:
-            ends = expiry(path)
-        except CertificateError as exc:
-            checks.append(Check(FAIL, name, str(exc)))
-            continue
-        days = (ends - now).total_seconds() / 86400
-        when = ends.strftime("%Y-%m-%d %H:%M UTC")
-        if days < 0:
-            checks.append(Check(FAIL, name, f"{path} expired on {when}: TLS sessions are refused"))
-        elif days < warn_days:
-            checks.append(
-                Check(
-                    WARN,
-                    name,
-                    f"{path} expires on {when}, in {days:.0f} days: renew it "
-                    "(deploy/tls/make_fleet_certs.py)",
-                )
-            )
-        else:
-            checks.append(Check(OK, name, f"{path} valid until {when} ({days:.0f} days)"))
-    return checks
+    return [
+        certificate_check(f"tls {what}", path, now, warn_days, expiry)
+        for what, path in files.items()
+    ]
+
+
+def certificate_check(
+    name: str,
+    path: str,
+    now: datetime.datetime,
+    warn_days: int,
+    expiry: Callable[[str], datetime.datetime],
+) -> Check:
+    try:
+        ends = expiry(path)
+    except CertificateError as exc:
+        return Check(FAIL, name, str(exc))
+    days = (ends - now).total_seconds() / 86400
+    when = ends.strftime("%Y-%m-%d %H:%M UTC")
+    if days < 0:
+        return Check(FAIL, name, f"{path} expired on {when}: TLS sessions are refused")
+    if days < warn_days:
+        return Check(
+            WARN,
+            name,
+            f"{path} expires on {when}, in {days:.0f} days: renew it "
+            "(deploy/tls/make_fleet_certs.py)",
+        )
+    return Check(OK, name, f"{path} valid until {when} ({days:.0f} days)")
 
 
 def tls_summary(obs: Observation, endpoints: Iterable[str], files: dict[str, str]) -> Check:
@@ -486,20 +487,13 @@ def listen(transport: ZenohTransport, obs: Observation, timeout_s: float) -> Obs
         if time.monotonic() - start >= MIN_LISTEN_S and listener.complete():
             break
         time.sleep(0.05)
-    with listener.lock:
+    with listener.lock:  # a copy: callbacks may still come until the session is closed
         obs.listened_s = time.monotonic() - start
-        return Observation(
-            fleet=obs.fleet,
-            endpoints=obs.endpoints,
-            connect_s=obs.connect_s,
-            listened_s=obs.listened_s,
-            ceddp_present=obs.ceddp_present,
-            ceddp_stats=obs.ceddp_stats,
-            ceddp_reports=obs.ceddp_reports,
+        return dataclasses.replace(
+            obs,
             robots_present=set(obs.robots_present),
             robot_stats=dict(obs.robot_stats),
             fleets_seen=set(obs.fleets_seen),
-            decode_errors=obs.decode_errors,
         )
 
 
