@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import struct
 import sys
 import threading
 import time
@@ -152,7 +153,7 @@ class Player:
             try:
                 with path.open("rb") as stream:
                     stats = make_reader(stream).get_summary()
-            except (OSError, McapError, ValueError) as exc:
+            except (OSError, McapError, ValueError, struct.error) as exc:
                 raise RecordingError(f"{path}: not a readable MCAP file: {exc}") from None
             if stats is None or stats.statistics is None:
                 raise RecordingError(f"{path}: no MCAP summary (was the recording cut short?)")

@@ -285,3 +285,17 @@ def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> 
         compared, equal = compare(before[name], after[name], offset_ns)
         assert compared >= 0.9 * MISSION_S * 20 - 40, (name, compared)  # 20 Hz, less the start
         assert equal >= 0.95 * compared, (name, equal, compared)
+
+
+def test_the_camera_replay_driver_sends_the_recorded_frames(every_kind: Path) -> None:
+    from arpz.tools.frame_replay import CameraReplay
+
+    with every_kind.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        recorded = [
+            (message.log_time, bytes(image.data))
+            for _, _, message, image in reader.iter_decoded_messages(topics=["/robot1/cam"])
+        ]
+    driver = CameraReplay({"recording": str(every_kind), "topic": "/robot1/cam"}, seed=0)
+    first = recorded[0][0]
+    assert [driver.read((t - first) / 1e9) for t, _ in recorded] == [f for _, f in recorded]
