@@ -16,7 +16,6 @@ plain Zenoh where the fleet runs ``reliability = "none"``). Every exit path clos
 from __future__ import annotations
 
 import argparse
-import contextlib
 import sys
 import threading
 import time
@@ -28,6 +27,7 @@ from arpz.cli import (
     JSON_TO_STDOUT,
     add_fleet_client_options,
     add_json_option,
+    add_version_option,
     connect_endpoints,
     emit_json,
     fail,
@@ -204,10 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
         "hz, bw, delay. The tool joins the fleet's router as a client.",
         epilog="TOPIC forms: " + TOPIC_HELP + ". See docs/tools.md.",
     )
-    with contextlib.suppress(ImportError):  # --version where arpz.cli offers it
-        from arpz.cli import add_version_option  # type: ignore[attr-defined,unused-ignore]
-
-        add_version_option(parser)
+    add_version_option(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     helps = {
         "list": "every topic with its type, rate, QoS and writers",
@@ -222,7 +219,7 @@ def build_parser() -> argparse.ArgumentParser:
         add_fleet_client_options(p)
         add_json_option(
             p,
-            "one JSON object per line (messages or figures, then a final summary)"
+            "the messages or the figures (one object per line, then a final summary)"
             if name not in ("list", "info")
             else "the result",
         )
