@@ -250,7 +250,6 @@ class StatusWeb:
     def __init__(self, read: Callable[[], FleetStatus], *, host: str, port: int) -> None:
         self.read = read
         self.registry = registry_for(read)
-        self.requests = 0
         handler = _handler_for(self)
         try:
             self._httpd = ThreadingHTTPServer((host, port), handler)
@@ -286,7 +285,6 @@ def _handler_for(web: StatusWeb) -> type[BaseHTTPRequestHandler]:
         server_version = "arpz-ceddp"
 
         def do_GET(self) -> None:
-            web.requests += 1
             path = self.path.split("?", 1)[0]
             try:
                 if path in ("/", "/index.html"):
