@@ -111,7 +111,8 @@ def run(tmp: Path, args: argparse.Namespace, *, bridge: bool) -> dict[str, Any]:
         assert server.interrupt() == 0
     summary = json.loads((tmp / "summary.json").read_text())
     result["ceddp_latency_ms_p50"] = {
-        name: round(r["latency_ms_p50"], 3) for name, r in sorted(summary["robots"].items())
+        name: None if r["latency_ms_p50"] is None else round(r["latency_ms_p50"], 3)
+        for name, r in sorted(summary["robots"].items())
     }
     if bridge:
         result["bridge_counters"] = summary["ros2"]["counters"]

@@ -32,6 +32,7 @@ import struct
 from dataclasses import dataclass
 from typing import Final, NamedTuple
 
+from arpz.errors import ArpzError
 from arpz.protocol.qos import (
     HistoryPolicy,
     LivelinessPolicy,
@@ -59,7 +60,7 @@ AUTOMATIC, MANUAL_BY_TOPIC = 1, 3
 INFINITE: Final = (9_223_372_036, 999_999_999)
 
 
-class WireError(ValueError):
+class WireError(ArpzError, ValueError):
     """Bytes or a key that are not what rmw_zenoh writes; the message says what is wrong."""
 
 

@@ -17,12 +17,13 @@ import functools
 import re
 from typing import Final
 
+from arpz.errors import ArpzError
 from arpz.rosmsg.convert import STORE
 
 RIHS01: Final = re.compile(r"^RIHS01_[0-9a-f]{64}$")
 
 
-class UnknownTypeError(KeyError):
+class UnknownTypeError(ArpzError, KeyError):
     """A ROS 2 type whose definition arpz does not carry."""
 
     def __str__(self) -> str:
