@@ -208,3 +208,19 @@ def test_the_local_obstacle_check_stops_inside_the_range_only() -> None:
     ranges["lidar_0"] = 0.5
     assert check.check()
     assert stops == [1] and check.stops == 1
+
+
+def test_apply_refuses_bad_input_before_connecting(tmp_path: Any, capsys: Any) -> None:
+    from arpz.configure.__main__ import main
+
+    missing = main(["apply", str(tmp_path / "none.toml"), "--connect", "tcp/127.0.0.1:1"])
+    assert missing == 2
+    assert "arpz configure apply: error:" in capsys.readouterr().err
+    # a model none of whose nodes is an arpz topic or computation: nothing to apply
+    model = tmp_path / "m.json"
+    model.write_text(
+        '{"computers": [{"name": "r", "kind": "robot", "capacity": 100}],'
+        ' "nodes": [{"name": "a", "settings": [{"cpu": 1, "performance": 1}]}]}'
+    )
+    assert main(["apply", str(model), "--connect", "tcp/127.0.0.1:1"]) == 2
+    assert "no node of the solution" in capsys.readouterr().err
