@@ -5,17 +5,26 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from arpz import keys
 from arpz.bridge import rmw_zenoh as rz
+from arpz.bridge.__main__ import load, parse_args
 from arpz.bridge.bridge import Bridge
 from arpz.bridge.commands import CONVERTERS, command_value
 from arpz.bridge.naming import command_key_expr, topic_name
 from arpz.bridge.type_hash import type_hash
-from arpz.config import ROS2_COMMAND_TYPES, CeddpConfig, ConfigError, Ros2Config, from_dict
+from arpz.config import (
+    ROS2_COMMAND_TYPES,
+    CeddpConfig,
+    ConfigError,
+    Ros2Config,
+    from_dict,
+    load_toml,
+)
 from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.messages import COMMAND_DECODER, Announce, Sample, TopicInfo, encode
 from arpz.reliability import Reader, Writer
@@ -148,3 +157,31 @@ def test_samples_out_and_commands_in(
     assert stats["topics"]["/r1/scan"]["published"] == 2
     assert stats["commands"]["/r1/cmd_vel"]["sent"] == 1
     assert stats["counters"]["commands_sent"] == 1
+
+
+def test_the_ceddp_and_the_standalone_bridge_read_ros2_from_toml(tmp_path: Path) -> None:
+    ceddp_toml = tmp_path / "ceddp.toml"
+    ceddp_toml.write_text(
+        '[ros2]\nenabled = true\ndomain_id = 5\n[ros2.topics]\n"*/front" = "/{robot}/cam"\n'
+        '[[ros2.commands]]\ntopic = "/{robot}/speed"\ntype = "std_msgs/msg/Float64"\n'
+        'command = "speed"\n'
+    )
+    ros2 = load_toml(ceddp_toml, CeddpConfig).ros2
+    assert (ros2.enabled, ros2.domain_id, ros2.topics) == (True, 5, {"*/front": "/{robot}/cam"})
+    assert [(c.topic, c.command) for c in ros2.commands] == [("/{robot}/speed", "speed")]
+    bridge_toml = tmp_path / "bridge.toml"
+    bridge_toml.write_text(
+        'fleet = "east"\nconnect = ["tcp/10.0.0.1:7447"]\n[ros2]\ndomain_id = 4\n'
+    )
+    args = parse_args(["--config", str(bridge_toml), "--domain-id", "9"])
+    config = load(args)
+    assert (config.fleet, config.connect, config.ros2.domain_id) == (
+        "east",
+        ["tcp/10.0.0.1:7447"],
+        9,
+    )
+    flags = load(parse_args(["--connect", "tcp/10.0.0.2:7447", "--fleet", "west"]))
+    assert (flags.fleet, flags.connect, flags.ros2.enabled) == ("west", ["tcp/10.0.0.2:7447"], True)
+    bridge_toml.write_text("[ros2]\ndomain_id = 999\n")
+    with pytest.raises(ConfigError, match="domain_id"):
+        load(parse_args(["--config", str(bridge_toml)]))
