@@ -196,15 +196,20 @@ class Player:
     def open(self, match_timeout_s: float = MATCH_TIMEOUT_S) -> None:
         """Open a writer for every played key and wait (bounded) until a reader matched each:
         a VOLATILE writer's first samples reach only readers matched when they are written."""
-        seen: set[str] = set()
-        for topic, _, _ in self._messages():
-            if topic.key in seen:
-                continue
-            seen.add(topic.key)
-            if topic.kind != "liveliness" and self._selected(topic):
-                self.played[topic.key] = Played(topic)
+        topics: dict[str, Topic] = {}
+        for path in self.files:
+            with path.open("rb") as stream:
+                summary = make_reader(stream).get_summary()
+            for channel in summary.channels.values() if summary else ():
+                topic = _topic(channel.metadata, self.fleet)
+                if topic is not None and topic.kind != "liveliness" and self._selected(topic):
+                    topics.setdefault(topic.key, topic)
+        # a robot is played when one of its data topics is (its announcement alone is not)
+        robots = {t.robot for t in topics.values() if t.kind != "announce"}
+        for key, topic in sorted(topics.items()):
+            if topic.robot in robots:
+                self.played[key] = Played(topic)
                 self._outlet(topic)
-        robots = {p.topic.robot for p in self.played.values()}
         self._robots = {robot: _RobotState() for robot in sorted(robots)}
         deadline = time.monotonic() + match_timeout_s
         while time.monotonic() < deadline and not all(o.matched for o in self._outlets.values()):
@@ -376,7 +381,11 @@ def build_parser() -> argparse.ArgumentParser:
         help="a recording (or the name given to --out when it was split into FILE_0.mcap ...)",
     )
     cli.add_fleet_client_options(parser)
-    parser.set_defaults(fleet=None)  # the recorded fleet unless --fleet is given
+    # the recorded fleet unless --fleet is given (cli's shared option says 'default')
+    parser.set_defaults(fleet=None)
+    for action in parser._actions:
+        if action.dest == "fleet":
+            action.help = "publish into this fleet (default: the fleet the recording was made of)"
     parser.add_argument(
         "--rate", type=float, default=1.0, metavar="FACTOR", help="2: twice as fast"
     )

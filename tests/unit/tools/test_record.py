@@ -309,3 +309,21 @@ def test_the_command_line_refuses_bad_options(capsys: pytest.CaptureFixture[str]
     assert "WIDTHxHEIGHT" in capsys.readouterr().err
     assert record_tool.main(["--out", "x.mcap", "--connect", "foo"]) == 2
     assert "arpz record: error: " in capsys.readouterr().err
+
+
+def test_play_topics_select_what_is_played_and_which_robots(bus: MemoryBus, tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    rec = recorder(bus, out)
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
+    robot.send("lidar", 1.0)
+    robot.send("pir", "detect")
+    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 5)
+    rec.close()
+    some = Player(MemoryTransport(MemoryBus()), [out], patterns=["/robot1/pir"])
+    some.open(match_timeout_s=0.0)
+    assert set(some.summary()["topics"]) == {"/robot1/pir", "/robot1/arpz/announce"}
+    none = Player(MemoryTransport(MemoryBus()), [out], patterns=["/robot9/*"])
+    none.open(match_timeout_s=0.0)
+    assert none.summary()["robots"] == [] and none.summary()["topics"] == {}
