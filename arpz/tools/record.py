@@ -86,8 +86,8 @@ class _Item:
     key: str
     payload: bytes
     arrival_ns: int
+    #: the channel's stamp (the writer's), None for a plain sample
     stamp_ns: int | None
-    writer: str
 
 
 def _header(payload: bytes) -> tuple[int, int] | None:
@@ -150,6 +150,8 @@ class Recorder:
         self._lost_by_guid: dict[str, int] = {}
         #: plain mode: (key, writer) -> last seq seen
         self._last_seq: dict[tuple[str, str], int] = {}
+        #: losses reported by a writer no sample of which arrived (its key is unknown)
+        self.unattributed_lost = 0
         self.skipped = 0
         self.unknown_keys = 0
         self._readers: list[Reader] = []
@@ -241,20 +243,18 @@ class Recorder:
         def on_data(payload: bytes, info: DataInfo) -> None:
             with self._lock:
                 self._guid_keys.setdefault(info.writer, info.key)
-            self._put(
-                _Item(source, info.key, payload, self._clock_ns(), info.stamp_ns, info.writer)
-            )
+            self._put(_Item(source, info.key, payload, self._clock_ns(), info.stamp_ns))
 
         return on_data
 
     def _plain_callback(self, source: str) -> Callable[[str, bytes, bytes | None], None]:
         def on_sample(key: str, payload: bytes, attachment: bytes | None) -> None:
-            self._put(_Item(source, key, payload, self._clock_ns(), None, ""))
+            self._put(_Item(source, key, payload, self._clock_ns(), None))
 
         return on_sample
 
     def _on_frame(self, payload: bytes, info: FrameInfo) -> None:
-        self._put(_Item(FRAME, info.key, payload, self._clock_ns(), info.stamp_ns, info.writer))
+        self._put(_Item(FRAME, info.key, payload, self._clock_ns(), info.stamp_ns))
 
     def _on_lost(self, status: MessageLostStatus) -> None:
         with self._lock:
@@ -263,7 +263,7 @@ class Recorder:
 
     def _on_token(self, key: str, alive: bool) -> None:
         now = self._clock_ns()
-        self._put(_Item(LIVELINESS, key, msgspec.msgpack.encode(alive), now, now, ""))
+        self._put(_Item(LIVELINESS, key, msgspec.msgpack.encode(alive), now, now))
 
     # -- the writing thread ---------------------------------------------------------------------
 
@@ -462,8 +462,6 @@ class Recorder:
                 self.tallies[key].lost += count
             else:
                 self.unattributed_lost += count
-
-    unattributed_lost = 0
 
     # -- the summary ----------------------------------------------------------------------------
 

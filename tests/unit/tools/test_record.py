@@ -327,3 +327,22 @@ def test_play_topics_select_what_is_played_and_which_robots(bus: MemoryBus, tmp_
     none = Player(MemoryTransport(MemoryBus()), [out], patterns=["/robot9/*"])
     none.open(match_timeout_s=0.0)
     assert none.summary()["robots"] == [] and none.summary()["topics"] == {}
+
+
+def test_channel_losses_are_counted_on_the_topic_of_their_writer(tmp_path: Path) -> None:
+    """MESSAGE_LOST names a writer guid; the recorder learned each guid's key from its samples
+    (a guid it never got a sample from is still counted, as unattributed)."""
+    from arpz.protocol.events import DataInfo, MessageLostStatus
+
+    sink = McapSink(tmp_path / "r.mcap", split_bytes=0, split_s=0.0, metadata={})
+    rec = Recorder(MemoryTransport(MemoryBus()), FLEET, sink, mode="channel")
+    rec.kinds[("robot1", "lidar")] = "lidar"
+    key = keys.sensor_key(FLEET, "robot1", "lidar")
+    sample = Sample("robot1:abc", 5, time.time_ns(), 1.5)
+    rec._data_callback("sensor")(encode(sample), DataInfo(key, "g1", 5, sample.stamp_ns))
+    rec._on_lost(MessageLostStatus(total_count=3, total_count_change=3, writer="g1"))
+    rec._on_lost(MessageLostStatus(total_count=1, total_count_change=1, writer="g-unknown"))
+    rec.close()
+    summary = rec.summary()
+    assert summary["topics"]["/robot1/lidar"]["lost"] == 3
+    assert (summary["unattributed_lost"], summary["lost"]) == (1, 4)
