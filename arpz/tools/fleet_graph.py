@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Final
 
 from arpz import keys
+from arpz.bridge.rmw_zenoh import ADMIN_SPACE, GraphRecord, graph_records
 from arpz.config import LARGE_KINDS
 from arpz.errors import ArpzError
 from arpz.messages import (
@@ -259,6 +260,9 @@ class FleetGraph:
     stats: dict[str, RobotStats] = field(default_factory=dict)
     #: other fleets whose tokens were seen on the same router (a hint for a wrong --fleet)
     other_fleets: tuple[str, ...] = ()
+    #: the ROS 2 graph on the same router (rmw_zenoh's liveliness tokens, any domain): the
+    #: bridge's publishers and subscriptions and those of ROS 2 nodes (docs/ros2.md)
+    ros2: tuple[GraphRecord, ...] = ()
 
     def topic(self, name_or_key: str) -> TopicEntry:
         """The topic given as ``/robot1/lidar``, ``robot1/lidar`` or an arpz key
@@ -272,6 +276,16 @@ class FleetGraph:
             "nodes": [n.as_dict() for n in self.nodes],
             "topics": [t.as_dict() for t in self.topics],
             "other_fleets": list(self.other_fleets),
+            "ros2": [
+                {
+                    "node": r.node,
+                    "topic": r.topic,
+                    "type": r.ros_type,
+                    "role": r.role,
+                    "qos": r.qos.describe(),
+                }
+                for r in self.ros2
+            ],
         }
 
 
@@ -342,11 +356,20 @@ class FleetObserver:
         #: the last two reports of each robot (rates from their difference), same incarnation
         self._stats: dict[str, list[RobotStats]] = {}
         self._other_fleets: set[str] = set()
+        self._ros2_tokens: set[str] = set()
         self.ignore_guids: set[str] = set()
         #: reports that could not be decoded
         self.decode_errors = 0
 
     # -- observations ---------------------------------------------------------------------------
+
+    def on_ros2_token(self, key: str, alive: bool) -> None:
+        """An rmw_zenoh liveliness token (``@ros2_lv/...``): the ROS 2 side of the router."""
+        with self._lock:
+            if alive:
+                self._ros2_tokens.add(key)
+            else:
+                self._ros2_tokens.discard(key)
 
     def on_token(self, key: str, alive: bool) -> None:
         if not key.startswith(self._prefix):
@@ -418,6 +441,7 @@ class FleetObserver:
             announces = dict(self._announces)
             stats = {robot: list(pair) for robot, pair in self._stats.items() if pair}
             other = tuple(sorted(self._other_fleets - {self.fleet}))
+            ros2, _not_rmw_zenoh = graph_records(sorted(self._ros2_tokens))
         nodes = self._nodes(tokens, announces, stats)
         modes = {node.name: node.mode for node in nodes}
         writers: dict[str, list[Endpoint]] = {}
@@ -455,6 +479,7 @@ class FleetObserver:
             tuple(sorted(topics, key=lambda t: t.name)),
             latest,
             other,
+            tuple(sorted(ros2, key=lambda r: (r.topic, r.role, r.node))),
         )
 
     def _nodes(
@@ -631,6 +656,9 @@ class Discovery:
         try:
             self._handles.append(
                 transport.watch_liveliness(f"{keys.ROOT}/**", self.observer.on_token)
+            )
+            self._handles.append(
+                transport.watch_liveliness(f"{ADMIN_SPACE}/**", self.observer.on_ros2_token)
             )
             for section in _REPORT_SECTIONS:
                 expr = f"{keys.fleet_prefix(fleet)}/robot/*/{section}"

@@ -139,6 +139,14 @@ def list_lines(graph: FleetGraph) -> list[str]:
     lines.append(
         "RATE: measured by the writer over its last report / announced (configured or assigned)"
     )
+    if graph.ros2:
+        lines.append("ROS 2 (rmw_zenoh) on the same router:")
+        ros_rows = [("TOPIC", "TYPE", "ROLE", "NODE", "QOS")]
+        ros_rows += [(r.topic, r.ros_type, r.role, r.node, r.qos.describe()) for r in graph.ros2]
+        ros_widths = [max(len(ros_row[i]) for ros_row in ros_rows) for i in range(4)]
+        for ros_row in ros_rows:
+            padded = [c.ljust(w) for c, w in zip(ros_row, ros_widths, strict=False)]
+            lines.append("  " + "  ".join([*padded, ros_row[-1]]).rstrip())
     return lines
 
 

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import json
 import math
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -131,6 +133,22 @@ def test_a_ros2_node_sees_the_fleet_and_drives_a_simulated_robot(tmp_path: Path)
                 qos = qos_fields(scan.qos)
                 assert qos["reliability"] == "" and qos["durability"] == ""  # RELIABLE, VOLATILE
                 assert qos["depth"] == str(SENSOR_QOS.depth)
+                # the topic tool shows the bridged topics too (issue 19)
+                tool = [sys.executable, "-m", "arpz", "topic", "list", "--fleet", "itest"]
+                listed = subprocess.run(
+                    [*tool, "--connect", endpoint, "--json"],
+                    capture_output=True,
+                    text=True,
+                    timeout=60,
+                )
+                assert listed.returncode == 0, listed.stderr
+                ros2 = json.loads(listed.stdout)["ros2"]
+                assert {
+                    "node": "/arpz_bridge",
+                    "topic": "/robot1/scan",
+                    "type": "sensor_msgs/msg/LaserScan",
+                    "role": "publisher",
+                } in [{k: r[k] for k in ("node", "topic", "type", "role")} for r in ros2], ros2
                 for entity in (scan, imu, image):
                     peer.subscribe(entity)
                 wait_until(
