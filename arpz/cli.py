@@ -72,7 +72,12 @@ def emit_json(document: object, target: str | None) -> None:
         Path(target).write_text(text + "\n", encoding="utf-8")
 
 
-def add_fleet_client_options(parser: argparse.ArgumentParser) -> None:
+def add_fleet_client_options(
+    parser: argparse.ArgumentParser,
+    *,
+    fleet_default: str | None = "default",
+    fleet_help: str = "the fleet's name (default 'default')",
+) -> None:
     """``--connect`` / ``--fleet`` / ``--zenoh-config`` of every tool that joins a running fleet
     as a client, as robots and ROS 2 tools do."""
     parser.add_argument(
@@ -81,7 +86,7 @@ def add_fleet_client_options(parser: argparse.ArgumentParser) -> None:
         metavar="ENDPOINT[,ENDPOINT...]",
         help=f"the fleet's router (default {','.join(DEFAULT_CONNECT)})",
     )
-    parser.add_argument("--fleet", default="default", help="the fleet's name (default 'default')")
+    parser.add_argument("--fleet", default=fleet_default, help=fleet_help)
     parser.add_argument(
         "--zenoh-config",
         default=None,

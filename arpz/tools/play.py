@@ -380,12 +380,11 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.mcap",
         help="a recording (or the name given to --out when it was split into FILE_0.mcap ...)",
     )
-    cli.add_fleet_client_options(parser)
-    # the recorded fleet unless --fleet is given (cli's shared option says 'default')
-    parser.set_defaults(fleet=None)
-    for action in parser._actions:
-        if action.dest == "fleet":
-            action.help = "publish into this fleet (default: the fleet the recording was made of)"
+    cli.add_fleet_client_options(
+        parser,
+        fleet_default=None,
+        fleet_help="publish into this fleet (default: the fleet the recording was made of)",
+    )
     parser.add_argument(
         "--rate", type=float, default=1.0, metavar="FACTOR", help="2: twice as fast"
     )
@@ -394,6 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--topics", nargs="+", default=[], metavar="PATTERN", help="play only these topics"
     )
     cli.add_json_option(parser, "what was published")
+    cli.add_version_option(parser)
     parser.add_argument("--version", action="version", version=f"arpz {arpz_version()}")
     return parser
 

@@ -551,6 +551,7 @@ def build_parser() -> argparse.ArgumentParser:
         "other common sizes; else one row of pixels)",
     )
     cli.add_json_option(parser, "the summary")
+    cli.add_version_option(parser)
     parser.add_argument(
         "patterns",
         nargs="*",
