@@ -57,7 +57,6 @@ from arpz.rosmsg.convert import ConversionError, from_cdr
 from arpz.throttled_log import ThrottledLog
 from arpz.tools._recording import Topic, matches, open_client
 from arpz.transport import Handle, Transport, TransportError
-from arpz.version import arpz_version
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -394,7 +393,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     cli.add_json_option(parser, "what was published")
     cli.add_version_option(parser)
-    parser.add_argument("--version", action="version", version=f"arpz {arpz_version()}")
     return parser
 
 

@@ -559,7 +559,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="record only these (shell patterns on '/robot1/lidar_0' or the arpz key; the "
         "robots' announcements and presence are always recorded)",
     )
-    parser.add_argument("--version", action="version", version=f"arpz {arpz_version()}")
     return parser
 
 
