@@ -8,7 +8,7 @@ slow viewer never slows the ingest. Once a topic's channel is advertised, its re
 queued only while some client subscribes to it. One worker thread converts and logs. The metrics
 ticker hands it each interval's ``MetricsFrame`` the same way.
 
-Channels (docs/tools-live.md): ``/{robot}/{topic}`` per sensor topic and ``/{robot}/metrics`` per
+Channels (docs/tools.md "Live views"): ``/{robot}/{topic}`` per sensor topic and ``/{robot}/metrics`` per
 robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas where one fits the sensor kind,
 so its 3D and Image panels draw them unconfigured: LIDAR as ``foxglove.LaserScan`` (one beam,
 at angle 0), camera as ``foxglove.RawImage`` (rgb8), point cloud as ``foxglove.PointCloud``
@@ -99,7 +99,7 @@ def _schema_of(value: Any) -> dict[str, Any]:
     return {"type": "string"}
 
 
-#: the metrics channels' schema: numbers per metric name (docs/tools-live.md lists them)
+#: the metrics channels' schema: numbers per metric name (docs/tools.md "Live views" lists them)
 METRICS_SCHEMA: dict[str, Any] = {
     "title": "arpz/Metrics",
     "type": "object",

@@ -4,7 +4,7 @@
 to a CDN), which polls ``/api/status`` every second and redraws. ``/api/status`` is the JSON of
 ``arpz.ceddp.status.FleetStatus``. ``/metrics`` is the Prometheus text exposition of the same
 state, made by prometheus-client from a custom collector: the numbers are read from the CEDDP
-when Prometheus scrapes, never kept twice (docs/tools-live.md lists the names).
+when Prometheus scrapes, never kept twice (docs/tools.md "Live views" lists the names).
 
 The server is the standard library's ``ThreadingHTTPServer`` on a daemon thread: a status page
 serves a few requests a second, each of which copies a snapshot and formats it, so a framework
