@@ -144,7 +144,7 @@ def serve(argv: list[str] | None) -> int:
         server = CeddpServer(config, transport, dashboard=dashboard)
         try:
             server.start()
-        except ConfigError as exc:  # a live view's port in use (docs/tools-live.md)
+        except ConfigError as exc:  # a live view's port in use (docs/tools.md "Live views")
             print(f"arpz ceddp: error: bad configuration: {exc}", file=sys.stderr)
             return 2
         print(

@@ -8,7 +8,7 @@ msgpack payload on a schemaless ``msgpack`` channel (MCAP's well-known encoding 
 layout is arpz's, named by the channel's ``arpz_type`` metadata and documented in
 docs/protocol.md). Channel metadata: ``arpz_key`` (the Zenoh key), ``arpz_kind``, ``arpz_type``,
 ``arpz_qos`` (arpz's QoS profile as JSON, or ``none`` for plain keys) and rosbag2's
-``offered_qos_profiles`` (YAML). docs/tools-record.md describes it for users.
+``offered_qos_profiles`` (YAML). docs/tools.md "Recording and replay" describes it for users.
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ them with the recorded ones), and the robots' stats and QoS acks (they count wha
 robots did, and answered a CEDDP that is not there).
 
 Usage: ``python -m arpz play FILE.mcap [--rate FACTOR] [--loop] [--topics PATTERN ...]``
-(docs/tools-record.md).
+(docs/tools.md "Recording and replay").
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ announcements and writes each key as one MCAP channel (arpz.tools._recording giv
 layout). The channel callbacks only queue; one thread (``run``) converts and writes.
 
 Usage: ``python -m arpz record --out fleet.mcap [--duration S] [TOPIC_PATTERN ...]``
-(docs/tools-record.md).
+(docs/tools.md "Recording and replay").
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ The test installs nothing; it skips only when /usr/bin/chromium is absent (CI in
 
 ``ARPZ_STATUS_SCREENSHOT=docs/figures/status-page.png python -m pytest
 tests/integration/test_web_status.py -k updates`` also saves a screenshot of the page there (the
-figure of docs/tools-live.md).
+figure of docs/tools.md "Live views").
 """
 
 from __future__ import annotations
@@ -132,7 +132,7 @@ def test_the_status_page_shows_a_running_fleet_and_updates(tmp_path: Path) -> No
             text = get_text(port, "/metrics")
             after = get_json(port, "/api/status")
             screenshot = os.environ.get("ARPZ_STATUS_SCREENSHOT")
-            if screenshot:  # for docs/tools-live.md: a fleet that has run for a while
+            if screenshot:  # for docs/tools.md "Live views": a fleet that has run for a while
                 settle(8)
                 shot = ("--window-size=1500,800", "--hide-scrollbars")
                 target = f"--screenshot={Path(screenshot).resolve()}"
