@@ -8,8 +8,8 @@ slow viewer never slows the ingest. Once a topic's channel is advertised, its re
 queued only while some client subscribes to it. One worker thread converts and logs. The metrics
 ticker hands it each interval's ``MetricsFrame`` the same way.
 
-Channels (docs/tools.md "Live views"): ``/{robot}/{topic}`` per sensor topic and ``/{robot}/metrics`` per
-robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas where one fits the sensor kind,
+Channels (docs/tools.md "Live views"): ``/{robot}/{topic}`` per sensor topic and
+``/{robot}/metrics`` per robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas where one fits the sensor kind,
 so its 3D and Image panels draw them unconfigured: LIDAR as ``foxglove.LaserScan`` (one beam,
 at angle 0), camera as ``foxglove.RawImage`` (rgb8), point cloud as ``foxglove.PointCloud``
 (float32 x, y, z). The other kinds go on JSON channels whose JSON schema is named after, and has
