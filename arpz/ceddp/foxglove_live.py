@@ -9,12 +9,13 @@ queued only while some client subscribes to it. One worker thread converts and l
 ticker hands it each interval's ``MetricsFrame`` the same way.
 
 Channels (docs/tools.md "Live views"): ``/{robot}/{topic}`` per sensor topic and
-``/{robot}/metrics`` per robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas
-where one fits the sensor kind, so its 3D and Image panels draw them unconfigured: LIDAR as ``foxglove.LaserScan`` (one beam,
-at angle 0), camera as ``foxglove.RawImage`` (rgb8), point cloud as ``foxglove.PointCloud``
-(float32 x, y, z). The other kinds go on JSON channels whose JSON schema is named after, and has
-the fields of, the ROS 2 message a ROS user knows (``sensor_msgs/msg/Imu``, ``Range``,
-``Temperature``, ``Illuminance``, ``std_msgs/msg/Bool`` for flame and PIR). Metrics are JSON.
+``/{robot}/metrics`` per robot, ``/ceddp/metrics`` for the CEDDP. Foxglove's own schemas where
+one fits the sensor kind, so its 3D and Image panels draw them unconfigured: LIDAR as
+``foxglove.LaserScan`` (one beam, at angle 0), camera as ``foxglove.RawImage`` (rgb8), point
+cloud as ``foxglove.PointCloud`` (float32 x, y, z). The other kinds go on JSON channels whose
+JSON schema is named after, and has the fields of, the ROS 2 message a ROS user knows
+(``sensor_msgs/msg/Imu``, ``Range``, ``Temperature``, ``Illuminance``, ``std_msgs/msg/Bool`` for
+flame and PIR). Metrics are JSON.
 
 This is the only module of arpz that imports foxglove (an import-linter contract).
 """
