@@ -16,7 +16,8 @@ Nobody types them in: the channel already counts what it takes.
   reader serves the whole fleet, so this figure is the fleet's, applied to every robot.
 
 Pure: reports in, estimates out. A robot's estimate is renewed once it has sent
-``min_samples`` samples since the last one, so a slow robot's estimate is not one sample's noise.
+``min_samples`` samples since the last one, so a slow robot's estimate is not one sample's noise,
+and the loss is smoothed over windows (each new window weighs ``LOSS_WEIGHT``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,8 @@ from arpz.messages import RobotStats
 
 #: round trip assumed before the first clock exchange or Hello came back (loopback-ish)
 DEFAULT_RTT_S = 0.005
+#: weight of a new window's loss in the robot's running estimate
+LOSS_WEIGHT = 0.5
 
 
 @dataclass(frozen=True)
@@ -110,6 +113,7 @@ class LinkMeter:
         if window is None or window.incarnation != stats.incarnation or sent < window.sent:
             # a new robot or a restarted one: its counters start again from here
             self._windows[stats.robot] = _Window(stats.incarnation, sent, resent, sent, resent)
+            self.latest.pop(stats.robot, None)
             return None
         window.sent, window.resent = sent, resent
         d_sent, d_resent = sent - window.base_sent, resent - window.base_resent
@@ -120,8 +124,11 @@ class LinkMeter:
         rtt = round_trip_s(stats)
         if rtt is None:
             rtt = previous.rtt_s if previous is not None else DEFAULT_RTT_S
+        loss_pct = 100.0 * d_resent / (d_sent + d_resent)
+        if previous is not None:  # smoothed: one window of a few hundred samples is noisy
+            loss_pct = (1 - LOSS_WEIGHT) * previous.loss_pct + LOSS_WEIGHT * loss_pct
         estimate = LinkEstimate(
-            loss_pct=100.0 * d_resent / (d_sent + d_resent),
+            loss_pct=loss_pct,
             rtt_s=rtt,
             burst_samples=burst_samples if d_resent > 0 else 0.0,
             sent=d_sent,

@@ -51,13 +51,13 @@ from arpz.traffic import SENSOR_QOS
 
 log = logging.getLogger(__name__)
 
-#: a topic that sends at least this share of its readings changes at (nearly) every reading:
-#: its true change rate is not known (it may be faster than it is read)
-_EVERY_READING = 0.9
-#: lowest change rate a topic is credited with (a value that never changes still refreshes)
+#: a topic's change rate is measured over at least this long (a robot reports every 0.5 s, and
+#: a rarely changing topic sends a few samples a second: shorter windows are mostly noise)
+CHANGE_WINDOW_S = 3.0
+#: lowest change rate a topic is credited with
 _MIN_CHANGE_HZ = 0.01
-#: weight of a new change-rate measurement in the running estimate
-_CHANGE_WEIGHT = 0.3
+#: weight of a new window's change rate in the running estimate
+_CHANGE_WEIGHT = 0.5
 #: link measurements kept for the summary
 MAX_LINK_CHANGES = 256
 #: puts a measurement in force once the re-solve it causes is decided
@@ -66,6 +66,9 @@ _Commit = Callable[[], None]
 
 @dataclass
 class _TopicChange:
+    incarnation: str = ""
+    base_sent: int = 0
+    base_stamp_ns: int = 0
     smoothed_hz: float | None = None
     in_force_hz: float | None = None
     pending: int = 0
@@ -202,36 +205,39 @@ class QosController:
         return [(f"link {robot}: {before} -> {estimate.describe()}", commit)]
 
     def _changes_moved(self, stats: RobotStats) -> list[tuple[str, _Commit]]:
+        """Each topic's change rate: its sends per second (the local cache sends a reading only
+        when it changed, or after max_silence_s), over windows of at least CHANGE_WINDOW_S."""
         moved: list[tuple[str, _Commit]] = []
         limit = 1 + 2 * self.config.hysteresis
         for topic, counters in stats.topics.items():
             state = self._changes.setdefault((stats.robot, topic), _TopicChange())
-            produced = counters.produced_rate_hz
-            if produced <= 0:
+            if state.incarnation != stats.incarnation or counters.sent < state.base_sent:
+                state.incarnation, state.base_sent = stats.incarnation, counters.sent
+                state.base_stamp_ns, state.smoothed_hz = stats.stamp_ns, None
                 continue
-            if counters.rate_hz >= _EVERY_READING * produced:
-                measured: float | None = None  # changes at every reading: not known
-            else:
-                measured = max(_MIN_CHANGE_HZ, counters.rate_hz)
-            if measured is None or state.smoothed_hz is None:
-                state.smoothed_hz = measured
-            else:
-                state.smoothed_hz += _CHANGE_WEIGHT * (measured - state.smoothed_hz)
-            new, old = state.smoothed_hz, state.in_force_hz
-            differs = (new is None) != (old is None) or (
-                new is not None and old is not None and max(new / old, old / new) >= limit
+            elapsed_s = (stats.stamp_ns - state.base_stamp_ns) / 1e9
+            if elapsed_s < CHANGE_WINDOW_S:
+                continue
+            measured = max(_MIN_CHANGE_HZ, (counters.sent - state.base_sent) / elapsed_s)
+            state.base_sent, state.base_stamp_ns = counters.sent, stats.stamp_ns
+            # smoothed: a window holds a few Poisson-distributed sends, mostly noise
+            previous = state.smoothed_hz
+            new = (
+                measured if previous is None else previous + _CHANGE_WEIGHT * (measured - previous)
             )
+            state.smoothed_hz = new
+            old = state.in_force_hz
+            differs = old is None or max(new / old, old / new) >= limit
             state.pending = state.pending + 1 if differs else 0
             if state.pending < 2:
                 continue
 
-            def commit(state: _TopicChange = state, new: float | None = new) -> None:
+            def commit(state: _TopicChange = state, new: float = new) -> None:
                 state.in_force_hz = new
                 state.pending = 0
 
-            text = "every reading" if new is None else f"{new:.2f} Hz"
-            was = "every reading" if old is None else f"{old:.2f} Hz"
-            moved.append((f"{stats.robot}/{topic} changes {was} -> {text}", commit))
+            was = "not measured" if old is None else f"{old:.2f} Hz"
+            moved.append((f"{stats.robot}/{topic} changes {was} -> {new:.2f} Hz", commit))
         return moved
 
     # -- solving ---------------------------------------------------------------------------------

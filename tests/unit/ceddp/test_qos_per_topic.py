@@ -48,31 +48,22 @@ def _controller(**kw: object) -> QosController:
 
 
 class _Robot:
-    """Cumulative counters of one robot, reported as RobotStats."""
+    """Cumulative counters of one robot, reported as RobotStats every ``dt_s``."""
 
     def __init__(self, name: str, topics: int) -> None:
         self.name, self.topics = name, topics
         self.sent = self.resent = 0
+        self.stamp_ns = 0
 
     def report(
-        self,
-        sent: int,
-        resent: int,
-        *,
-        rtt_ms: float = 1.0,
-        rate: float = 14.0,
-        produced: float = 14.0,
+        self, sent: int, resent: int, *, rtt_ms: float = 1.0, dt_s: float = 0.5
     ) -> RobotStats:
+        """``sent`` more samples (spread over the topics, the rest on s0), ``resent`` on s0."""
         self.sent += sent
         self.resent += resent
+        self.stamp_ns += int(dt_s * 1e9)
         per = self.sent // self.topics
-        counters = TopicCounters(
-            produced=per,
-            sent=per,
-            retransmitted=0,
-            rate_hz=rate,
-            produced_rate_hz=produced,
-        )
+        counters = TopicCounters(produced=per, sent=per)
         topics = {f"s{i}": counters for i in range(self.topics)}
         topics["s0"] = msgspec.structs.replace(
             counters, sent=self.sent - per * (self.topics - 1), retransmitted=self.resent
@@ -80,7 +71,7 @@ class _Robot:
         return RobotStats(
             robot=self.name,
             incarnation="i1",
-            stamp_ns=0,
+            stamp_ns=self.stamp_ns,
             final=False,
             topics=topics,
             clock=ClockStats(offset_ns=0, delay_ns=int(rtt_ms * 1e6), samples=4),
@@ -194,7 +185,8 @@ def test_a_worse_link_resolves_once_with_its_measurements_and_not_again() -> Non
     assert qos.observe(robot.report(100, 11, rtt_ms=4.0)) is None
     # ... the second one re-solves, naming the measurement
     reason = qos.observe(robot.report(100, 11, rtt_ms=4.0))
-    assert reason is not None and "link robot2" in reason and "loss 9.91 %" in reason
+    # the second window: loss (0 + 9.91)/2 = 4.95 %, then (4.95 + 9.91)/2 = 7.43 % (smoothed)
+    assert reason is not None and "link robot2" in reason and "loss 7.43 %" in reason
     message = qos.update(PAPER, reason, force=True)
     assert message is not None and qos.measured_changes[-1] == (message.epoch, reason)
     # robot2's samples now cost 1/(1 - 0.0991) transmissions: its topics get less
@@ -203,21 +195,28 @@ def test_a_worse_link_resolves_once_with_its_measurements_and_not_again() -> Non
     for resent in (11, 12, 10, 11, 13, 11):
         assert qos.observe(robot.report(100, resent, rtt_ms=4.5)) is None
     summary = qos.links_summary()
-    assert summary["in_force"]["robot2"]["loss_pct"] == pytest.approx(9.91, abs=0.01)  # type: ignore[index]
+    assert summary["in_force"]["robot2"]["loss_pct"] == pytest.approx(7.43, abs=0.01)  # type: ignore[index]
 
 
 def test_change_rates_weigh_topics_after_they_persist() -> None:
-    # robot3's sensors all send 1 Hz of 14 read per second: they change rarely
+    # robot3's 5 sensors send 1 Hz each (the local cache holds the rest back): reports 3 s
+    # apart (CHANGE_WINDOW_S) with 15 more samples; the first sets the base, two windows in a
+    # row must agree before the change rates are put in force
     qos = _controller()
     assert qos.update(PAPER, "start") is not None
     robot = _Robot("robot3", 5)
-    assert qos.observe(robot.report(10, 0, rate=1.0, produced=14.0)) is None
-    reason = qos.observe(robot.report(10, 0, rate=1.0, produced=14.0))
-    assert reason is not None and "robot3/s0 changes every reading -> 1.00 Hz" in reason
+    assert qos.observe(robot.report(0, 0, dt_s=3.0)) is None
+    assert qos.observe(robot.report(15, 0, dt_s=3.0)) is None
+    reason = qos.observe(robot.report(15, 0, dt_s=3.0))
+    assert reason is not None and "robot3/s1 changes not measured -> 1.00 Hz" in reason
     message = qos.update(PAPER, reason, force=True)
     assert message is not None
-    # weight sqrt(1) against sqrt(Rmax) = 10 for topics that change at every reading
-    assert message.topics["robot3"]["s0"].rate_hz < message.topics["robot1"]["s0"].rate_hz / 5
+    # weight sqrt(1) against sqrt(Rmax) = 10 for the topics not measured yet
+    assert message.topics["robot3"]["s1"].rate_hz < message.topics["robot1"]["s1"].rate_hz / 5
+    # the same rates again: nothing moves; twice as fast once: not yet (it must persist)
+    assert qos.observe(robot.report(15, 0, dt_s=3.0)) is None
+    assert qos.observe(robot.report(30, 0, dt_s=3.0)) is None
+    assert qos.observe(robot.report(15, 0, dt_s=3.0)) is None
 
 
 @pytest.mark.parametrize("priority", [0.0, -1.0, float("nan")])

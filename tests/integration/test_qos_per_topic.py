@@ -1,0 +1,158 @@
+"""Per-topic QoS in a real fleet: a CEDDP with ``[qos] mode = "per_topic"`` and two robots through
+a real router; the robots run each topic at its own assigned rate; one robot's link turns lossy
+(arpz.netem) and the measured loss causes exactly one re-solve, not a stream of them."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import pytest
+
+from arpz.messages import (
+    ANNOUNCE_DECODER,
+    QOS_ACK_DECODER,
+    QOS_ASSIGNMENT_DECODER,
+    STATS_DECODER,
+    Announce,
+    QosAck,
+    QosAssignmentMsg,
+    RobotStats,
+)
+from arpz.netem import Impairments
+from tests.integration.fleet import ceddp, robots, settle, udp_link, write_robot
+from tests.support import client, wait_until
+
+pytestmark = pytest.mark.integration
+
+QOS = """[qos]
+enabled = true
+mode = "per_topic"
+rmax_hz = 60.0
+link_rtt_ms = 1.0
+measure_samples = 60
+min_resolve_interval_s = 1.0
+"""
+#: robot1's flame sensor matters four times as much as the preset's other sensors
+PRIORITY = '[[sensors]]\nname = "flame"\nkind = "flame"\npriority = 4.0\n'
+
+
+class Watcher:
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.assignments: list[QosAssignmentMsg] = []
+        self.acks: list[QosAck] = []
+        self.stats: dict[str, RobotStats] = {}
+        self.announces: dict[str, Announce] = {}
+
+    def on_assignment(self, key: str, payload: bytes, att: bytes | None) -> None:
+        with self.lock:
+            self.assignments.append(QOS_ASSIGNMENT_DECODER.decode(payload))
+
+    def on_robot(self, key: str, payload: bytes, att: bytes | None) -> None:
+        kind = key.rsplit("/", 1)[-1]
+        with self.lock:
+            if kind == "qos":
+                self.acks.append(QOS_ACK_DECODER.decode(payload))
+            elif kind == "announce":
+                announce = ANNOUNCE_DECODER.decode(payload)
+                self.announces[announce.robot] = announce
+            elif kind == "stats":
+                stats = STATS_DECODER.decode(payload)
+                self.stats[stats.robot] = stats
+
+    def latest(self) -> QosAssignmentMsg | None:
+        with self.lock:
+            both = [m for m in self.assignments if set(m.topics) == {"robot1", "robot2"}]
+        return both[-1] if both else None
+
+    def running_as_assigned(self, message: QosAssignmentMsg) -> bool:
+        """Both robots acknowledged the epoch and announce every topic at its own rate (a
+        robot announces again once it applied an assignment)."""
+        with self.lock:
+            acked = {a.robot for a in self.acks if a.epoch == message.epoch}
+            announces = dict(self.announces)
+        if acked != {"robot1", "robot2"}:
+            return False
+        for robot, own in message.topics.items():
+            announced = {t.topic: t.rate_hz for t in announces[robot].sensors}
+            if announced != {topic: qos.rate_hz for topic, qos in own.items()}:
+                return False
+        return True
+
+    def applied(self, epoch: int) -> set[str]:
+        with self.lock:
+            return {a.robot for a in self.acks if a.epoch == epoch and a.status == "applied"}
+
+    def reasons(self) -> list[str]:
+        with self.lock:
+            return [f"{m.epoch}: {m.reason}" for m in self.assignments]
+
+    def link_epochs(self, robot: str, after: int) -> list[QosAssignmentMsg]:
+        with self.lock:
+            return [m for m in self.assignments if m.epoch > after and f"link {robot}:" in m.reason]
+
+
+def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
+    tmp_path: Path,
+) -> None:
+    watcher = Watcher()
+    link = udp_link()
+    with (
+        ceddp(tmp_path, extra=QOS, also_listen=(link.ceddp_endpoint,)) as (server, endpoint),
+        client(endpoint) as raw,
+    ):
+        raw.subscribe("arpz/itest/ceddp/qos", watcher.on_assignment)
+        raw.subscribe("arpz/itest/robot/*/*", watcher.on_robot)
+        link.proxy.start()
+        try:
+            configs = [
+                write_robot(tmp_path, "robot1", endpoint, preset="machine1", extra=PRIORITY),
+                write_robot(tmp_path, "robot2", link.robot_endpoint, preset="machine1"),
+            ]
+            with robots(tmp_path, configs) as procs:
+                wait_until(lambda: watcher.latest() is not None, what="a per-topic assignment")
+                # the robots read each topic at its own rate (change rates may re-solve first)
+                wait_until(
+                    lambda: (m := watcher.latest()) is not None and watcher.running_as_assigned(m),
+                    timeout_s=15,
+                    what="both robots running the per-topic rates",
+                )
+                before = watcher.latest()
+                assert before is not None and before.mode == "per_topic"
+                own1 = before.topics["robot1"]
+                # priority 4: flame gets more than the same sensor on robot2
+                assert own1["flame"].rate_hz > before.topics["robot2"]["flame"].rate_hz
+                assert len({round(q.rate_hz, 6) for q in own1.values()}) > 1  # not one R
+                # robot2's link turns bad: 12 % of datagrams lost each way
+                link.impair(Impairments(loss=0.12))
+                wait_until(
+                    lambda: bool(watcher.link_epochs("robot2", before.epoch)),
+                    timeout_s=15,
+                    what="a re-solve caused by robot2's measured loss",
+                )
+                (resolved,) = watcher.link_epochs("robot2", before.epoch)
+                assert "loss" in resolved.reason and "resent" in resolved.reason
+                # the robots apply it (its effect on the rates is unit-tested: robot2's samples
+                # cost 1/(1 - loss) now, and change rates may have moved in the same epoch)
+                wait_until(
+                    lambda: watcher.applied(resolved.epoch) == {"robot1", "robot2"},
+                    what="both robots applying the re-solve",
+                )
+                # the loss stays: no second re-solve for it (hysteresis)
+                settle(5.0)
+                assert len(watcher.link_epochs("robot2", before.epoch)) == 1, [
+                    m.reason for m in watcher.assignments
+                ]
+                for proc in procs:
+                    assert proc.interrupt(timeout_s=30) == 0, proc.output()
+            assert server.interrupt() == 0, server.output()
+        finally:
+            link.proxy.stop()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    qos = summary["qos"]
+    assert qos["mode"] == "per_topic"
+    assert qos["links"]["in_force"]["robot2"]["loss_pct"] > 3
+    assert any("link robot2" in c["reason"] for c in qos["links"]["measured_changes"])
+    assert "QoS epoch" in server.output() and "link robot2" in server.output()
