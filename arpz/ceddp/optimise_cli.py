@@ -36,6 +36,7 @@ from arpz.ceddp.topic_optimiser import TopicMethod, TopicSolution, solve_topics
 from arpz.ceddp.topic_problem import TopicProblem, load_problem, solution_document
 from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.errors import ArpzError
+from arpz.traffic import SENSOR_QOS
 
 EXIT_USAGE = 2
 EXIT_DISAGREE = 1
@@ -100,16 +101,19 @@ def _parser() -> _Parser:
     link.add_argument(
         "--heartbeat-ms",
         type=float,
-        default=FASTDDS_HEARTBEAT_PERIOD_S * 1000,
+        default=SENSOR_QOS.heartbeat_period_s * 1000,
         metavar="H",
-        help="reliable channel heartbeat period, ms (Fast DDS default 3000)",
+        help="reliable channel heartbeat period, ms (arpz's sensor profile: "
+        f"{SENSOR_QOS.heartbeat_period_s * 1000:g}; "
+        f"Fast DDS: {FASTDDS_HEARTBEAT_PERIOD_S * 1000:g})",
     )
     link.add_argument(
         "--nack-delay-ms",
         type=float,
-        default=FASTDDS_NACK_DELAY_S * 1000,
+        default=SENSOR_QOS.nack_delay_s * 1000,
         metavar="N",
-        help="NACK response delay, ms (Fast DDS default 5)",
+        help="NACK response delay, ms (arpz's sensor profile: "
+        f"{SENSOR_QOS.nack_delay_s * 1000:g}; Fast DDS: {FASTDDS_NACK_DELAY_S * 1000:g})",
     )
     link.add_argument(
         "--residual-loss",

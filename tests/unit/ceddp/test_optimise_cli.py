@@ -42,11 +42,15 @@ def test_json_has_the_required_keys(capsys: pytest.CaptureFixture[str]) -> None:
 
 
 def test_loss_aware_options_and_policy(capsys: pytest.CaptureFixture[str]) -> None:
-    # Rmax 100, T 6,5,5: R = 17.75; 10 % loss, 20 ms RTT, Fast DDS timings: 484 samples
-    # (hand-computed in test_optimiser); with Cyclone-like 100 ms/100 ms: round 0.22 s,
-    # 9 rounds = 1.98 s, ceil(17.75 * 1.98) = ceil(35.145) = 36.
+    # Rmax 100, T 6,5,5: R = 17.75; 10 % loss, 20 ms RTT. arpz's sensor profile by default
+    # (heartbeat 100 ms, NACK delay 2 ms): 9 rounds of 0.122 s, ceil(17.75 x 1.098) = 20;
+    # Fast DDS timings: 484 samples (hand-computed in test_optimiser); Cyclone-like
+    # 100 ms/100 ms: round 0.22 s, 9 rounds = 1.98 s, ceil(17.75 * 1.98) = ceil(35.145) = 36.
     argv = ["--rmax", "100", "--rmin", "1", "--topics", "6,5,5", "--rtt-ms", "20"]
     assert main([*argv, "--loss-pct", "10", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["loss_aware"]["depth"] == 20
+    fastdds = ["--heartbeat-ms", "3000", "--nack-delay-ms", "5"]
+    assert main([*argv, "--loss-pct", "10", *fastdds, "--json"]) == 0
     document = json.loads(capsys.readouterr().out)
     assert document["loss_aware"]["depth"] == 484
     assert document["paper_loss_safe"] is True
