@@ -40,7 +40,7 @@ from arpz.reliability import QosPolicyKind
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
-from arpz.robot.configuration import for_agent as configuration_for
+from arpz.robot.configuration import ConfigurationHandler, robot_computations
 from arpz.robot.hello import HelloProbe
 from arpz.robot.qos import decide
 from arpz.robot.scheduler import Job, Scheduler
@@ -142,7 +142,18 @@ class RobotAgent:
         self._sensor_jobs: list[tuple[SensorChannel, Job]] = []
         self.scheduler = self._make_scheduler()
         #: a configurator's solution (seed 002) applied live: arpz/robot/configuration.py
-        self.configuration = configuration_for(self)
+        sim = self.sim
+        self.configuration = ConfigurationHandler(
+            self.config,
+            self.transport,
+            incarnation=self.incarnation,
+            sensor_jobs=self._sensor_jobs,
+            computations=robot_computations(
+                (lambda: sim.ranges) if sim is not None else None, self.actuator.safe_stop
+            ),
+            wall_ns=self.clock_sync.wall_ns,
+            on_applied=lambda: self._publish_announce(0.0),
+        )
         self._started = False
 
     def _now_s(self) -> float:

@@ -41,7 +41,6 @@ from arpz.robot.scheduler import Job
 from arpz.robot.sensing import SensorChannel
 
 if TYPE_CHECKING:
-    from arpz.robot.agent import RobotAgent
     from arpz.transport import Transport
 
 log = logging.getLogger(__name__)
@@ -246,25 +245,14 @@ class ConfigurationHandler:
         return ack
 
 
-def for_agent(agent: RobotAgent) -> ConfigurationHandler:
-    """The handler of a robot agent: its sensors and, on a simulated body, the obstacle check."""
+def robot_computations(
+    ranges: Callable[[], dict[str, float]] | None, safe_stop: Callable[[], None]
+) -> dict[str, Computation]:
+    """What a robot can run itself: on a simulated body (``ranges`` of its beams), the obstacle
+    check of the hallway mission."""
     from arpz.mission import beam_topic
 
-    computations: dict[str, Computation] = {}
-    sim = agent.sim
-    if sim is not None:
-        computations[OBSTACLE_CHECK] = LocalObstacleCheck(
-            lambda: sim.ranges,
-            agent.actuator.safe_stop,
-            beams=[beam_topic(0)],
-            range_m=OBSTACLE_RANGE_M,
-        )
-    return ConfigurationHandler(
-        agent.config,
-        agent.transport,
-        incarnation=agent.incarnation,
-        sensor_jobs=agent._sensor_jobs,
-        computations=computations,
-        wall_ns=agent.clock_sync.wall_ns,
-        on_applied=lambda: agent._publish_announce(0.0),
-    )
+    if ranges is None:
+        return {}
+    check = LocalObstacleCheck(ranges, safe_stop, beams=[beam_topic(0)], range_m=OBSTACLE_RANGE_M)
+    return {OBSTACLE_CHECK: check}
