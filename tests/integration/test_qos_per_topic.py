@@ -5,23 +5,14 @@ a real router; the robots run each topic at its own assigned rate; one robot's l
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
 
 import pytest
 
-from arpz.messages import (
-    ANNOUNCE_DECODER,
-    QOS_ACK_DECODER,
-    QOS_ASSIGNMENT_DECODER,
-    STATS_DECODER,
-    Announce,
-    QosAck,
-    QosAssignmentMsg,
-    RobotStats,
-)
+from arpz.messages import ANNOUNCE_DECODER, Announce, QosAssignmentMsg
 from arpz.netem import Impairments
 from tests.integration.fleet import ceddp, robots, settle, udp_link, write_robot
+from tests.integration.test_qos_live import Watcher as QosWatcher
 from tests.support import client, wait_until
 
 pytestmark = pytest.mark.integration
@@ -38,31 +29,22 @@ min_resolve_interval_s = 1.0
 PRIORITY = '[[sensors]]\nname = "flame"\nkind = "flame"\npriority = 4.0\n'
 
 
-class Watcher:
+class Watcher(QosWatcher):
+    """test_qos_live's watcher, which also keeps each robot's latest announcement."""
+
     def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.assignments: list[QosAssignmentMsg] = []
-        self.acks: list[QosAck] = []
-        self.stats: dict[str, RobotStats] = {}
+        super().__init__()
         self.announces: dict[str, Announce] = {}
 
-    def on_assignment(self, key: str, payload: bytes, att: bytes | None) -> None:
-        with self.lock:
-            self.assignments.append(QOS_ASSIGNMENT_DECODER.decode(payload))
-
     def on_robot(self, key: str, payload: bytes, att: bytes | None) -> None:
-        kind = key.rsplit("/", 1)[-1]
+        if key.rsplit("/", 1)[-1] != "announce":
+            super().on_robot(key, payload, att)
+            return
+        announce = ANNOUNCE_DECODER.decode(payload)
         with self.lock:
-            if kind == "qos":
-                self.acks.append(QOS_ACK_DECODER.decode(payload))
-            elif kind == "announce":
-                announce = ANNOUNCE_DECODER.decode(payload)
-                self.announces[announce.robot] = announce
-            elif kind == "stats":
-                stats = STATS_DECODER.decode(payload)
-                self.stats[stats.robot] = stats
+            self.announces[announce.robot] = announce
 
-    def latest(self) -> QosAssignmentMsg | None:
+    def latest_of_both(self) -> QosAssignmentMsg | None:
         with self.lock:
             both = [m for m in self.assignments if set(m.topics) == {"robot1", "robot2"}]
         return both[-1] if both else None
@@ -81,13 +63,11 @@ class Watcher:
                 return False
         return True
 
-    def applied(self, epoch: int) -> set[str]:
+    def applied_since(self, epoch: int) -> set[str]:
+        """Robots that applied this epoch or a later one (the assignment is KEEP_LAST 1: over a
+        lossy link a robot may only ever see the newest of two quick epochs)."""
         with self.lock:
-            return {a.robot for a in self.acks if a.epoch == epoch and a.status == "applied"}
-
-    def reasons(self) -> list[str]:
-        with self.lock:
-            return [f"{m.epoch}: {m.reason}" for m in self.assignments]
+            return {a.robot for a in self.acks if a.epoch >= epoch and a.status == "applied"}
 
     def link_epochs(self, robot: str, after: int) -> list[QosAssignmentMsg]:
         with self.lock:
@@ -112,14 +92,19 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
                 write_robot(tmp_path, "robot2", link.robot_endpoint, preset="machine1"),
             ]
             with robots(tmp_path, configs) as procs:
-                wait_until(lambda: watcher.latest() is not None, what="a per-topic assignment")
+                wait_until(
+                    lambda: watcher.latest_of_both() is not None, what="a per-topic assignment"
+                )
                 # the robots read each topic at its own rate (change rates may re-solve first)
                 wait_until(
-                    lambda: (m := watcher.latest()) is not None and watcher.running_as_assigned(m),
+                    lambda: (
+                        (m := watcher.latest_of_both()) is not None
+                        and watcher.running_as_assigned(m)
+                    ),
                     timeout_s=15,
                     what="both robots running the per-topic rates",
                 )
-                before = watcher.latest()
+                before = watcher.latest_of_both()
                 assert before is not None and before.mode == "per_topic"
                 own1 = before.topics["robot1"]
                 # priority 4: flame gets more than the same sensor on robot2
@@ -137,7 +122,7 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
                 # the robots apply it (its effect on the rates is unit-tested: robot2's samples
                 # cost 1/(1 - loss) now, and change rates may have moved in the same epoch)
                 wait_until(
-                    lambda: watcher.applied(resolved.epoch) == {"robot1", "robot2"},
+                    lambda: watcher.applied_since(resolved.epoch) == {"robot1", "robot2"},
                     what="both robots applying the re-solve",
                 )
                 # the loss stays: no second re-solve for it (hysteresis)
