@@ -229,3 +229,27 @@ def test_per_topic_mode_is_a_config_choice() -> None:
     with pytest.raises(msgspec.ValidationError, match="mode"):
         msgspec.convert({"mode": "per_robot"}, QosControlConfig)
     assert msgspec.convert({"mode": "per_topic"}, QosControlConfig).mode == "per_topic"
+
+
+def test_fleet_mode_with_a_loss_aware_depth_follows_the_measured_link() -> None:
+    # seed 001's R = 14.79 Hz for T = 7,6,6; configured link clean: loss-aware depth 1.
+    # robot2 then measures 25 / 125 = 20 % loss at 4 ms in two windows in a row: robot2's depth
+    # becomes the loss-aware one at 20 %, robot1 keeps 1; the paper policy measures nothing
+    config = QosControlConfig(
+        enabled=True, depth_policy="loss_aware", measure_samples=100, min_resolve_interval_s=0
+    )
+    qos = QosController(config, "c")
+    first = qos.update(PAPER, "start")
+    assert first is not None and first.robots["robot2"].depth == 1
+    robot = _Robot("robot2", 5)
+    qos.observe(robot.report(0, 0, rtt_ms=4.0))
+    assert qos.observe(robot.report(100, 25, rtt_ms=4.0)) is None  # moved once: not yet
+    reason = qos.observe(robot.report(100, 25, rtt_ms=4.0))
+    assert reason is not None and "link robot2: configured -> loss 20.00 %" in reason
+    after = qos.update(PAPER, reason, force=True)
+    assert after is not None
+    assert after.robots["robot1"].depth == 1
+    assert after.robots["robot2"].depth > 1
+    paper = QosController(QosControlConfig(enabled=True), "c")
+    assert paper.observe(_Robot("robot2", 5).report(100, 25)) is None
+    assert not paper.closed_loop
