@@ -7,8 +7,8 @@ a message the user can act on.
 
 from __future__ import annotations
 
-import re
 import math
+import re
 import tomllib
 from pathlib import Path
 from typing import Any, Literal, TypeVar
@@ -456,9 +456,7 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
     #: absolute names with ``{robot}`` and ``{topic}`` placeholders; unnamed topics follow the
     #: default table of docs/ros2.md (``/{robot}/scan`` for the LIDAR, ...)
     topics: dict[str, str] = msgspec.field(default_factory=dict)
-    commands: list[Ros2CommandConfig] = msgspec.field(
-        default_factory=lambda: [Ros2CommandConfig()]
-    )
+    commands: list[Ros2CommandConfig] = msgspec.field(default_factory=lambda: [Ros2CommandConfig()])
     #: samples and commands waiting for the bridge's worker; beyond it the readers wait
     queue_limit: int = 10_000
 
@@ -473,9 +471,7 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
         for pattern, template in self.topics.items():
             robot, _, topic = pattern.partition("/")
             if not topic or (robot != "*" and not _ROS2_KEY.match(robot)):
-                raise ValueError(
-                    f"ros2.topics key {pattern!r} must be 'robot/topic' or '*/topic'"
-                )
+                raise ValueError(f"ros2.topics key {pattern!r} must be 'robot/topic' or '*/topic'")
             keys.check_chunk(topic, what="ros2.topics topic")
             _check_ros2_template(template, what=f"ros2.topics.{pattern!r}")
         if self.queue_limit < 1:
@@ -502,10 +498,10 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     #: serve a live gRPC sink for a Rerun viewer on this port (0 = off)
     grpc_port: int = 0
     #: serve the Rerun web viewer on this port, connected to ``grpc_port`` (0 = off;
-    #: docs/tools-live.md); the status page links to it
+    #: docs/tools.md "Live views"); the status page links to it
     rerun_web_port: int = 0
     #: serve the fleet status page, ``/api/status`` and Prometheus ``/metrics`` on this port
-    #: (0 = off; docs/tools-live.md)
+    #: (0 = off; docs/tools.md "Live views")
     web_port: int = 0
     #: serve a Foxglove WebSocket server (live sensor topics and metrics) on this port (0 = off)
     foxglove_port: int = 0
@@ -562,8 +558,8 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
     def _check_live_ports(self) -> None:
-        """The live views' ports (docs/tools-live.md): each 0..65535, no two the same, and the
-        Rerun web viewer only with the gRPC server it shows."""
+        """The live views' ports (docs/tools.md "Live views"): each 0..65535, no two the same,
+        and the Rerun web viewer only with the gRPC server it shows."""
         ports = {
             name: getattr(self, name)
             for name in ("grpc_port", "rerun_web_port", "web_port", "foxglove_port")
@@ -633,11 +629,31 @@ def from_dict(
         raise ConfigError(f"{source}: {_explain(exc)}") from None
 
 
+#: the two meanings of "reliability" (the demo's one flag covers both): the fleet's mode at the
+#: top of the file, and a QoS profile's policy inside a ``[*_qos]`` table
+_RELIABILITY_HINTS = {
+    "mode": (
+        ' (the top-level reliability is the fleet\'s mode: "channel" or "none"; '
+        'best effort is a QoS policy: reliability = "best_effort" in [sensor_qos])'
+    ),
+    "policy": (
+        ' (a QoS profile\'s reliability is "reliable" or "best_effort"; plain Zenoh '
+        'without the channel is the fleet\'s mode: reliability = "none" at the top of the '
+        "file, on robots and CEDDP alike)"
+    ),
+}
+
+
 def _explain(exc: msgspec.ValidationError) -> str:
     """Turn msgspec's '... - at `$.sensors[0].rate_hz`' into 'field sensors[0].rate_hz: ...'."""
     text = str(exc)
     if " - at `$" in text:
         message, _, where = text.rpartition(" - at `$")
         field = where.rstrip("`").lstrip(".")
-        return f"field '{field}': {message}"
+        hint = ""
+        if field == "reliability":
+            hint = _RELIABILITY_HINTS["mode"]
+        elif field.endswith("_qos.reliability"):
+            hint = _RELIABILITY_HINTS["policy"]
+        return f"field '{field}': {message}{hint}"
     return text

@@ -257,9 +257,15 @@ class ZenohTransport:
                 if time.monotonic() >= deadline:
                     where = ", ".join(settings.connect or settings.listen) or "(no endpoint)"
                     tried = f" for {timeout_s:g} s" if timeout_s else ""
+                    endpoints = [*settings.connect, *settings.listen]
+                    identity = (
+                        f" ({tls_identity(conf)})"
+                        if any(e.startswith(("tls/", "quic/")) for e in endpoints)
+                        else ""
+                    )
                     raise TransportError(
-                        f"cannot open a Zenoh {settings.mode} session on {where} "
-                        f"({tls_identity(conf)}), tried{tried or ' once'}: {zenoh_message(exc)}"
+                        f"cannot open a Zenoh {settings.mode} session on {where}{identity}, "
+                        f"tried{tried or ' once'}: {zenoh_message(exc)}"
                     ) from exc
                 time.sleep(0.1)
                 conf = build_config(settings)

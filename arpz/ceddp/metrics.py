@@ -75,7 +75,8 @@ class MetricsTicker:
         #: where CeddpStats go (opened by the server at start)
         self.stats_out: Outlet | None = None
         #: the last interval's frame (None before the first tick): what the status page and
-        #: /metrics show of rates and percentiles (docs/tools-live.md); replaced, never changed
+        #: /metrics show of rates and percentiles (docs/tools.md "Live views"); replaced, never
+        #: changed
         self.last_frame: MetricsFrame | None = None
         #: called with every frame on this thread; each must return at once (a queue put)
         self.frame_listeners: list[Callable[[MetricsFrame], None]] = []

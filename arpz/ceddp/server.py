@@ -45,7 +45,7 @@ from arpz.messages import new_incarnation, writer_id
 from arpz.mission.judge import MissionResult
 from arpz.transport import Transport
 
-if TYPE_CHECKING:  # imported when their port is set (docs/tools-live.md)
+if TYPE_CHECKING:  # imported when their port is set (docs/tools.md "Live views")
     from arpz.bridge.bridge import Bridge  # imported when [ros2] is enabled (docs/ros2.md)
     from arpz.ceddp.foxglove_live import FoxgloveLive
     from arpz.ceddp.web import StatusWeb
@@ -142,7 +142,7 @@ class CeddpServer:
             clock=self.clock,
             identity=identity_of(config),
         )
-        #: the fleet's state for the live views (read-only, docs/tools-live.md)
+        #: the fleet's state for the live views (read-only, docs/tools.md "Live views")
         self.status = StatusReader(
             config,
             self.ingest,
@@ -195,7 +195,7 @@ class CeddpServer:
 
     def _start_live_views(self) -> None:
         """The status page, Foxglove and the Rerun web viewer, each when its port is set
-        (docs/tools-live.md), before anything else starts: a port in use raises ConfigError
+        (docs/tools.md "Live views"), before anything else starts: a port in use raises ConfigError
         naming its setting, and what was opened before it is closed again."""
         cfg = self.config
         try:
