@@ -88,3 +88,22 @@ def test_ceddp_cli_exits_2_with_the_message(tmp_path: Path) -> None:
     )
     assert result.returncode == 2
     assert str(path) in result.stderr and "metrics_period_s" in result.stderr
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ('reliability = "best_effort"', 'the fleet\'s mode: "channel" or "none"'),
+        ('[sensor_qos]\nreliability = "none"', 'reliability = "none" at the top of the file'),
+    ],
+)
+def test_reliability_in_the_wrong_place_says_where_it_belongs(
+    tmp_path: Path, text: str, expected: str
+) -> None:
+    """The demo's one --reliability flag covers the fleet's mode and a profile's policy; in a
+    TOML file they are two settings, and the error says which one the value belongs to."""
+    path = tmp_path / "robot.toml"
+    path.write_text(f'robot_id = "r1"\npreset = "machine3"\n{text}\n')
+    with pytest.raises(ConfigError) as caught:
+        load_toml(path, RobotConfig)
+    assert expected in str(caught.value) and "reliability" in str(caught.value)
