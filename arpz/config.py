@@ -296,6 +296,9 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
     link_rtt_ms: float = 5.0
     link_loss_pct: float = 0.0
     robots: dict[str, QosLimitsConfig] = msgspec.field(default_factory=dict)
+    #: the offered deadline the robots are told, in periods of their assigned rate: seed 001's
+    #: 1/R is 1.0, which scheduling jitter misses on most ticks; 1.5 tolerates half a period
+    deadline_periods: float = 1.5
     #: "fleet": seed 001's one R and D for every topic; "per_topic": a rate and a depth for each
     #: topic by its priority and measured change rate, with the link quality measured from the
     #: reliable channel's counters and re-solved when it changes (docs/qos-optimiser.md)
@@ -311,6 +314,10 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
     min_resolve_interval_s: float = 2.0
 
     def __post_init__(self) -> None:
+        if not self.deadline_periods >= 1:
+            raise ValueError(
+                f"deadline_periods must be >= 1 (1 is seed 001's 1/R), got {self.deadline_periods}"
+            )
         if not 0 < self.rmin_hz <= self.rmax_hz:
             raise ValueError(f"need 0 < rmin_hz <= rmax_hz, got {self.rmin_hz} and {self.rmax_hz}")
         if not 1 <= self.dmin <= self.dmax:

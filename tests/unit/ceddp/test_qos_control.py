@@ -27,7 +27,8 @@ def test_paper_fleet_then_a_fourth_robot_then_back() -> None:
     assert first.t_avg == pytest.approx(19 / 3)
     for robot in PAPER:
         assert first.robots[robot].rate_hz == pytest.approx(300 / 19 - 1)
-        assert first.robots[robot].deadline_s == pytest.approx(1 / (300 / 19 - 1))
+        # the offered deadline: 1.5 periods by default (deadline_periods), seed 001's 1/R is 1.0
+        assert first.robots[robot].deadline_s == pytest.approx(1.5 / (300 / 19 - 1))
         assert first.robots[robot].depth == 738
     second = qos.update({**PAPER, "robot4": 6}, "robot4 joined")
     assert second is not None and second.epoch == 2
@@ -38,6 +39,16 @@ def test_paper_fleet_then_a_fourth_robot_then_back() -> None:
     assert qos.update(PAPER, "nothing changed") is None
     forced = qos.update(PAPER, "requested", force=True)
     assert forced is not None and forced.epoch == 4
+
+
+def test_the_paper_deadline_is_one_period_on_request() -> None:
+    """deadline_periods = 1 gives seed 001's deadline 1/R exactly; below 1 is refused (a
+    deadline shorter than the period would be missed on every tick)."""
+    message = controller(deadline_periods=1.0).update(PAPER, "start")
+    assert message is not None
+    assert message.robots["robot1"].deadline_s == pytest.approx(1 / (300 / 19 - 1))
+    with pytest.raises(ValueError, match="deadline_periods"):
+        QosControlConfig(enabled=True, deadline_periods=0.9)
 
 
 def test_per_robot_limits_from_the_config() -> None:
