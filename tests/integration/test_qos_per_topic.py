@@ -121,8 +121,10 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
                 assert "loss" in resolved.reason and "resent" in resolved.reason
                 # the robots apply it (its effect on the rates is unit-tested: robot2's samples
                 # cost 1/(1 - loss) now, and change rates may have moved in the same epoch)
+                # robot2's acknowledgement crosses the 12 % lossy link: its resends take time
                 wait_until(
                     lambda: watcher.applied_since(resolved.epoch) == {"robot1", "robot2"},
+                    timeout_s=30,
                     what="both robots applying the re-solve",
                 )
                 # the loss stays: no second re-solve for it (hysteresis)
