@@ -27,7 +27,15 @@ from typing import Any
 import msgspec
 
 from arpz import cli, keys
-from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, TrafficQos
+from arpz.config import (
+    LARGE_KINDS,
+    LARGE_SAMPLE_BYTES,
+    CeddpConfig,
+    ConfigError,
+    RobotConfig,
+    TrafficQos,
+    load_toml,
+)
 from arpz.errors import ArpzError
 from arpz.messages import (
     ANNOUNCE_DECODER,
@@ -550,6 +558,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the cameras' frame size (default: guessed from a frame's length, 640x480 and "
         "other common sizes; else one row of pixels)",
     )
+    parser.add_argument(
+        "--qos-from",
+        type=Path,
+        metavar="TOML",
+        help="the fleet's CEDDP (or a robot's) config: read with its [*_qos] profiles and store "
+        "them as each topic's QoS (default: arpz's default profiles, which a fleet that changed "
+        "them does not use)",
+    )
     cli.add_json_option(parser, "the summary")
     cli.add_version_option(parser)
     parser.add_argument(
@@ -571,6 +587,21 @@ def _camera_size(text: str | None) -> tuple[int, int] | None:
     return int(width), int(height)
 
 
+def _fleet_traffic(path: Path | None) -> TrafficQos | None:
+    """The QoS profiles of the fleet's own config file (a CEDDP's, else a robot's): the
+    liveliness tokens carry reliability, durability and deadline but not history and depth, so
+    the recorded QoS can only be the fleet's exactly when its config is given."""
+    if path is None:
+        return None
+    try:
+        return load_toml(path, CeddpConfig)
+    except ConfigError as as_ceddp:
+        try:
+            return load_toml(path, RobotConfig)
+        except ConfigError:
+            raise as_ceddp from None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -579,6 +610,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.duration < 0 or args.split_size < 0 or args.split_duration < 0:
             raise ArpzError("--duration, --split-size and --split-duration must be >= 0")
         camera_size = _camera_size(args.camera_size)
+        traffic = _fleet_traffic(args.qos_from)
         if args.out.suffix != ".mcap":
             raise ArpzError(f"--out {args.out}: give a file name ending in .mcap")
     except ArpzError as exc:
@@ -596,7 +628,12 @@ def main(argv: list[str] | None = None) -> int:
         metadata={"fleet": args.fleet, "arpz_version": arpz_version()},
     )
     recorder = Recorder(
-        transport, args.fleet, sink, patterns=args.patterns, camera_size=camera_size
+        transport,
+        args.fleet,
+        sink,
+        traffic=traffic,
+        patterns=args.patterns,
+        camera_size=camera_size,
     )
     try:
         recorder.start()

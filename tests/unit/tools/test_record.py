@@ -346,3 +346,24 @@ def test_channel_losses_are_counted_on_the_topic_of_their_writer(tmp_path: Path)
     summary = rec.summary()
     assert summary["topics"]["/robot1/lidar"]["lost"] == 3
     assert (summary["unattributed_lost"], summary["lost"]) == (1, 4)
+
+
+def test_the_recorded_qos_can_be_the_fleets_own(tmp_path: Path) -> None:
+    """--qos-from: a CEDDP's config (or a robot's) gives the profiles the recorder reads with
+    and stores; a file that is neither is refused naming the field."""
+    from arpz.config import ConfigError
+    from arpz.tools.record import _fleet_traffic
+
+    ceddp = tmp_path / "ceddp.toml"
+    ceddp.write_text('fleet = "f"\n[sensor_qos]\ndepth = 7\nhistory = "keep_last"\n')
+    traffic = _fleet_traffic(ceddp)
+    assert traffic is not None and traffic.sensor_qos.depth == 7
+    robot = tmp_path / "robot.toml"
+    robot.write_text('robot_id = "r1"\n[command_qos]\ndepth = 3\n')
+    traffic = _fleet_traffic(robot)
+    assert traffic is not None and traffic.command_qos.depth == 3
+    assert _fleet_traffic(None) is None
+    bad = tmp_path / "bad.toml"
+    bad.write_text('fleet = "f"\n[sensor_qos]\ndepth = "deep"\n')
+    with pytest.raises(ConfigError, match=r"sensor_qos\.depth"):
+        _fleet_traffic(bad)
