@@ -22,6 +22,7 @@ from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.control_queue import ControlQueue
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.link_meter import channel_round_trip_s
 from arpz.ceddp.overload import BudgetChange
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
@@ -270,10 +271,12 @@ class ControlWorker:
         NACKs, the loss bursts; past the hysteresis the QoS problem is re-solved."""
         assert self.qos is not None
         counts = None
+        rtt = None
         if self.sensor_reader is not None:
             reader = self.sensor_reader.stats()
             counts = (reader.retransmitted, reader.nacks)
-        reason = self.qos.observe(stats, counts)
+            rtt = channel_round_trip_s(self.sensor_reader.round_trips(), stats.robot)
+        reason = self.qos.observe(stats, counts, rtt)
         if reason is not None:
             self.reassign_qos(reason, force=True)
 

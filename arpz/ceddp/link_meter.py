@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from arpz import keys
 from arpz.messages import RobotStats
 
 #: round trip assumed before the first clock exchange or Hello came back (loopback-ish)
@@ -67,6 +68,18 @@ def robot_totals(stats: RobotStats) -> tuple[int, int]:
     )
 
 
+def channel_round_trip_s(round_trips: dict[str, float], robot: str) -> float | None:
+    """The robot's link round trip as the reliable channel measured it (the median over its
+    writers of the NACK -> resend round trip at the CEDDP's reader), or None when no writer of
+    the robot was asked to resend yet."""
+    own = sorted(
+        rtt
+        for topic, rtt in round_trips.items()
+        if (parsed := keys.parse_robot_key(topic)) is not None and parsed[0] == robot
+    )
+    return own[len(own) // 2] if own else None
+
+
 def round_trip_s(stats: RobotStats) -> float | None:
     """The link's round trip as the robot measured it, or None before any measurement."""
     found = []
@@ -106,8 +119,12 @@ class LinkMeter:
         self._windows.pop(robot, None)
         self.latest.pop(robot, None)
 
-    def observe(self, stats: RobotStats, burst_samples: float) -> LinkEstimate | None:
-        """Take one report; returns the robot's new estimate when its window is full."""
+    def observe(
+        self, stats: RobotStats, burst_samples: float, channel_rtt_s: float | None = None
+    ) -> LinkEstimate | None:
+        """Take one report; returns the robot's new estimate when its window is full. The round
+        trip is the channel's own (``channel_rtt_s``, acknowledgement round trips) when it has
+        one, else the robot's clock exchange or Hello round trip."""
         sent, resent = robot_totals(stats)
         window = self._windows.get(stats.robot)
         if window is None or window.incarnation != stats.incarnation or sent < window.sent:
@@ -121,7 +138,7 @@ class LinkMeter:
             return None
         window.base_sent, window.base_resent = sent, resent
         previous = self.latest.get(stats.robot)
-        rtt = round_trip_s(stats)
+        rtt = channel_rtt_s if channel_rtt_s is not None else round_trip_s(stats)
         if rtt is None:
             rtt = previous.rtt_s if previous is not None else DEFAULT_RTT_S
         loss_pct = 100.0 * d_resent / (d_sent + d_resent)

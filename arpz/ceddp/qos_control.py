@@ -147,7 +147,10 @@ class QosController:
     # -- measurements ----------------------------------------------------------------------------
 
     def observe(
-        self, stats: RobotStats, reader_counts: tuple[int, int] | None = None
+        self,
+        stats: RobotStats,
+        reader_counts: tuple[int, int] | None = None,
+        channel_rtt_s: float | None = None,
     ) -> str | None:
         """Take a robot's report (and the sensor reader's (retransmitted, nacks)); returns the
         reason for a re-solve when a measurement moved past the hysteresis, else None."""
@@ -159,7 +162,7 @@ class QosController:
             else self.bursts.burst_samples
         )
         reasons = []
-        estimate = self.meter.observe(stats, burst)
+        estimate = self.meter.observe(stats, burst, channel_rtt_s)
         if estimate is not None:
             reasons += self._link_moved(stats.robot, estimate)
         if self.per_topic:

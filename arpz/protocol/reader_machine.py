@@ -976,6 +976,12 @@ class ReaderMachine:
             if p.synced
         }
 
+    def round_trips(self) -> dict[str, float]:
+        """Per matched writer's topic key: the smoothed NACK -> resend round trip this reader
+        measured, in seconds (writers never asked to resend have none yet). The CEDDP's QoS
+        loop reads each robot's link from it (docs/qos-optimiser.md)."""
+        return {p.topic: p.srtt_s for p in self.writers.values() if p.srtt_s > 0}
+
     def match_start(self, writer_hex: str) -> int | None:
         """Where the match with this writer started, for tests of the invariant."""
         for p in self.writers.values():

@@ -79,6 +79,11 @@ class Reader(Endpoint):
         with self._channel.lock:
             return self._machine.accounted()
 
+    def round_trips(self) -> dict[str, float]:
+        """Per matched writer's topic key: the measured NACK -> resend round trip (s)."""
+        with self._channel.lock:
+            return self._machine.round_trips()
+
     def plain_samples(self) -> dict[str, int]:
         """Plain Zenoh samples (no channel header) refused so far, per key: each such key has a
         publisher that offers no channel (reported once as INCOMPATIBLE_QOS)."""

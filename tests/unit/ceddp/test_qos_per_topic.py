@@ -7,7 +7,7 @@ from __future__ import annotations
 import msgspec
 import pytest
 
-from arpz.ceddp.link_meter import BurstMeter, LinkMeter
+from arpz.ceddp.link_meter import BurstMeter, LinkMeter, channel_round_trip_s
 from arpz.ceddp.qos_control import QosController
 from arpz.config import QosControlConfig, SensorConfig
 from arpz.messages import (
@@ -148,6 +148,27 @@ def test_link_meter_measures_loss_rtt_and_restarts() -> None:
     assert estimate.burst_samples == 3.0
     restarted = msgspec.structs.replace(robot.report(0, 0), incarnation="i2")
     assert meter.observe(restarted, 1.0) is None  # counters start again
+
+
+def test_the_channels_own_round_trip_is_preferred_to_the_robots_clock_exchange() -> None:
+    """The acknowledgement round trip the CEDDP's sensor reader measured for a robot's writers
+    (their median) is the link's RTT; the clock exchange's stands in until a writer resent."""
+    round_trips = {
+        "arpz/f/robot/r/sensor/a": 0.030,
+        "arpz/f/robot/r/sensor/b": 0.010,
+        "arpz/f/robot/r/sensor/c": 0.020,
+        "arpz/f/robot/other/sensor/a": 0.500,
+        "not/an/arpz/key": 0.9,
+    }
+    assert channel_round_trip_s(round_trips, "r") == pytest.approx(0.020)
+    assert channel_round_trip_s(round_trips, "absent") is None
+    meter = LinkMeter(min_samples=100)
+    robot = _Robot("r", 2)
+    meter.observe(robot.report(0, 0), 1.0)
+    estimate = meter.observe(robot.report(200, 10, rtt_ms=12.0), 1.0, 0.020)
+    assert estimate is not None and estimate.rtt_s == pytest.approx(0.020)
+    estimate = meter.observe(robot.report(200, 10, rtt_ms=12.0), 1.0, None)
+    assert estimate is not None and estimate.rtt_s == pytest.approx(0.012)
 
 
 def test_burst_meter_is_resends_per_nack() -> None:

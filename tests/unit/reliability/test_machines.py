@@ -379,3 +379,22 @@ def test_an_idle_writer_whose_readers_have_everything_goes_quiet() -> None:
     # a liveliness lease is kept alive with a heartbeat every lease / 4
     leased = QosProfile(history=HistoryPolicy.KEEP_ALL, lease_duration_s=2.0)
     assert 3 <= _heartbeats_while_idle(leased, leased, idle_s=2.0) <= 5
+
+
+def test_the_reader_measures_each_writers_round_trip_from_its_resends() -> None:
+    """The NACK -> resend round trip the QoS loop reads a robot's link from: none while nothing
+    was resent, then close to the link's two delays (2 x 5 ms) once the link loses samples."""
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1000)
+    bus, _ = world(11, Link(loss=0.0, delay_s=0.005))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    r = reader.machine
+    assert isinstance(r, ReaderMachine)
+    publish(bus, writer, 20, 0.01)
+    bus.run_for(0.5)
+    assert r.round_trips() == {}
+    bus.link.loss = 0.2
+    publish(bus, writer, 200, 0.01)
+    bus.run_for(2.0)
+    rtt = r.round_trips()["t/a"]
+    assert 0.009 <= rtt <= 0.05, rtt
