@@ -194,8 +194,11 @@ class SimCamera(_Simulated):
     def read(self, now_s: float) -> bytes:
         frame = self.scene.copy()
         if self.noise:  # a band of rows with fresh noise: cheap, and every frame differs
-            row = int(now_s * 97) % max(1, self.height - 8)
-            frame[row : row + 8] = self.rng.integers(0, 256, (8, self.width, 3), dtype=np.uint8)
+            band = min(8, self.height)  # a frame fewer than 8 rows high is all band
+            row = int(now_s * 97) % max(1, self.height - band + 1)
+            frame[row : row + band] = self.rng.integers(
+                0, 256, (band, self.width, 3), dtype=np.uint8
+            )
         if self.objects.active(now_s):
             x = int((now_s - self.objects.started_s) * 120) % max(1, self.width - 40)
             frame[self.height // 3 : self.height // 3 + 40, x : x + 40] = (255, 0, 0)

@@ -178,6 +178,14 @@ def test_a_dark_static_camera_repeats_and_a_smaller_one_is_smaller() -> None:
     assert len(SIMULATED["camera"]({"width": 320, "height": 240}, 1).read(0.0)) == 320 * 240 * 3
 
 
+@pytest.mark.parametrize("height", [1, 4, 7, 8, 9])
+def test_a_camera_fewer_than_8_rows_high_still_makes_frames(height: int) -> None:
+    """Its band of fresh noise is 8 rows, or the whole frame when smaller (a crash before)."""
+    camera = SIMULATED["camera"]({"width": 5, "height": height}, 1)
+    first, second = camera.read(1.0), camera.read(2.5)
+    assert len(first) == len(second) == 5 * height * 3 and first != second
+
+
 def test_large_kinds_cannot_replay_text_traces() -> None:
     with pytest.raises(ValueError, match="cannot replay a trace"):
         SensorConfig(name="front", kind="camera", driver="replay", trace="t.csv")
