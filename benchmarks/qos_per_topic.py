@@ -68,14 +68,31 @@ def _qos(mode: str, rmax_hz: float) -> str:
     )
 
 
-def run_cell(tmp: Path, profile: str, mode: str, *, duration_s: float, rmax_hz: float) -> dict:
+def _channel(heartbeat_s: float | None) -> str:
+    """The sensor profile's heartbeat period on the robots and the CEDDP (None: the default)."""
+    return "" if heartbeat_s is None else f"[sensor_qos]\nheartbeat_period_s = {heartbeat_s}\n"
+
+
+def run_cell(
+    tmp: Path,
+    profile: str,
+    mode: str,
+    *,
+    duration_s: float,
+    rmax_hz: float,
+    heartbeat_s: float | None = None,
+) -> dict:
     """One CEDDP and two robots over one emulated link; returns the summary's figures."""
     link = udp_link()
-    with ceddp(tmp, extra=_qos(mode, rmax_hz), also_listen=(link.ceddp_endpoint,)) as (server, _):
+    extra = _qos(mode, rmax_hz) + _channel(heartbeat_s)
+    with ceddp(tmp, extra=extra, also_listen=(link.ceddp_endpoint,)) as (server, _):
         link.proxy.start()
         try:
             configs = [
-                write_robot(tmp, robot, link.robot_endpoint, preset="machine1") for robot in ROBOTS
+                write_robot(
+                    tmp, robot, link.robot_endpoint, preset="machine1", extra=_channel(heartbeat_s)
+                )
+                for robot in ROBOTS
             ]
             with robots(tmp, configs) as procs:
                 for robot in ROBOTS:
@@ -186,14 +203,21 @@ def main() -> int:
     parser.add_argument(
         "--repeat", type=int, default=1, help="runs per cell (modes alternate within a repeat)"
     )
+    parser.add_argument("--modes", default=",".join(MODES), help="a subset of the modes")
+    parser.add_argument(
+        "--heartbeat",
+        type=float,
+        help="the sensor profile's heartbeat_period_s, s (default: the profile's, 0.1)",
+    )
     parser.add_argument("--json", type=Path, help="write every figure here")
     args = parser.parse_args()
     started = time.monotonic()
     profiles = args.profiles.split(",")
-    runs: dict[str, dict[str, list[dict[str, Any]]]] = {p: {m: [] for m in MODES} for p in profiles}
+    modes = args.modes.split(",")
+    runs: dict[str, dict[str, list[dict[str, Any]]]] = {p: {m: [] for m in modes} for p in profiles}
     for repeat in range(args.repeat):
         for profile in profiles:
-            for mode in MODES:
+            for mode in modes:
                 print(
                     f"{profile} / {mode} (run {repeat + 1}/{args.repeat}): "
                     f"{args.duration:.0f} s ...",
@@ -202,7 +226,12 @@ def main() -> int:
                 with tempfile.TemporaryDirectory() as tmp:
                     runs[profile][mode].append(
                         run_cell(
-                            Path(tmp), profile, mode, duration_s=args.duration, rmax_hz=args.rmax
+                            Path(tmp),
+                            profile,
+                            mode,
+                            duration_s=args.duration,
+                            rmax_hz=args.rmax,
+                            heartbeat_s=args.heartbeat,
                         )
                     )
     print(
@@ -233,8 +262,10 @@ def main() -> int:
             loss = sum(f["loss_pct"] for f in cells) / len(cells)
             means[mode] = (loss, sum(wtd) / len(wtd), sum(worst) / len(worst))
             print(f"{profile:<10} {mode:<14} {loss:>7.3f} {_spread(wtd):>22} {_spread(worst):>22}")
+        if "fleet" not in means:
+            continue
         f_loss, f_wtd, f_worst = means["fleet"]
-        for mode in ("per_topic", "per_topic_lean"):
+        for mode in [m for m in means if m != "fleet"]:
             o_loss, o_wtd, o_worst = means[mode]
             loss = (
                 "lower" if o_loss < f_loss else "both 0" if o_loss == f_loss == 0 else "NOT lower"
