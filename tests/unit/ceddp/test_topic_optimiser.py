@@ -194,9 +194,13 @@ def test_closed_form_equals_cvxpy(instance: tuple[QosLimits, list[TopicDemand]])
     # what CVXPY approaches (CLARABEL's interior point stops within about 1e-4 of the rates)
     weights = [t.weight for t in closed.topics]
     assert cvx.used_hz <= closed.capacity_hz * (1 + 1e-6)
-    assert _utility(closed, weights) >= _utility(cvx, weights) - 1e-9 * abs(
-        _utility(closed, weights)
-    )
+    # CVXPY may overshoot the capacity by its feasibility tolerance (scaling every rate by
+    # 1 + excess buys at most sum(w) * log(1 + excess) of utility) and reports a point within
+    # its optimality tolerance, 1e-8 relative (seen: 6.7e-10 over the capacity and 1.9e-9
+    # relative more utility than the exact optimum, in CI)
+    excess = max(0.0, cvx.used_hz / closed.capacity_hz - 1)
+    allowance = sum(weights) * math.log1p(excess) + 1e-8 * abs(_utility(closed, weights))
+    assert _utility(closed, weights) >= _utility(cvx, weights) - allowance
     for a, b in zip(closed.topics, cvx.topics, strict=True):
         assert a.rate_hz == pytest.approx(b.rate_hz, rel=2e-3, abs=1e-4 * limits.rmax_hz)
         # the MILP's depth is the largest integer under (5) at the solver's own rate
