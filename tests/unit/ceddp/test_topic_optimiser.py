@@ -8,7 +8,7 @@ import math
 from fractions import Fraction
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from arpz.ceddp.optimiser import (
@@ -179,7 +179,24 @@ def _instances(draw: st.DrawFn) -> tuple[QosLimits, list[TopicDemand]]:
     return limits, demands
 
 
+#: found by hypothesis in CI: CVXPY's point used 6.7e-10 more than the capacity and had 1.0e-7
+#: more utility than the closed form, within its tolerances, not a better optimum
+_CVXPY_AHEAD = (
+    QosLimits(rmax_hz=21.0, rmin_hz=1.875, dmax=200, dmin=1),
+    [
+        TopicDemand(robot=r, topic=t, weight=w, change_hz=None, cost=c, max_rate_hz=None)
+        for r, t, w, c in [
+            ("r0", "t0", 1.0, 1.0),
+            *[("r1", f"t{i}", w, 1.0) for i, w in enumerate([1.0, 1.0, 3.0, 0.1])],
+            *[("r2", f"t{i}", 1.0, 2.0) for i in range(6)],
+            *[("r3", f"t{i}", 1.0, 1.75) for i in range(6)],
+        ]
+    ],
+)
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@example(_CVXPY_AHEAD)
 @given(_instances())
 def test_closed_form_equals_cvxpy(instance: tuple[QosLimits, list[TopicDemand]]) -> None:
     limits, demands = instance
