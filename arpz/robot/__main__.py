@@ -96,7 +96,8 @@ def main(argv: list[str] | None = None) -> int:
             config, connect=resolve(config.connect, from_file, DEFAULT_CONNECT)
         )
     except ConfigError as exc:
-        print(f"arpz robot: error: bad configuration: {exc}", file=sys.stderr)
+        flag = " (given by --connect)" if args.connect and "connect[" in str(exc) else ""
+        print(f"arpz robot: error: bad configuration: {exc}{flag}", file=sys.stderr)
         return 2
     if not config.sensors and config.preset is None and config.sim is None:
         log.warning(

@@ -76,6 +76,7 @@ def test_a_bad_endpoint_is_a_configuration_error_naming_the_flag(tmp_path: Path)
         out = robot.output()
         assert robot.popen.returncode == 2, out
         assert "connect[0] 'foo'" in out and "PROTOCOL/ADDRESS" in out, out
+        assert "(given by --connect)" in out, out
         assert "Json5" not in out and ".rs" not in out, out
     finally:
         robot.kill()
