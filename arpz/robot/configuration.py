@@ -39,6 +39,7 @@ from arpz.messages import (
 )
 from arpz.robot.scheduler import Job
 from arpz.robot.sensing import SensorChannel
+from arpz.throttled_log import ThrottledLog
 
 if TYPE_CHECKING:
     from arpz.transport import Transport
@@ -138,6 +139,9 @@ class ConfigurationHandler:
         self.applied = 0
         self.refused = 0
         self.decode_errors = 0
+        #: configurations that raised while being applied (logged, the worker goes on)
+        self.apply_errors = 0
+        self._bad = ThrottledLog(log)
         self._queue: queue.SimpleQueue[bytes | None] = queue.SimpleQueue()
         self._worker = threading.Thread(target=self._loop, name="arpz-config", daemon=True)
         self._inlet: Inlet | None = None
@@ -177,12 +181,20 @@ class ConfigurationHandler:
                 message = CONFIGURATION_DECODER.decode(payload)
             except DECODE_ERRORS as exc:
                 self.decode_errors += 1
-                log.warning("undecodable configuration (%d so far): %s", self.decode_errors, exc)
+                self._bad.warning(
+                    "decode", "undecodable configuration (%d so far): %s", self.decode_errors, exc
+                )
                 continue
             try:
                 self.apply(message)
             except Exception:  # one bad configuration must not end the worker
-                log.exception("configuration epoch %d failed", message.epoch)
+                self.apply_errors += 1
+                self._bad.exception(
+                    "apply",
+                    "configuration epoch %d failed (%d so far)",
+                    message.epoch,
+                    self.apply_errors,
+                )
 
     def apply(self, message: ConfigurationMsg) -> ConfigurationAck | None:
         """Apply this robot's part (None: the configuration names other robots only)."""

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from types import SimpleNamespace
 from typing import Any
 
+import msgspec
 import pytest
 
 from arpz.config import RobotConfig
@@ -224,3 +225,16 @@ def test_apply_refuses_bad_input_before_connecting(tmp_path: Any, capsys: Any) -
     )
     assert main(["apply", str(model), "--connect", "tcp/127.0.0.1:1"]) == 2
     assert "no node of the solution" in capsys.readouterr().err
+
+
+def test_undecodable_configurations_are_counted_and_the_worker_goes_on() -> None:
+    handler, jobs, _check, _announced = _handler()
+    handler._worker.start()  # the worker alone: no transport to open inlets on
+    handler._queue.put(b"\xc1 not msgpack")
+    handler._queue.put(b"\x93\x01\x02")  # msgpack, not a ConfigurationMsg
+    message = ConfigurationMsg("s", 5, 0, "t", {"robot1": RobotConfiguration({"lidar_0": 4.0})})
+    handler._queue.put(msgspec.msgpack.encode(message))
+    handler._queue.put(None)
+    handler._worker.join(timeout=5)
+    assert handler.decode_errors == 2 and handler.apply_errors == 0
+    assert jobs[0][0].rate_hz == 4.0  # the good one after the bad ones was applied
