@@ -46,6 +46,7 @@ def writer_totals(stats: WriterStats | None, write_failures: int) -> dict[str, i
     return {
         "retransmitted": stats.retransmitted if stats else 0,
         "history_offered": stats.history_offered if stats else 0,
+        "heartbeats": stats.heartbeats if stats else 0,
         "gapped": stats.lost if stats else 0,
         "overwritten_unacked": stats.overwritten_unacked if stats else 0,
         "deadline_missed": stats.deadline_missed if stats else 0,
@@ -118,10 +119,15 @@ class Outlet:
         """The channel can no longer deliver the last message sent (False without it)."""
         return self.writer is not None and self.writer.latest_undeliverable()
 
-    def retune(self, *, depth: int, deadline_s: float) -> None:
-        """Apply a QoS assignment's depth and deadline in place (no-op without the channel)."""
+    def retune(
+        self, *, depth: int, deadline_s: float, heartbeat_period_s: float | None = None
+    ) -> None:
+        """Apply a QoS assignment's depth, deadline and heartbeat period (None: unchanged) in
+        place (no-op without the channel)."""
         if self.writer is not None:
-            self.writer.retune(depth=depth, deadline_s=deadline_s)
+            self.writer.retune(
+                depth=depth, deadline_s=deadline_s, heartbeat_period_s=heartbeat_period_s
+            )
 
     @property
     def qos(self) -> QosProfile | None:
@@ -195,8 +201,11 @@ class FrameOutlet:
     def latest_undeliverable(self) -> bool:
         return False
 
-    def retune(self, *, depth: int, deadline_s: float) -> None:
-        """A QoS assignment's depth counts samples of small topics: the frame history stays."""
+    def retune(
+        self, *, depth: int, deadline_s: float, heartbeat_period_s: float | None = None
+    ) -> None:
+        """A QoS assignment's depth counts samples of small topics: the frame history stays,
+        and so does the fragment channel's own heartbeat ([frames_qos])."""
 
     @property
     def qos(self) -> QosProfile:

@@ -312,8 +312,24 @@ class QosControlConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
     measure_samples: int = 200
     #: per_topic: the shortest time between two re-solves caused by measurements
     min_resolve_interval_s: float = 2.0
+    #: closed loop: on a link measured to lose at least ``heartbeat_loss_pct`` % of its
+    #: transmissions, the robot's sensor writers are told a heartbeat period of
+    #: ``heartbeat_rtts`` measured round trips (at least ``heartbeat_min_ms``, at most the
+    #: [sensor_qos] period): a lost last sample waits for a heartbeat, so the period is the p99
+    #: of recovery on a lossy link. 0 rtts: never assigned (docs/qos-optimiser.md)
+    heartbeat_rtts: float = 2.0
+    heartbeat_min_ms: float = 20.0
+    heartbeat_loss_pct: float = 0.2
 
     def __post_init__(self) -> None:
+        if not (
+            self.heartbeat_rtts >= 0 and self.heartbeat_min_ms > 0 and self.heartbeat_loss_pct >= 0
+        ):
+            raise ValueError(
+                "need heartbeat_rtts >= 0 (0: never assign a heartbeat), heartbeat_min_ms > 0 "
+                f"and heartbeat_loss_pct >= 0, got {self.heartbeat_rtts}, "
+                f"{self.heartbeat_min_ms} and {self.heartbeat_loss_pct}"
+            )
         if not self.deadline_periods >= 1:
             raise ValueError(
                 f"deadline_periods must be >= 1 (1 is seed 001's 1/R), got {self.deadline_periods}"

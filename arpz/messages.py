@@ -140,6 +140,8 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     #: samples the history held when a reliable TRANSIENT_LOCAL reader matched (summed over
     #: matches): the most that late joiners could need resent
     history_offered: int = 0
+    #: heartbeats the channel writer sent: what its recovery pacing cost in small messages
+    heartbeats: int = 0
 
 
 class InboundCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
@@ -308,6 +310,9 @@ class RobotQos(msgspec.Struct, frozen=True):
     rate_hz: float
     deadline_s: float
     depth: int
+    #: the sensor writers' heartbeat period, set by the closed QoS loop from the robot's measured
+    #: link (a lost last sample waits for a heartbeat); None: the robot's own [sensor_qos] period
+    heartbeat_period_s: float | None = None
 
 
 class QosAssignmentMsg(msgspec.Struct, frozen=True):
@@ -346,6 +351,9 @@ class QosAck(msgspec.Struct, frozen=True):
     reason: str
     rate_hz: float
     depth: int
+    #: the heartbeat period the robot's first sensor writer runs at after this answer (None:
+    #: no channel writer)
+    heartbeat_period_s: float | None = None
 
 
 class RobotConfiguration(msgspec.Struct, frozen=True):

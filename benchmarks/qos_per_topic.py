@@ -64,7 +64,7 @@ def _qos(mode: str, rmax_hz: float) -> str:
     mode, depth = MODES[mode]
     return (
         f'[qos]\nenabled = true\nmode = "{mode}"\nrmax_hz = {rmax_hz}\n'
-        f'depth_policy = "{depth}"\nmeasure_samples = 200\n'
+        f'depth_policy = "{depth}"\nmeasure_samples = 100\n'
     )
 
 
@@ -112,11 +112,11 @@ def run_cell(
         finally:
             link.proxy.stop()
     summary = json.loads((tmp / "summary.json").read_text())
-    return figures(summary)
+    return figures(summary, duration_s)
 
 
-def figures(summary: dict[str, Any]) -> dict[str, Any]:
-    received = lost = 0
+def figures(summary: dict[str, Any], duration_s: float) -> dict[str, Any]:
+    received = lost = heartbeats = 0
     p99s: list[tuple[float, int]] = []
     latency_p99: list[float] = []
     for robot in ROBOTS:
@@ -125,6 +125,7 @@ def figures(summary: dict[str, Any]) -> dict[str, Any]:
                 continue
             received += t["received"]
             lost += t["lost"]
+            heartbeats += t.get("heartbeats", 0)
             if t["staleness_ms_p99"] is not None:
                 p99s.append((t["staleness_ms_p99"], t["received"]))
             if t["latency_ms_p99"] is not None:
@@ -141,6 +142,12 @@ def figures(summary: dict[str, Any]) -> dict[str, Any]:
         "staleness_ms_p99_weighted": sum(p * n for p, n in p99s) / weight if p99s else None,
         "latency_ms_p99_worst": max(latency_p99, default=None),
         "depth_max": max((t["depth"] or 0 for t in detail.values()), default=None),
+        # the shortest heartbeat period the loop told a writer (None: the profile's everywhere)
+        "heartbeat_ms_min": min(
+            (t["heartbeat_s"] * 1000 for t in detail.values() if t["heartbeat_s"]), default=None
+        ),
+        # the robots' sensor writers' heartbeats over the measured duration (the whole run's)
+        "heartbeats_per_s": heartbeats / duration_s,
         "epochs": len(qos.get("assignments", [])),
         "measured_epochs": len((qos.get("links") or {}).get("measured_changes", [])),
         "links": (qos.get("links") or {}).get("in_force", {}),
@@ -163,12 +170,14 @@ def _topic_detail(summary: dict[str, Any], qos: dict[str, Any]) -> dict[str, Any
             detail[f"{robot}/{name}"] = {
                 "rate_hz": q.get("rate_hz"),
                 "depth": q.get("depth"),
+                "heartbeat_s": q.get("heartbeat_period_s"),
                 **{
                     k: t[k]
                     for k in (
                         "sent",
                         "received",
                         "retransmitted",
+                        "heartbeats",
                         "lost",
                         "staleness_ms_p50",
                         "staleness_ms_p99",
@@ -237,7 +246,7 @@ def main() -> int:
     print(
         f"\n{'profile':<10} {'mode':<14} {'run':>3} {'received':>8} {'loss %':>7} "
         f"{'stale p99 worst':>15} {'stale p99 wtd':>13} {'lat p99 worst':>13} {'epochs':>6} "
-        f"{'D max':>5}"
+        f"{'D max':>5} {'HB ms':>5} {'HB/s':>5}"
     )
     for profile, by_mode in runs.items():
         for mode, cells in by_mode.items():
@@ -247,7 +256,8 @@ def main() -> int:
                     f"{f['loss_pct']:>7.3f} {_fmt(f['staleness_ms_p99_worst']):>15} "
                     f"{_fmt(f['staleness_ms_p99_weighted']):>13} "
                     f"{_fmt(f['latency_ms_p99_worst']):>13} {f['epochs']:>6} "
-                    f"{f['depth_max'] or '-':>5}"
+                    f"{f['depth_max'] or '-':>5} {_fmt(f['heartbeat_ms_min'], 0):>5} "
+                    f"{_fmt(f['heartbeats_per_s'], 0):>5}"
                 )
     print(
         f"\nmean (min-max) over {args.repeat} run(s):\n{'profile':<10} {'mode':<14} "

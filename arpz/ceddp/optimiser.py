@@ -600,6 +600,30 @@ def loss_aware_depth(link: LinkQuality, rate_hz: float) -> LossAwareDepth:
     )
 
 
+def recovery_heartbeat_s(
+    *,
+    rtt_s: float,
+    loss_pct: float,
+    profile_s: float,
+    rtts: float,
+    min_s: float,
+    loss_threshold_pct: float,
+) -> float:
+    """The writers' heartbeat period for a link: ``profile_s`` on a link that loses less than
+    ``loss_threshold_pct`` % (or when ``rtts`` is 0), else ``rtts`` round trips, within
+    [``min_s``, ``profile_s``].
+
+    Why a heartbeat period from the round trip: a sample lost at the end of what a writer sent
+    (or with the samples after it, in a burst) is revealed only by the next heartbeat, so on a
+    lossy link the p99 of recovery is about one heartbeat period plus a round trip (measured in
+    benchmarks/RESULTS.md: 0.1 s -> 0.03 s cut wifi-bad's p99 staleness by a third). A period
+    shorter than a few round trips would only repeat heartbeats whose ACKNACK is on its way;
+    a lossless link needs none beyond the profile's (it costs small messages for nothing)."""
+    if rtts <= 0 or loss_pct < loss_threshold_pct:
+        return profile_s
+    return min(profile_s, max(min_s, rtts * rtt_s))
+
+
 def channel_link(
     profile: QosProfile,
     *,

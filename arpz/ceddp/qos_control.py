@@ -22,6 +22,12 @@ move by ``hysteresis`` of the value in force (loss by at least ``loss_step_pct``
 measurements in a row, and re-solves it causes are ``min_resolve_interval_s`` apart; the
 assignment then carries the measurements in its reason (an epoch in the summary and on the
 dashboard).
+
+The closed loop also tells each robot its sensor writers' heartbeat period: on a link measured
+lossy (``heartbeat_loss_pct``), ``heartbeat_rtts`` measured round trips within
+[``heartbeat_min_ms``, the profile's period] (``optimiser.recovery_heartbeat_s``), since a lost
+last sample waits for a heartbeat; the loss-aware depth is computed with that period. Seed 001's
+problem (``fleet`` with the ``paper`` depth) is open loop and leaves the robots' own period.
 """
 
 from __future__ import annotations
@@ -32,6 +38,8 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import msgspec
+
 from arpz.ceddp.link_meter import BurstMeter, LinkEstimate, LinkMeter
 from arpz.ceddp.optimiser import (
     LinkQuality,
@@ -40,6 +48,7 @@ from arpz.ceddp.optimiser import (
     assign_qos,
     channel_link,
     loss_aware_depth,
+    recovery_heartbeat_s,
     rmax_for_budget,
     solve_closed,
 )
@@ -62,6 +71,8 @@ _CHANGE_WEIGHT = 0.5
 MAX_LINK_CHANGES = 256
 #: puts a measurement in force once the re-solve it causes is decided
 _Commit = Callable[[], None]
+#: a measurement past the hysteresis: (what moved, e.g. "link robot1"; the reason's text; commit)
+_Move = tuple[str, str, _Commit]
 
 
 @dataclass
@@ -98,6 +109,10 @@ class QosController:
         self._link_pending: dict[str, int] = {}
         self._changes: dict[tuple[str, str], _TopicChange] = {}
         self._last_measured_resolve_s = -math.inf
+        #: moves that came within min_resolve_interval_s of the last re-solve, by subject: they
+        #: re-solve at the first report after the interval (a link window can take seconds to
+        #: fill again, and would otherwise have to move twice more)
+        self._deferred: dict[str, _Move] = {}
         #: every re-solve a measurement caused: (epoch, reason), for the summary
         self.measured_changes: list[tuple[int, str]] = []
         #: each robot's sensor topics (from its announcement), for the per-topic problem
@@ -129,20 +144,47 @@ class QosController:
 
     def link_for(self, robot: str) -> LinkQuality:
         """The robot's link as the assignment uses it: measured (in force), else configured;
-        always with the channel's own heartbeat period and NACK delay."""
+        always with the channel's NACK delay and the heartbeat period the robot is told."""
+        heartbeat = self.heartbeat_for(robot)
+        channel = (
+            self.channel
+            if heartbeat is None
+            else msgspec.structs.replace(self.channel, heartbeat_period_s=heartbeat)
+        )
         measured = self.links_in_force.get(robot)
         if measured is None:
             return channel_link(
-                self.channel,
+                channel,
                 rtt_s=self.config.link_rtt_ms / 1000,
                 loss_pct=self.config.link_loss_pct,
             )
         return channel_link(
-            self.channel,
+            channel,
             rtt_s=measured.rtt_s,
             loss_pct=min(measured.loss_pct, 99.0),
             burst_samples=measured.burst_samples,
         )
+
+    def _heartbeat_of(self, estimate: LinkEstimate | None) -> float:
+        """The heartbeat period a link estimate calls for (the profile's when None)."""
+        if estimate is None or not self.closed_loop:
+            return self.channel.heartbeat_period_s
+        cfg = self.config
+        return recovery_heartbeat_s(
+            rtt_s=estimate.rtt_s,
+            loss_pct=estimate.loss_pct,
+            profile_s=self.channel.heartbeat_period_s,
+            rtts=cfg.heartbeat_rtts,
+            min_s=cfg.heartbeat_min_ms / 1000,
+            loss_threshold_pct=cfg.heartbeat_loss_pct,
+        )
+
+    def heartbeat_for(self, robot: str) -> float | None:
+        """The heartbeat period the robot's sensor writers are told, from its link in force;
+        None (the robot's own [sensor_qos] period) on an unmeasured or lossless link and in
+        the open loop."""
+        heartbeat = self._heartbeat_of(self.links_in_force.get(robot))
+        return None if heartbeat == self.channel.heartbeat_period_s else heartbeat
 
     # -- measurements ----------------------------------------------------------------------------
 
@@ -161,26 +203,29 @@ class QosController:
             if reader_counts is not None
             else self.bursts.burst_samples
         )
-        reasons = []
+        moves: list[_Move] = []
         estimate = self.meter.observe(stats, burst, channel_rtt_s)
         if estimate is not None:
-            reasons += self._link_moved(stats.robot, estimate)
+            moves += self._link_moved(stats.robot, estimate)
         if self.per_topic:
-            reasons += self._changes_moved(stats)
-        if not reasons:
+            moves += self._changes_moved(stats)
+        for move in moves:  # a newer move of the same subject replaces a deferred one
+            self._deferred[move[0]] = move
+        if not self._deferred:
             return None
         now = time.monotonic()
         if now - self._last_measured_resolve_s < self.config.min_resolve_interval_s:
-            return None  # pending measurements stay pending: asked again at the next report
+            return None  # deferred: re-solved at the first report after the interval
         self._last_measured_resolve_s = now
-        for _, commit in reasons:
+        due, self._deferred = list(self._deferred.values()), {}
+        for _, _, commit in due:
             commit()
-        return "measured: " + "; ".join(text for text, _ in reasons)
+        return "measured: " + "; ".join(text for _, text, _ in due)
 
     def _moved(self, old: float, new: float, floor: float) -> bool:
         return abs(new - old) >= max(floor, self.config.hysteresis * abs(old))
 
-    def _link_moved(self, robot: str, estimate: LinkEstimate) -> list[tuple[str, _Commit]]:
+    def _link_moved(self, robot: str, estimate: LinkEstimate) -> list[_Move]:
         cfg = self.config
         old = self.links_in_force.get(robot)
         old_loss = old.loss_pct if old is not None else cfg.link_loss_pct
@@ -190,11 +235,14 @@ class QosController:
             self._moved(old_loss, estimate.loss_pct, cfg.loss_step_pct)
             or self._moved(old_rtt, estimate.rtt_s, 0.002)
             or self._moved(old_burst, estimate.burst_samples, 1.0)
+            # a loss below loss_step_pct may still cross heartbeat_loss_pct: the heartbeat moves
+            or self._moved(self._heartbeat_of(old), self._heartbeat_of(estimate), 0.0)
         )
         if old is None and not moved:
             self.links_in_force[robot] = estimate  # the first measurement agrees: in force
         if not moved:
             self._link_pending[robot] = 0
+            self._deferred.pop(f"link {robot}", None)  # it moved back: nothing to re-solve
             return []
         self._link_pending[robot] = self._link_pending.get(robot, 0) + 1
         if self._link_pending[robot] < 2:
@@ -205,12 +253,16 @@ class QosController:
             self._link_pending[robot] = 0
             self.links_in_force[robot] = estimate
 
-        return [(f"link {robot}: {before} -> {estimate.describe()}", commit)]
+        text = f"link {robot}: {before} -> {estimate.describe()}"
+        old_hb, new_hb = self._heartbeat_of(old), self._heartbeat_of(estimate)
+        if new_hb != old_hb:
+            text += f", heartbeat {old_hb * 1000:.0f} -> {new_hb * 1000:.0f} ms"
+        return [(f"link {robot}", text, commit)]
 
-    def _changes_moved(self, stats: RobotStats) -> list[tuple[str, _Commit]]:
+    def _changes_moved(self, stats: RobotStats) -> list[_Move]:
         """Each topic's change rate: its sends per second (the local cache sends a reading only
         when it changed, or after max_silence_s), over windows of at least CHANGE_WINDOW_S."""
-        moved: list[tuple[str, _Commit]] = []
+        moved: list[_Move] = []
         limit = 1 + 2 * self.config.hysteresis
         for topic, counters in stats.topics.items():
             state = self._changes.setdefault((stats.robot, topic), _TopicChange())
@@ -232,6 +284,8 @@ class QosController:
             old = state.in_force_hz
             differs = old is None or max(new / old, old / new) >= limit
             state.pending = state.pending + 1 if differs else 0
+            if not differs:  # it moved back: nothing to re-solve
+                self._deferred.pop(f"{stats.robot}/{topic}", None)
             if state.pending < 2:
                 continue
 
@@ -240,7 +294,8 @@ class QosController:
                 state.pending = 0
 
             was = "not measured" if old is None else f"{old:.2f} Hz"
-            moved.append((f"{stats.robot}/{topic} changes {was} -> {new:.2f} Hz", commit))
+            subject = f"{stats.robot}/{topic}"
+            moved.append((subject, f"{subject} changes {was} -> {new:.2f} Hz", commit))
         return moved
 
     # -- solving ---------------------------------------------------------------------------------
@@ -294,13 +349,16 @@ class QosController:
             del self.measured_changes[:-MAX_LINK_CHANGES]
         return self.current
 
-    def _robot_qos(self, rate_hz: float, depth: int) -> RobotQos:
-        """What a robot is told: rate R, depth D and an offered deadline of
-        ``deadline_periods`` / R. Seed 001's deadline is 1/R exactly, the period the writer
-        writes at, so any scheduling jitter makes a write late by its own deadline: with 1/R
-        the writers of a 3-robot demo counted a miss on most ticks (docs/qos-optimiser.md)."""
+    def _robot_qos(self, robot: str, rate_hz: float, depth: int) -> RobotQos:
+        """What a robot is told: rate R, depth D, an offered deadline of ``deadline_periods``
+        / R and its link's heartbeat period. Seed 001's deadline is 1/R exactly, the period the
+        writer writes at, so any scheduling jitter makes a write late by its own deadline: with
+        1/R the writers of a 3-robot demo counted a miss on most ticks (docs/qos-optimiser.md)."""
         return RobotQos(
-            rate_hz=rate_hz, deadline_s=self.config.deadline_periods / rate_hz, depth=depth
+            rate_hz=rate_hz,
+            deadline_s=self.config.deadline_periods / rate_hz,
+            depth=depth,
+            heartbeat_period_s=self.heartbeat_for(robot),
         )
 
     def _solve_fleet(
@@ -316,7 +374,7 @@ class QosController:
                 depth_policy=self.config.depth_policy,
                 link=self.link_for(robot) if uses_link else None,
             )
-            robots[robot] = self._robot_qos(assignment.rate_hz, assignment.depth)
+            robots[robot] = self._robot_qos(robot, assignment.rate_hz, assignment.depth)
             t_avg = assignment.t_avg
         return robots, t_avg
 
@@ -366,7 +424,7 @@ class QosController:
                 else:
                     depth = max(depth, loss)
                 depth = min(limits.dmax, depth)
-            per_topic[t.robot][t.topic] = self._robot_qos(t.rate_hz, depth)
+            per_topic[t.robot][t.topic] = self._robot_qos(t.robot, t.rate_hz, depth)
         robots = {}
         for robot, own in per_topic.items():
             if not own:  # no sensor announced yet: seed 001's share of a received topic
@@ -377,7 +435,7 @@ class QosController:
                 own_rates = [q.rate_hz for q in own.values()]
                 own_depths = [q.depth for q in own.values()]
             mean = sum(own_rates) / len(own_rates)
-            robots[robot] = self._robot_qos(mean, max(own_depths))
+            robots[robot] = self._robot_qos(robot, mean, max(own_depths))
         return robots, per_topic, solution.t_avg
 
     def on_ack(self, ack: QosAck) -> str:
@@ -386,9 +444,12 @@ class QosController:
         if ack.status != "applied":
             self.refusals.append(ack)
             return f"robot {ack.robot} REFUSED QoS epoch {ack.epoch}: {ack.reason}"
+        heartbeat = (
+            "" if ack.heartbeat_period_s is None else f", heartbeat {ack.heartbeat_period_s:.3f} s"
+        )
         return (
             f"robot {ack.robot} applied QoS epoch {ack.epoch}: "
-            f"{ack.rate_hz:.2f} Hz, depth {ack.depth}"
+            f"{ack.rate_hz:.2f} Hz, depth {ack.depth}{heartbeat}"
         )
 
     def links_summary(self) -> dict[str, object]:
@@ -397,6 +458,7 @@ class QosController:
         return {
             "latest": {r: _link_dict(e) for r, e in self.meter.latest.items()},
             "in_force": {r: _link_dict(e) for r, e in self.links_in_force.items()},
+            "heartbeat_period_s": {r: self.heartbeat_for(r) for r in self.links_in_force},
             "channel": {
                 "heartbeat_period_s": self.channel.heartbeat_period_s,
                 "nack_delay_s": self.channel.nack_delay_s,

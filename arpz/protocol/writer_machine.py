@@ -367,14 +367,25 @@ class WriterMachine:
         """The last seq put on the wire (written samples still in the open batch are not)."""
         return self.last_seq - len(self.batch)
 
-    def retune(self, *, depth: int, deadline_s: float) -> list[Action]:
+    def retune(
+        self, *, depth: int, deadline_s: float, heartbeat_period_s: float | None = None
+    ) -> list[Action]:
         """Apply a new KEEP_LAST depth and offered deadline in place (the CEDDP's QoS balancing),
         keeping the guid, the history and the matches: replacing the writer instead would make
         readers drop what it sends until they match it again. A smaller depth overwrites the
         oldest samples exactly as a write would, and counts them the same way. The deadline
         changes the writer's own timer; readers already matched stay matched (arpz's fleet
-        reader requests no deadline, so no offer can become incompatible with it)."""
-        self.qos = msgspec.structs.replace(self.qos, depth=depth, deadline_s=deadline_s)
+        reader requests no deadline, so no offer can become incompatible with it).
+
+        ``heartbeat_period_s`` (None: unchanged) paces the recovery of a lost last sample, which
+        only a heartbeat reveals: the closed QoS loop shortens it on a link measured lossy. A
+        shorter period takes effect at once, not after the heartbeat already scheduled."""
+        heartbeat = (
+            self.qos.heartbeat_period_s if heartbeat_period_s is None else heartbeat_period_s
+        )
+        self.qos = msgspec.structs.replace(
+            self.qos, depth=depth, deadline_s=deadline_s, heartbeat_period_s=heartbeat
+        )
         QosProfile.__post_init__(self.qos)  # the same validation as a profile built from TOML
         self._capacity = self.qos.capacity
         self._ack_interval = self._ack_interval_for(self._capacity)
@@ -382,6 +393,7 @@ class WriterMachine:
         while not self._keep_all and len(self.history) > self._capacity:
             self._overwrite_front(actions)
         now = self._mono()
+        self._next_hb_s = min(self._next_hb_s, now + heartbeat)
         self._deadline = DeadlineTimer(deadline_s, now)
         self._timed = deadline_s > 0 or self._manual
         return actions

@@ -155,10 +155,15 @@ class Writer(Endpoint):
         """The QoS in force: the machine's, which ``retune`` changes (the one place it lives)."""
         return self._machine.qos
 
-    def retune(self, *, depth: int, deadline_s: float) -> None:
-        """Change the KEEP_LAST depth and the offered deadline in place (a QoS assignment)."""
+    def retune(
+        self, *, depth: int, deadline_s: float, heartbeat_period_s: float | None = None
+    ) -> None:
+        """Change the KEEP_LAST depth, the offered deadline and (unless None) the heartbeat
+        period in place (a QoS assignment)."""
         with self._lock:
-            actions = self._machine.retune(depth=depth, deadline_s=deadline_s)
+            actions = self._machine.retune(
+                depth=depth, deadline_s=deadline_s, heartbeat_period_s=heartbeat_period_s
+            )
         self._channel.post(actions)
 
     def assert_liveliness(self) -> None:

@@ -337,6 +337,14 @@ class RobotAgent:
 
     # -- the QoS assignment (on the command worker) -----------------------------------------------
 
+    def _heartbeat_s(self, qos: RobotQos) -> float | None:
+        """The sensor writers' heartbeat period: the assignment's, else (None) the robot's own
+        [sensor_qos] one, so that a link measured lossless again gets its period back."""
+        if qos.heartbeat_period_s is not None:
+            return qos.heartbeat_period_s
+        own = self.config.profile("sensor")
+        return None if own is None else own.heartbeat_period_s
+
     def _on_qos(self, message: QosAssignmentMsg) -> None:
         """Apply the CEDDP's R and D without restarting, or refuse; answer either way."""
         cfg = self.config
@@ -350,21 +358,29 @@ class RobotAgent:
                 sensor.rate_hz = own.rate_hz
                 # the scheduler picks the new period up at the sensor's next tick
                 job.period_s = 1.0 / own.rate_hz
-                sensor.output.retune(depth=own.depth, deadline_s=own.deadline_s)
+                sensor.output.retune(
+                    depth=own.depth,
+                    deadline_s=own.deadline_s,
+                    heartbeat_period_s=self._heartbeat_s(own),
+                )
             self.qos = decision.qos
             self.qos_epoch = message.epoch
             log.info(
-                "QoS epoch %d applied: %.2f Hz, deadline %.4f s, depth %d",
+                "QoS epoch %d applied: %.2f Hz, deadline %.4f s, depth %d, heartbeat %s",
                 message.epoch,
                 decision.qos.rate_hz,
                 decision.qos.deadline_s,
                 decision.qos.depth,
+                "as configured"
+                if decision.qos.heartbeat_period_s is None
+                else f"{decision.qos.heartbeat_period_s:.3f} s",
             )
             self._publish_announce(0.0)
         else:
             self.qos_refused += 1
             log.warning("QoS epoch %d refused: %s", message.epoch, decision.reason)
         current_rate = self.sensors[0].rate_hz if self.sensors else 0.0
+        writer_qos = self.sensors[0].output.qos if self.sensors else None
         ack = QosAck(
             robot=cfg.robot_id,
             incarnation=self.incarnation,
@@ -375,6 +391,7 @@ class RobotAgent:
             reason=decision.reason,
             rate_hz=current_rate,
             depth=self.qos.depth if self.qos else 0,
+            heartbeat_period_s=writer_qos.heartbeat_period_s if writer_qos else None,
         )
         self._ack_out.send(encode(ack), ack.stamp_ns)
 

@@ -2,13 +2,15 @@
 
 Pure logic. The robot refuses (and keeps what it runs) when a sensor cannot be read at the
 assigned rate (its ``max_rate_hz``) or the assignment is malformed; otherwise it applies R to
-every sensor, 1/R as the deadline and D as the writer depth. A per-topic assignment
+every sensor, the assigned deadline, D as the writer depth and, when the assignment gives one,
+the writers' heartbeat period (the closed loop's, from the measured link). A per-topic assignment
 (``mode = "per_topic"``) gives each sensor its own R, deadline and D; a sensor it does not name
 keeps the robot's fleet-wide entry.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from arpz.config import SensorConfig
@@ -29,7 +31,13 @@ class QosDecision:
 
 
 def _well_formed(qos: RobotQos) -> bool:
-    return qos.rate_hz > 0 and qos.depth >= 1 and qos.deadline_s > 0
+    heartbeat = qos.heartbeat_period_s
+    return (
+        qos.rate_hz > 0
+        and qos.depth >= 1
+        and qos.deadline_s > 0
+        and (heartbeat is None or (math.isfinite(heartbeat) and heartbeat > 0))
+    )
 
 
 def decide(robot: str, message: QosAssignmentMsg, sensors: list[SensorConfig]) -> QosDecision:

@@ -76,6 +76,7 @@ class SensorChannel:
             write_failures=channel["write_failures"],
             retransmitted=channel["retransmitted"],
             history_offered=channel["history_offered"],
+            heartbeats=channel["heartbeats"],
             gapped=channel["gapped"],
             overwritten_unacked=channel["overwritten_unacked"],
             deadline_missed=channel["deadline_missed"],

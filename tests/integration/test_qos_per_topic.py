@@ -1,6 +1,7 @@
 """Per-topic QoS in a real fleet: a CEDDP with ``[qos] mode = "per_topic"`` and two robots through
 a real router; the robots run each topic at its own assigned rate; one robot's link turns lossy
-(arpz.netem) and the measured loss causes exactly one re-solve, not a stream of them."""
+(arpz.netem) and the measured loss causes exactly one re-solve, not a stream of them, which
+tells that robot's writers a shorter heartbeat."""
 
 from __future__ import annotations
 
@@ -127,6 +128,16 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
                     timeout_s=30,
                     what="both robots applying the re-solve",
                 )
+                # the lossy link's writers are told a shorter heartbeat (round trips, at least
+                # heartbeat_min_ms), the clean one keeps its own; robot2's answer says its
+                # writers run at it
+                told = resolved.robots["robot2"].heartbeat_period_s
+                assert told is not None and 0.02 <= told < 0.1, resolved.robots
+                assert resolved.robots["robot1"].heartbeat_period_s is None
+                assert "heartbeat 100 ->" in resolved.reason
+                with watcher.lock:
+                    answers = [a for a in watcher.acks if a.robot == "robot2"]
+                assert answers[-1].heartbeat_period_s == told, answers[-1]
                 # the loss stays: no second re-solve for it (hysteresis)
                 settle(5.0)
                 assert len(watcher.link_epochs("robot2", before.epoch)) == 1, [

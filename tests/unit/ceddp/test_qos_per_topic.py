@@ -4,10 +4,13 @@ the comments."""
 
 from __future__ import annotations
 
+import time
+
 import msgspec
 import pytest
 
 from arpz.ceddp.link_meter import BurstMeter, LinkMeter, channel_round_trip_s
+from arpz.ceddp.optimiser import channel_link, loss_aware_depth, recovery_heartbeat_s
 from arpz.ceddp.qos_control import QosController
 from arpz.config import QosControlConfig, SensorConfig
 from arpz.messages import (
@@ -36,10 +39,7 @@ def _infos(count: int, **priorities: float) -> list[TopicInfo]:
 
 def _controller(**kw: object) -> QosController:
     config = QosControlConfig(
-        enabled=True,
-        mode="per_topic",
-        min_resolve_interval_s=0.0,
-        **kw,  # type: ignore[arg-type]
+        **{"enabled": True, "mode": "per_topic", "min_resolve_interval_s": 0.0, **kw}  # type: ignore[arg-type]
     )
     qos = QosController(config, "ceddp:x")
     for robot, count in PAPER.items():
@@ -274,3 +274,132 @@ def test_fleet_mode_with_a_loss_aware_depth_follows_the_measured_link() -> None:
     paper = QosController(QosControlConfig(enabled=True), "c")
     assert paper.observe(_Robot("robot2", 5).report(100, 25)) is None
     assert not paper.closed_loop
+
+
+# ------------------------------------------------------------------ the heartbeat of the loop
+
+
+@pytest.mark.parametrize(
+    ("rtt_ms", "loss_pct", "expected_s"),
+    [
+        (10.0, 5.0, 0.030),  # lossy: 3 round trips
+        (2.0, 5.0, 0.020),  # a fast link: no shorter than heartbeat_min_ms
+        (50.0, 5.0, 0.100),  # a slow link: no longer than the profile's period
+        (10.0, 0.1, 0.100),  # below heartbeat_loss_pct: the profile's period
+    ],
+)
+def test_recovery_heartbeat_is_round_trips_within_bounds(
+    rtt_ms: float, loss_pct: float, expected_s: float
+) -> None:
+    heartbeat = recovery_heartbeat_s(
+        rtt_s=rtt_ms / 1000,
+        loss_pct=loss_pct,
+        profile_s=0.1,
+        rtts=3.0,
+        min_s=0.02,
+        loss_threshold_pct=0.2,
+    )
+    assert heartbeat == pytest.approx(expected_s)
+
+
+def test_a_lossy_link_is_told_a_heartbeat_and_gets_its_own_back_when_clean() -> None:
+    qos = _controller(measure_samples=100, depth_policy="loss_aware")
+    start = qos.update(PAPER, "start")
+    assert start is not None
+    assert {q.heartbeat_period_s for q in start.robots.values()} == {None}  # not measured yet
+    robot = _Robot("robot3", 5)
+    qos.observe(robot.report(0, 0))
+    # 1 resend per 200 sends at 6 ms: 0.50 % loss, under loss_step_pct (1 point) and a round
+    # trip within the hysteresis of the configured 5 ms, yet over heartbeat_loss_pct (0.2 %):
+    # the heartbeat alone moves (3 x 6 ms = 18 ms, raised to heartbeat_min_ms = 20 ms)
+    assert qos.observe(robot.report(200, 1, rtt_ms=6.0)) is None  # once: not yet
+    reason = qos.observe(robot.report(200, 1, rtt_ms=6.0))
+    assert reason is not None and "link robot3" in reason and "heartbeat 100 -> 20 ms" in reason
+    lossy = qos.update(PAPER, reason, force=True)
+    assert lossy is not None
+    assert lossy.robots["robot3"].heartbeat_period_s == pytest.approx(0.02)
+    assert {q.heartbeat_period_s for q in lossy.topics["robot3"].values()} == {0.02}
+    assert lossy.robots["robot1"].heartbeat_period_s is None  # its link was never measured lossy
+    # the loss-aware depth is the one of the period the robot is told, not the profile's 0.1 s
+    r = lossy.topics["robot3"]["s0"].rate_hz
+    in_force = qos.links_in_force["robot3"]
+    told = QosProfile(heartbeat_period_s=0.02)
+    depth = loss_aware_depth(
+        channel_link(told, rtt_s=in_force.rtt_s, loss_pct=in_force.loss_pct, burst_samples=1.0), r
+    ).depth
+    assert lossy.topics["robot3"]["s0"].depth == depth
+    slow = QosProfile(heartbeat_period_s=0.1)  # what the profile's period would have given
+    assert (
+        depth
+        < loss_aware_depth(
+            channel_link(slow, rtt_s=in_force.rtt_s, loss_pct=in_force.loss_pct, burst_samples=1.0),
+            r,
+        ).depth
+    )
+    assert qos.links_summary()["heartbeat_period_s"] == {"robot3": 0.02}
+    # the link heals: the smoothed loss halves each window, 0.50 -> 0.25 -> 0.12 %, and once it
+    # is under 0.2 % for two windows the robot is told None: its own [sensor_qos] period
+    reasons = [qos.observe(robot.report(200, 0, rtt_ms=6.0)) for _ in range(4)]
+    healed = [r for r in reasons if r]
+    assert len(healed) == 1 and "heartbeat 20 -> 100 ms" in healed[0]
+    clean = qos.update(PAPER, healed[0], force=True)
+    assert clean is not None and clean.robots["robot3"].heartbeat_period_s is None
+
+
+def test_the_open_loop_and_a_zero_rtts_never_assign_a_heartbeat() -> None:
+    paper = QosController(QosControlConfig(enabled=True), "c")  # seed 001: fleet, paper depth
+    robot = _Robot("robot2", 5)
+    for _ in range(3):
+        paper.observe(robot.report(200, 20, rtt_ms=10.0))
+    message = paper.update(PAPER, "start")
+    assert message is not None and message.robots["robot2"].heartbeat_period_s is None
+    off = _controller(measure_samples=100, heartbeat_rtts=0.0)
+    off.update(PAPER, "start")
+    robot = _Robot("robot2", 5)
+    reasons = [off.observe(robot.report(200, 20, rtt_ms=10.0)) for _ in range(4)]
+    assert any(reasons)  # the loss moved: re-solved, for the rates
+    message = off.update(PAPER, "measured", force=True)
+    assert message is not None and message.robots["robot2"].heartbeat_period_s is None
+
+
+@pytest.mark.parametrize("heartbeat", [0.0, -0.1, float("nan"), float("inf")])
+def test_a_robot_refuses_a_malformed_heartbeat(heartbeat: float) -> None:
+    qos = RobotQos(rate_hz=10.0, deadline_s=0.15, depth=5, heartbeat_period_s=heartbeat)
+    message = QosAssignmentMsg(
+        ceddp="c",
+        epoch=1,
+        stamp_ns=0,
+        reason="r",
+        t_avg=1.0,
+        topics_per_robot={"robot1": 1},
+        robots={"robot1": qos},
+    )
+    decision = decide("robot1", message, [])
+    assert not decision.applies and "malformed" in decision.reason
+
+
+def test_heartbeat_settings_are_validated() -> None:
+    with pytest.raises(ValueError, match="heartbeat_rtts"):
+        QosControlConfig(heartbeat_rtts=-1.0)
+    with pytest.raises(ValueError, match="heartbeat_min_ms"):
+        QosControlConfig(heartbeat_min_ms=0.0)
+
+
+def test_a_move_within_the_resolve_interval_resolves_at_the_first_report_after_it() -> None:
+    """A link window of a slow robot takes seconds to fill: a move that came too soon after the
+    last re-solve must not wait for two more windows."""
+    qos = _controller(measure_samples=100, min_resolve_interval_s=0.3)
+    qos.update(PAPER, "start")
+    robot2, robot3 = _Robot("robot2", 5), _Robot("robot3", 5)
+    for robot in (robot2, robot3):
+        qos.observe(robot.report(0, 0))
+    assert qos.observe(robot2.report(100, 25)) is None
+    first = qos.observe(robot2.report(100, 25))
+    assert first is not None and "link robot2" in first
+    assert qos.observe(robot3.report(100, 25)) is None
+    assert qos.observe(robot3.report(100, 25)) is None  # moved twice, but too soon: deferred
+    assert qos.observe(robot3.report(10, 0)) is None  # no new window, still too soon
+    time.sleep(0.35)
+    later = qos.observe(robot3.report(10, 0))  # no new window either: the deferred move goes
+    assert later is not None and "link robot3" in later and "link robot2" not in later
+    assert qos.observe(robot3.report(10, 0)) is None  # once

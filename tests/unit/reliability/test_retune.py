@@ -4,7 +4,7 @@ import pytest
 
 from arpz.channel_io import Inlet, Outlet
 from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol.actions import Notify
+from arpz.protocol.actions import Notify, Send
 from arpz.protocol.events import DeadlineMissedStatus
 from arpz.reliability import QOS_DEFAULT, FakeClock, QosProfile, WriterMachine
 
@@ -62,3 +62,27 @@ def test_the_qos_in_force_lives_in_one_place_and_every_view_of_it_follows_retune
     finally:
         outlet.close()
         inlet.close()
+
+
+def _heartbeats(actions: list[object]) -> int:
+    return sum(1 for a in actions if isinstance(a, Send) and "/hb/" in a.key)
+
+
+def test_a_shorter_heartbeat_period_paces_the_next_heartbeats_at_once() -> None:
+    """The closed QoS loop shortens the heartbeat on a lossy link: the writer must not wait out
+    the 0.1 s period already scheduled, and None keeps the period in force."""
+    writer, clock = machine()
+    writer.write(b"a")
+    writer.tick()  # the first heartbeat goes at once; the next one is due 0.1 s later
+    writer.retune(depth=10, deadline_s=0.0, heartbeat_period_s=0.02)
+    assert writer.qos.heartbeat_period_s == 0.02
+    sent = 0
+    for i in range(10):  # 0.1 s of a streaming topic in 10 ms steps: a heartbeat every 20 ms
+        clock.advance(0.01)
+        writer.write(b"%d" % i)
+        sent += _heartbeats(writer.tick())
+    assert sent == 5
+    writer.retune(depth=10, deadline_s=0.0)
+    assert writer.qos.heartbeat_period_s == 0.02
+    with pytest.raises(ValueError):
+        writer.retune(depth=10, deadline_s=0.0, heartbeat_period_s=0.0)
