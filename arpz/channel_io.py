@@ -18,7 +18,7 @@ import logging
 import threading
 from collections.abc import Callable
 
-from arpz.protocol.fragments import FragmentError
+from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, FragmentError
 from arpz.reliability import (
     PLAIN_PEER,
     FrameWriter,
@@ -175,9 +175,23 @@ class FrameOutlet:
     small topics, leaves the frame history alone (the assigned rate still applies).
     """
 
-    def __init__(self, transport: Transport, key: str, qos: QosProfile, max_frame_bytes: int):
+    def __init__(
+        self,
+        transport: Transport,
+        key: str,
+        qos: QosProfile,
+        max_frame_bytes: int,
+        fragment_bytes: int = DEFAULT_FRAGMENT_BYTES,
+    ):
         self.key = key
-        self.frames = FrameWriter(transport, key, qos, max_frame_bytes=max_frame_bytes, block=True)
+        self.frames = FrameWriter(
+            transport,
+            key,
+            qos,
+            max_frame_bytes=max_frame_bytes,
+            fragment_bytes=fragment_bytes,
+            block=True,
+        )
         self._qos = qos
         #: frames refused: a KEEP_ALL frame history stayed full, or a frame over max_frame_bytes
         self.write_failures = 0

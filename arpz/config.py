@@ -18,6 +18,7 @@ import msgspec
 from arpz import keys
 from arpz.endpoints import check_endpoints
 from arpz.errors import ConfigError as ConfigError  # re-exported: callers catch it from here
+from arpz.protocol.fragments import MAX_FRAGMENT_BYTES
 from arpz.protocol.qos import QosProfile
 from arpz.traffic import (
     ASSIGNMENT_QOS,
@@ -237,6 +238,10 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
+    #: payload bytes per fragment of a camera frame or point cloud; None: by the link, 32 KiB
+    #: when every ``connect`` endpoint is a stream (tcp, tls, quic...), else 1280 (one radio
+    #: frame: a lost UDP datagram costs one fragment); docs/reliability.md "Large samples"
+    frame_fragment_bytes: int | None = None
     #: how long to keep trying to reach the server at start-up
     connect_timeout_s: float = 30.0
     #: how long to wait at start-up for the CEDDP's readers to match each topic
@@ -258,6 +263,13 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
             raise ValueError(f"sensor names must be unique, repeated: {', '.join(dupes)}")
         if self.stats_period_s <= 0 or self.announce_period_s <= 0:
             raise ValueError("stats_period_s and announce_period_s must be > 0")
+        if self.frame_fragment_bytes is not None and not (
+            256 <= self.frame_fragment_bytes <= MAX_FRAGMENT_BYTES
+        ):
+            raise ValueError(
+                f"frame_fragment_bytes must be 256 .. {MAX_FRAGMENT_BYTES} (a fragment must fit "
+                f"one Zenoh batch), got {self.frame_fragment_bytes}"
+            )
         if self.duration_s < 0:
             raise ValueError("duration_s must be >= 0 (0 = run until stopped)")
 

@@ -7,6 +7,8 @@ that names the field.
 
 from __future__ import annotations
 
+from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
+
 #: where a robot connects and the CEDDP listens when neither the TOML nor zenoh_config says
 DEFAULT_CONNECT = ("tcp/127.0.0.1:7447",)
 DEFAULT_LISTEN = ("tcp/0.0.0.0:7447",)
@@ -14,6 +16,18 @@ DEFAULT_LISTEN = ("tcp/0.0.0.0:7447",)
 #: Zenoh link protocols (zenoh 1.x); "proto/host:port" for all but the unix ones
 ENDPOINT_PROTOCOLS = ("tcp", "udp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock")
 _PATH_PROTOCOLS = ("unixsock-stream", "unixpipe", "vsock")
+#: links whose transport resends what it loses (everything but UDP datagrams)
+STREAM_PROTOCOLS = ("tcp", "tls", "quic", "ws", "unixsock-stream", "unixpipe", "vsock")
+
+
+def frame_fragment_bytes(endpoints: list[str]) -> int:
+    """The fragment size of a large sample on these links: ``STREAM_FRAGMENT_BYTES`` when every
+    endpoint is a stream (its transport resends lost segments, so only Zenoh's 64 KiB batch
+    bounds a fragment), else ``DEFAULT_FRAGMENT_BYTES``, one radio frame, so that a lost datagram
+    costs one fragment's resend (a UDP link, or none known)."""
+    if endpoints and all(e.partition("/")[0] in STREAM_PROTOCOLS for e in endpoints):
+        return STREAM_FRAGMENT_BYTES
+    return DEFAULT_FRAGMENT_BYTES
 
 
 def check_endpoints(endpoints: list[str], *, field: str) -> None:

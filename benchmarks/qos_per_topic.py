@@ -64,7 +64,7 @@ def _qos(mode: str, rmax_hz: float) -> str:
     mode, depth = MODES[mode]
     return (
         f'[qos]\nenabled = true\nmode = "{mode}"\nrmax_hz = {rmax_hz}\n'
-        f'depth_policy = "{depth}"\nmeasure_samples = 100\n'
+        f'depth_policy = "{depth}"\nmeasure_samples = 50\n'
     )
 
 

@@ -106,6 +106,8 @@ class QosController:
         self.meter = LinkMeter(min_samples=config.measure_samples)
         self.bursts = BurstMeter()
         self.links_in_force: dict[str, LinkEstimate] = {}
+        #: the heartbeat period told to each robot whose link was measured lossy
+        self._heartbeats: dict[str, float] = {}
         self._link_pending: dict[str, int] = {}
         self._changes: dict[tuple[str, str], _TopicChange] = {}
         self._last_measured_resolve_s = -math.inf
@@ -165,26 +167,29 @@ class QosController:
             burst_samples=measured.burst_samples,
         )
 
-    def _heartbeat_of(self, estimate: LinkEstimate | None) -> float:
-        """The heartbeat period a link estimate calls for (the profile's when None)."""
+    def _heartbeat_of(self, estimate: LinkEstimate | None, *, shortened: bool = False) -> float:
+        """The heartbeat period a link estimate calls for (the profile's when None). A robot
+        already ``shortened`` keeps its short period down to half of ``heartbeat_loss_pct``
+        (a Schmitt trigger): a few hundred samples at 1 % loss measure anywhere from 0 to 2 %,
+        and a threshold crossed both ways by that noise would flip the period every window."""
         if estimate is None or not self.closed_loop:
             return self.channel.heartbeat_period_s
         cfg = self.config
+        threshold = cfg.heartbeat_loss_pct / 2 if shortened else cfg.heartbeat_loss_pct
         return recovery_heartbeat_s(
             rtt_s=estimate.rtt_s,
             loss_pct=estimate.loss_pct,
             profile_s=self.channel.heartbeat_period_s,
             rtts=cfg.heartbeat_rtts,
             min_s=cfg.heartbeat_min_ms / 1000,
-            loss_threshold_pct=cfg.heartbeat_loss_pct,
+            loss_threshold_pct=threshold,
         )
 
     def heartbeat_for(self, robot: str) -> float | None:
         """The heartbeat period the robot's sensor writers are told, from its link in force;
         None (the robot's own [sensor_qos] period) on an unmeasured or lossless link and in
         the open loop."""
-        heartbeat = self._heartbeat_of(self.links_in_force.get(robot))
-        return None if heartbeat == self.channel.heartbeat_period_s else heartbeat
+        return self._heartbeats.get(robot)
 
     # -- measurements ----------------------------------------------------------------------------
 
@@ -231,12 +236,15 @@ class QosController:
         old_loss = old.loss_pct if old is not None else cfg.link_loss_pct
         old_rtt = old.rtt_s if old is not None else cfg.link_rtt_ms / 1000
         old_burst = old.burst_samples if old is not None else 0.0
+        shortened = robot in self._heartbeats
+        old_hb = self._heartbeats.get(robot, self.channel.heartbeat_period_s)
+        new_hb = self._heartbeat_of(estimate, shortened=shortened)
         moved = (
             self._moved(old_loss, estimate.loss_pct, cfg.loss_step_pct)
             or self._moved(old_rtt, estimate.rtt_s, 0.002)
             or self._moved(old_burst, estimate.burst_samples, 1.0)
             # a loss below loss_step_pct may still cross heartbeat_loss_pct: the heartbeat moves
-            or self._moved(self._heartbeat_of(old), self._heartbeat_of(estimate), 0.0)
+            or self._moved(old_hb, new_hb, 0.0)
         )
         if old is None and not moved:
             self.links_in_force[robot] = estimate  # the first measurement agrees: in force
@@ -252,9 +260,12 @@ class QosController:
         def commit() -> None:
             self._link_pending[robot] = 0
             self.links_in_force[robot] = estimate
+            if new_hb == self.channel.heartbeat_period_s:
+                self._heartbeats.pop(robot, None)
+            else:
+                self._heartbeats[robot] = new_hb
 
         text = f"link {robot}: {before} -> {estimate.describe()}"
-        old_hb, new_hb = self._heartbeat_of(old), self._heartbeat_of(estimate)
         if new_hb != old_hb:
             text += f", heartbeat {old_hb * 1000:.0f} -> {new_hb * 1000:.0f} ms"
         return [(f"link {robot}", text, commit)]
@@ -313,6 +324,7 @@ class QosController:
         self._last_topics = topics
         for robot in [r for r in self.links_in_force if r not in topics]:
             del self.links_in_force[robot]
+            self._heartbeats.pop(robot, None)
             self.meter.forget(robot)
         cap = (
             None

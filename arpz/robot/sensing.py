@@ -17,6 +17,7 @@ from pathlib import Path
 from arpz import keys
 from arpz.channel_io import FrameOutlet, Outlet
 from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
+from arpz.endpoints import frame_fragment_bytes
 from arpz.messages import LargeSample, Sample, TopicCounters, encode, same_value
 from arpz.robot.local_cache import LocalCache
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors
@@ -132,7 +133,8 @@ def sensor_outlet(
     frames_qos = config.profile("frames")
     if sensor.kind in LARGE_KINDS and frames_qos is not None:
         key = keys.frames_key(config.fleet, config.robot_id, sensor.name)
-        return FrameOutlet(transport, key, frames_qos, LARGE_SAMPLE_BYTES)
+        fragment_bytes = config.frame_fragment_bytes or frame_fragment_bytes(config.connect)
+        return FrameOutlet(transport, key, frames_qos, LARGE_SAMPLE_BYTES, fragment_bytes)
     key = keys.sensor_key(config.fleet, config.robot_id, sensor.name)
     return Outlet(transport, key, config.profile("sensor"))
 

@@ -103,3 +103,43 @@ def test_camera_frames_and_point_clouds_cross_a_lossy_link_and_reconcile(tmp_pat
     assert up["bytes_out"] >= crossed, (up, crossed)  # through the link, not shared memory
     assert up["largest_datagram"] <= 1472
     assert up["dropped_loss"] > 0
+
+
+def test_over_tcp_a_robot_cuts_frames_into_stream_sized_fragments(tmp_path: Path) -> None:
+    """A robot whose link is TCP needs no radio-frame fragments (TCP resends its own segments):
+    it picks 32 KiB ones by itself, 25 times fewer channel samples per frame than the 1280 B of
+    a UDP link, and the CEDDP reassembles them from their headers without being told."""
+    tcp = free_port()
+    (tmp_path / "nosh.json5").write_text(NO_SHM)
+    (tmp_path / "ceddp.toml").write_text(
+        f'fleet = "itest"\nlisten = ["tcp/127.0.0.1:{tcp}"]\n'
+        f'zenoh_config = "{tmp_path / "nosh.json5"}"\n'
+        f'rrd = "{tmp_path / "ceddp.rrd"}"\nsummary_json = "{tmp_path / "summary.json"}"\n'
+    )
+    robot = tmp_path / "robot1.toml"
+    robot.write_text(
+        f'robot_id = "robot1"\nfleet = "itest"\nconnect = ["tcp/127.0.0.1:{tcp}"]\n'
+        f'zenoh_config = "{tmp_path / "nosh.json5"}"\nstats_period_s = 0.2\n'
+        '[[sensors]]\nname = "front"\nkind = "camera"\nrate_hz = 10.0\n'
+    )
+    server = Process(
+        "ceddp", ["-m", "arpz.ceddp", "--config", str(tmp_path / "ceddp.toml")], tmp_path
+    )
+    try:
+        server.wait_for("ready on")
+        with robots(tmp_path, [robot]) as procs:
+            wait_until(lambda: "robot robot1 joined" in server.output(), what="robot1 joined")
+            time.sleep(3.0)  # deliberately: about 30 frames
+            assert procs[0].interrupt(timeout_s=30) == 0, procs[0].output()
+        assert server.interrupt(timeout_s=60) == 0, server.output()
+    finally:
+        server.kill()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    camera = summary["robots"]["robot1"]["topics"]["front"]
+    assert camera["sent"] == camera["received"] + camera["lost"] and camera["received"] > 5, camera
+    frames = summary["ingest"]["frames"]["frames"]
+    assert frames["frames_delivered"] == camera["received"], frames
+    per_frame = -(-CAMERA_BYTES // (32 * 1024))  # 29 fragments of 32 KiB, against 720 of 1280 B
+    arrived = frames["fragments_received"] - frames["fragments_duplicate"]
+    assert arrived <= per_frame * camera["sent"], (frames, camera["sent"])
+    assert arrived >= per_frame * camera["received"], (frames, camera["received"])

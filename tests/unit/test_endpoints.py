@@ -5,8 +5,15 @@ from __future__ import annotations
 import pytest
 
 from arpz.config import CeddpConfig, ConfigError, RobotConfig, from_dict
-from arpz.endpoints import DEFAULT_CONNECT, check_endpoints, plain_tcp_beside_tls, resolve
+from arpz.endpoints import (
+    DEFAULT_CONNECT,
+    check_endpoints,
+    frame_fragment_bytes,
+    plain_tcp_beside_tls,
+    resolve,
+)
 from arpz.errors import ArpzError
+from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
 
 
 @pytest.mark.parametrize(
@@ -48,3 +55,17 @@ def test_resolution_never_replaces_the_json5_endpoints_with_a_default() -> None:
     assert resolve(["tcp/a:1"], ["tls/ceddp:7447"], DEFAULT_CONNECT) == ["tcp/a:1"]
     assert resolve([], [], DEFAULT_CONNECT) == list(DEFAULT_CONNECT)
     assert plain_tcp_beside_tls(["tls/a:1", "tcp/a:2"]) == [1]
+
+
+@pytest.mark.parametrize(
+    ("endpoints", "expected"),
+    [
+        (["tcp/10.0.0.1:7447"], STREAM_FRAGMENT_BYTES),
+        (["tls/server:7447", "quic/server:7448"], STREAM_FRAGMENT_BYTES),
+        (["udp/10.0.0.1:7447"], DEFAULT_FRAGMENT_BYTES),
+        (["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"], DEFAULT_FRAGMENT_BYTES),  # may go by UDP
+        ([], DEFAULT_FRAGMENT_BYTES),  # not known: the size that is safe on any link
+    ],
+)
+def test_frames_are_cut_for_the_link(endpoints: list[str], expected: int) -> None:
+    assert frame_fragment_bytes(endpoints) == expected
