@@ -6,8 +6,10 @@ CEDDP and two robots (seed 001's machine 1 sensors) run through one ``arpz.netem
 
 - ``fleet``: ``[qos] mode = "fleet"``: seed 001's problem (6), one R and D for every topic;
 - ``per_topic``: ``[qos] mode = "per_topic"``: each topic's rate by its measured change rate,
-  each robot link measured from the channel's counters, the depth the larger of eq. 5's and the
-  loss-aware one ("max"), re-solved when the measurements move past the hysteresis;
+  each robot link measured from the channel's counters (every 50 samples), the writers' heartbeat
+  period from the measured link (``heartbeat_rtts`` round trips on a lossy one), the depth the
+  larger of eq. 5's and the loss-aware one ("max"), re-solved when the measurements move past
+  the hysteresis;
 - ``per_topic_lean``: the same per-topic loop with only the loss-aware depth (``depth_policy =
   "loss_aware"``): tens of samples instead of eq. 5's hundreds, so the depth the loop assigns
   could lose samples and the loss half of the comparison means something (with eq. 5's depths
@@ -17,7 +19,8 @@ Both at the same Rmax, so at the same total rate budget (C = A Rmax - N Rmin sam
 the CEDDP's summary: sensor-sample loss (lost / (received + lost)), staleness (how long the
 CEDDP held a value other than the robot's latest reading, once per change) and latency (robot
 stamp to ingest), per topic; the tables give the worst topic's p99 and the mean of the topics'
-p99 weighted by the changes they delivered.
+p99 weighted by the changes they delivered, the shortest heartbeat period the loop told a writer
+(``HB ms``) and the heartbeats the robots' sensor writers sent per second (``HB/s``).
 
     python benchmarks/qos_per_topic.py --duration 20 --repeat 2
 
