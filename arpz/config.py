@@ -238,7 +238,7 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0
-    #: payload bytes per fragment of a camera frame or point cloud; None: by the link, 32 KiB
+    #: payload bytes per fragment of a camera frame or point cloud; None: by the link, 60 KiB
     #: when every ``connect`` endpoint is a stream (tcp, tls, quic...), else 1280 (one radio
     #: frame: a lost UDP datagram costs one fragment); docs/reliability.md "Large samples"
     frame_fragment_bytes: int | None = None

@@ -35,14 +35,14 @@ HEADER_BYTES: Final = HEADER.size
 #: (26 or 30) + Zenoh's framing and key (about 60 measured for a resend on its own key) stays
 #: under 1472 bytes, the largest UDP payload of one 1500-byte frame; docs/reliability.md
 DEFAULT_FRAGMENT_BYTES: Final = 1280
-#: payload bytes per fragment on a stream link (TCP, TLS, QUIC...): the transport resends its own
-#: segments, so a fragment need not fit a radio frame, only a Zenoh batch (64 KiB on TCP); 25 times
-#: fewer channel samples per frame is what lifts arpz's goodput on TCP from 0.19x to about 0.9x
-#: raw Zenoh's (benchmarks/large_messages.py, RESULTS.md)
-STREAM_FRAGMENT_BYTES: Final = 32 * 1024
-#: the largest fragment that still fits one Zenoh batch with its headers (a larger one would be
-#: cut by Zenoh again, and lost whole when one of its pieces is)
+#: the largest fragment that still fits one Zenoh batch (64 KiB) with its headers (a larger one
+#: would be cut by Zenoh again, and lost whole when one of its pieces is)
 MAX_FRAGMENT_BYTES: Final = 60 * 1024
+#: payload bytes per fragment on a stream link (TCP, TLS, QUIC...): the transport resends its own
+#: segments, so a fragment need not fit a radio frame, only a Zenoh batch; 48 times fewer channel
+#: samples per frame is what lifts arpz's flat-out goodput on TCP from 0.25x to 1.07-1.16x raw
+#: Zenoh's, against 0.75-0.91x with 32 KiB (benchmarks/large_messages.py, RESULTS.md)
+STREAM_FRAGMENT_BYTES: Final = MAX_FRAGMENT_BYTES
 #: the largest frame the header can describe
 MAX_FRAME_BYTES: Final = 2**32 - 1
 #: dropped frame ids remembered per source (so that their late fragments count as stale)
