@@ -12,6 +12,7 @@ touch shared state.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import json
 import logging
@@ -50,6 +51,8 @@ if TYPE_CHECKING:  # imported when their port is set (docs/tools.md "Live views"
     from arpz.ceddp.foxglove_live import FoxgloveLive
     from arpz.ceddp.web import StatusWeb
 
+#: events kept for the summary (the dashboard and the log have every one)
+MAX_EVENTS = 10_000
 log = logging.getLogger(__name__)
 
 
@@ -84,7 +87,10 @@ class CeddpServer:
         self.transport = transport
         self.dashboard = dashboard
         self.incarnation = new_incarnation()
-        self.events: list[str] = []
+        #: the event log of the summary, newest MAX_EVENTS (a robot that rejoins in a loop must
+        #: not grow the CEDDP's memory); the older ones are counted in events_dropped
+        self.events: collections.deque[str] = collections.deque(maxlen=MAX_EVENTS)
+        self.events_dropped = 0
         self.sink = Downlink(
             transport, config.fleet, config, max_per_robot=config.max_topics_per_robot
         )
@@ -354,6 +360,8 @@ class CeddpServer:
     def _event(self, text: str, level: str = "INFO") -> None:
         log.log({"WARN": logging.WARNING, "ERROR": logging.ERROR}.get(level, logging.INFO), text)
         stamp = time.time_ns()
+        if len(self.events) == self.events.maxlen:
+            self.events_dropped += 1
         self.events.append(f"{stamp}: {text}")
         if self.dashboard is not None:
             self.dashboard.submit(Event(stamp, text, level))
@@ -433,7 +441,8 @@ class CeddpServer:
             },
             "mission": self.mission.summary() if self.mission is not None else None,
             "ros2": self.bridge.stats() if self.bridge is not None else None,
-            "events": self.events,
+            "events": list(self.events),
+            "events_dropped": self.events_dropped,
         }
 
 
