@@ -30,13 +30,18 @@ class QosDecision:
         return self.per_topic.get(topic, self.qos)
 
 
+#: the shortest heartbeat period a robot accepts: shorter would have its writers do little but
+#: heartbeat (the CEDDP's loop never asks for less than ``heartbeat_min_ms``, 20 ms by default)
+MIN_HEARTBEAT_S = 0.001
+
+
 def _well_formed(qos: RobotQos) -> bool:
     heartbeat = qos.heartbeat_period_s
     return (
         qos.rate_hz > 0
         and qos.depth >= 1
         and qos.deadline_s > 0
-        and (heartbeat is None or (math.isfinite(heartbeat) and heartbeat > 0))
+        and (heartbeat is None or (math.isfinite(heartbeat) and heartbeat >= MIN_HEARTBEAT_S))
     )
 
 

@@ -373,7 +373,7 @@ def test_the_open_loop_and_a_zero_rtts_never_assign_a_heartbeat() -> None:
     assert message is not None and message.robots["robot2"].heartbeat_period_s is None
 
 
-@pytest.mark.parametrize("heartbeat", [0.0, -0.1, float("nan"), float("inf")])
+@pytest.mark.parametrize("heartbeat", [0.0, -0.1, 1e-6, float("nan"), float("inf")])
 def test_a_robot_refuses_a_malformed_heartbeat(heartbeat: float) -> None:
     qos = RobotQos(rate_hz=10.0, deadline_s=0.15, depth=5, heartbeat_period_s=heartbeat)
     message = QosAssignmentMsg(
