@@ -236,15 +236,18 @@ class QosController:
         old_loss = old.loss_pct if old is not None else cfg.link_loss_pct
         old_rtt = old.rtt_s if old is not None else cfg.link_rtt_ms / 1000
         old_burst = old.burst_samples if old is not None else 0.0
+        profile_hb = self.channel.heartbeat_period_s
         shortened = robot in self._heartbeats
-        old_hb = self._heartbeats.get(robot, self.channel.heartbeat_period_s)
+        old_hb = self._heartbeats.get(robot, profile_hb)
         new_hb = self._heartbeat_of(estimate, shortened=shortened)
         moved = (
             self._moved(old_loss, estimate.loss_pct, cfg.loss_step_pct)
             or self._moved(old_rtt, estimate.rtt_s, 0.002)
             or self._moved(old_burst, estimate.burst_samples, 1.0)
-            # a loss below loss_step_pct may still cross heartbeat_loss_pct: the heartbeat moves
-            or self._moved(old_hb, new_hb, 0.0)
+            # the link turned lossy or clean (crossing heartbeat_loss_pct, perhaps by less than
+            # loss_step_pct), or a short period moved past the hysteresis
+            or (new_hb < profile_hb) != shortened
+            or (shortened and self._moved(old_hb, new_hb, 0.0))
         )
         if old is None and not moved:
             self.links_in_force[robot] = estimate  # the first measurement agrees: in force

@@ -40,8 +40,8 @@ DEFAULT_FRAGMENT_BYTES: Final = 1280
 MAX_FRAGMENT_BYTES: Final = 60 * 1024
 #: payload bytes per fragment on a stream link (TCP, TLS, QUIC...): the transport resends its own
 #: segments, so a fragment need not fit a radio frame, only a Zenoh batch; 48 times fewer channel
-#: samples per frame is what lifts arpz's flat-out goodput on TCP from 0.25x to 1.07-1.16x raw
-#: Zenoh's, against 0.75-0.91x with 32 KiB (benchmarks/large_messages.py, RESULTS.md)
+#: samples per frame is what lifts arpz's flat-out goodput on TCP from 0.23-0.25x to 0.95-1.16x
+#: raw Zenoh's, against 0.75-0.91x with 32 KiB (benchmarks/large_messages.py, RESULTS.md)
 STREAM_FRAGMENT_BYTES: Final = MAX_FRAGMENT_BYTES
 #: the largest frame the header can describe
 MAX_FRAME_BYTES: Final = 2**32 - 1

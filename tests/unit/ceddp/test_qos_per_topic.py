@@ -37,6 +37,20 @@ def _infos(count: int, **priorities: float) -> list[TopicInfo]:
     ]
 
 
+def _assignment(robots: dict[str, RobotQos], **kw: object) -> QosAssignmentMsg:
+    """An assignment of epoch 1 for ``robots`` (``kw``: mode, topics...), for the robot's side."""
+    return QosAssignmentMsg(
+        ceddp="c",
+        epoch=1,
+        stamp_ns=0,
+        reason="",
+        t_avg=2.0,
+        topics_per_robot=dict.fromkeys(robots, 2),
+        robots=robots,
+        **kw,  # type: ignore[arg-type]
+    )
+
+
 def _controller(**kw: object) -> QosController:
     config = QosControlConfig(
         **{"enabled": True, "mode": "per_topic", "min_resolve_interval_s": 0.0, **kw}  # type: ignore[arg-type]
@@ -107,14 +121,8 @@ def test_priority_moves_budget_between_topics() -> None:
 
 
 def test_a_robot_applies_its_own_topics() -> None:
-    message = QosAssignmentMsg(
-        ceddp="c",
-        epoch=1,
-        stamp_ns=0,
-        reason="",
-        t_avg=2.0,
-        topics_per_robot={"r": 2},
-        robots={"r": RobotQos(rate_hz=5.0, deadline_s=0.2, depth=9)},
+    message = _assignment(
+        {"r": RobotQos(rate_hz=5.0, deadline_s=0.2, depth=9)},
         mode="per_topic",
         topics={"r": {"fast": RobotQos(rate_hz=8.0, deadline_s=0.125, depth=12)}},
     )
@@ -357,6 +365,35 @@ def test_a_lossy_link_is_told_a_heartbeat_and_gets_its_own_back_when_clean() -> 
     assert clean is not None and clean.robots["robot3"].heartbeat_period_s is None
 
 
+def test_a_slow_lossy_link_gets_its_period_even_within_the_hysteresis() -> None:
+    """Turning lossy is a move by itself: at a 30 ms round trip the period is 2 x 30 = 60 ms,
+    40 % below the profile's 100 ms, less than the hysteresis (half), yet the link is lossy."""
+    slow = QosController(
+        QosControlConfig(
+            enabled=True,
+            mode="per_topic",
+            min_resolve_interval_s=0.0,
+            measure_samples=100,
+            link_rtt_ms=30.0,
+        ),
+        "c",
+    )
+    slow.set_sensors("robot2", _infos(4))
+    slow.update({"robot2": 5}, "start")
+    robot = _Robot("robot2", 5)
+    slow.observe(robot.report(0, 0, rtt_ms=30.0))
+    # 1 resend per 667 sends: 0.15 %, under heartbeat_loss_pct; in force (its burst moved)
+    first = [slow.observe(robot.report(667, 1, rtt_ms=30.0)) for _ in range(2)]
+    assert first[1] is not None and "heartbeat" not in first[1]
+    assert slow.heartbeat_for("robot2") is None
+    # then 1 per 100: smoothed 0.57 %, then 0.78 %. Loss moves by less than loss_step_pct, the
+    # round trip and the burst not at all: only crossing heartbeat_loss_pct moves the link
+    lossy = [slow.observe(robot.report(100, 1, rtt_ms=30.0)) for _ in range(2)]
+    assert lossy[0] is None and lossy[1] is not None, lossy
+    assert "heartbeat 100 -> 60 ms" in lossy[1]
+    assert slow.heartbeat_for("robot2") == pytest.approx(0.06)
+
+
 def test_the_open_loop_and_a_zero_rtts_never_assign_a_heartbeat() -> None:
     paper = QosController(QosControlConfig(enabled=True), "c")  # seed 001: fleet, paper depth
     robot = _Robot("robot2", 5)
@@ -376,16 +413,7 @@ def test_the_open_loop_and_a_zero_rtts_never_assign_a_heartbeat() -> None:
 @pytest.mark.parametrize("heartbeat", [0.0, -0.1, 1e-6, float("nan"), float("inf")])
 def test_a_robot_refuses_a_malformed_heartbeat(heartbeat: float) -> None:
     qos = RobotQos(rate_hz=10.0, deadline_s=0.15, depth=5, heartbeat_period_s=heartbeat)
-    message = QosAssignmentMsg(
-        ceddp="c",
-        epoch=1,
-        stamp_ns=0,
-        reason="r",
-        t_avg=1.0,
-        topics_per_robot={"robot1": 1},
-        robots={"robot1": qos},
-    )
-    decision = decide("robot1", message, [])
+    decision = decide("robot1", _assignment({"robot1": qos}), [])
     assert not decision.applies and "malformed" in decision.reason
 
 
