@@ -13,6 +13,7 @@ import re
 import threading
 from collections.abc import Callable
 
+from arpz.protocol import bundle
 from arpz.transport import (
     DataCallback,
     Handle,
@@ -141,7 +142,13 @@ class MemoryTransport:
             callback(key, payload, attachment)
 
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
-        entry = (key_expr, callback)
+        expr, keep = bundle.subscription(key_expr)
+
+        def deliver(key: str, payload: bytes, attachment: bytes | None) -> None:
+            for item in bundle.expand(key, payload, attachment, keep):
+                callback(*item)
+
+        entry = (expr, deliver)
         with self.bus.lock:
             self.bus.subscribers.append(entry)
 

@@ -229,6 +229,11 @@ class RobotStats(msgspec.Struct, frozen=True):
     #: the robot's arpz and eclipse-zenoh versions ("": an older robot)
     arpz_version: str = ""
     zenoh_version: str = ""
+    #: sensor messages sent in bundles, and the bundles (one Zenoh message per scheduler tick,
+    #: docs/protocol.md "Bundles"); bundles the link refused, whose messages the channel recovers
+    bundled_messages: int = 0
+    bundles: int = 0
+    bundle_put_failures: int = 0
 
 
 class TopicRate(msgspec.Struct, frozen=True):

@@ -8,19 +8,21 @@ reads Zenoh JSON5 configs into sentences that name the file and the field.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import json
 import logging
 import re
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import zenoh
 
 from arpz.endpoints import check_endpoints
 from arpz.errors import ConfigError
+from arpz.protocol import bundle
 from arpz.transport import (
     DataCallback,
     Handle,
@@ -200,39 +202,61 @@ class _ZenohPublisher:
 
 
 class _ZenohPullSubscriber(_Declared):
-    def __init__(self, inner: zenoh.Subscriber) -> None:  # type: ignore[type-arg]
+    def __init__(
+        self,
+        inner: zenoh.Subscriber,  # type: ignore[type-arg]
+        keep: Callable[[str], bool] | None,
+    ) -> None:
         super().__init__(inner)
         # the handler's own methods, not the subscriber's: a thread blocked in the subscriber's
         # recv keeps it borrowed and undeclare fails ("Already borrowed"); blocked in the
         # handler's, undeclare closes the channel and that recv raises ZError
         self._try_recv = inner.handler.try_recv
         self._recv = inner.handler.recv
+        #: a widened subscription's filter (``bundle.subscription``)
+        self._keep = keep
+        #: a bundle's entries not yet received (one receiving thread, so no lock)
+        self._pending: collections.deque[Received] = collections.deque()
 
-    @staticmethod
-    def _received(sample: zenoh.Sample) -> Received:
+    def _received(self, sample: zenoh.Sample) -> Received | None:
+        """The sample, or the first of a bundle's entries (the rest wait in ``_pending``); None
+        when a widened subscription's filter refuses everything it carried."""
         att = sample.attachment
-        return (
-            str(sample.key_expr),
-            sample.payload.to_bytes(),
-            att.to_bytes() if att is not None else None,
-        )
+        key = str(sample.key_expr)
+        payload = sample.payload.to_bytes()
+        attachment = att.to_bytes() if att is not None else None
+        if self._keep is None and not key.endswith(bundle.CHUNK):
+            return key, payload, attachment
+        items = bundle.expand(key, payload, attachment, self._keep)
+        if not items:
+            return None
+        self._pending.extend(items[1:])
+        return items[0]
 
-    # try/except rather than ``_translated``: these run once per sample on the ingest path, and
+    # try/except rather than ``_translated``: this runs once per sample on the ingest path, and
     # a generator context manager costs more than the rest of the call
+    def _next(self, get: Callable[[], zenoh.Sample | None]) -> Received | None:
+        if self._pending:
+            return self._pending.popleft()
+        while True:
+            try:
+                sample = get()
+            except zenoh.ZError as exc:
+                raise TransportError(f"receive: {zenoh_message(exc)}") from exc
+            if sample is None:
+                return None
+            item = self._received(sample)
+            if item is not None:
+                return item
+
     def try_recv(self) -> Received | None:
-        try:
-            sample = self._try_recv()
-        except zenoh.ZError as exc:
-            raise TransportError(f"receive: {zenoh_message(exc)}") from exc
-        return None if sample is None else self._received(sample)
+        return self._next(self._try_recv)
 
     def recv(self) -> Received:
         """Blocks; raises ``TransportError`` once the subscriber is undeclared and drained."""
-        try:
-            sample = self._recv()
-        except zenoh.ZError as exc:
-            raise TransportError(f"receive: {zenoh_message(exc)}") from exc
-        return self._received(sample)
+        item = self._next(self._recv)
+        assert item is not None  # a blocking receive returns a sample or raises
+        return item
 
 
 class ZenohTransport:
@@ -296,23 +320,29 @@ class ZenohTransport:
                 self._session.put(key, payload, attachment=attachment)
 
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
+        expr, keep = bundle.subscription(key_expr)
+
         def on_sample(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            callback(
-                str(sample.key_expr),
-                sample.payload.to_bytes(),
-                att.to_bytes() if att is not None else None,
-            )
+            key = str(sample.key_expr)
+            payload = sample.payload.to_bytes()
+            attachment = att.to_bytes() if att is not None else None
+            if keep is None and not key.endswith(bundle.CHUNK):
+                callback(key, payload, attachment)
+                return
+            for item in bundle.expand(key, payload, attachment, keep):
+                callback(*item)
 
         with _translated(f"subscribe to {key_expr}"):
-            handle = _Declared(self._session.declare_subscriber(key_expr, on_sample))
+            handle = _Declared(self._session.declare_subscriber(expr, on_sample))
         self._keep(handle)
         return handle
 
     def subscribe_pull(self, key_expr: str, capacity: int) -> PullSubscriber:
+        expr, keep = bundle.subscription(key_expr)
         with _translated(f"subscribe to {key_expr}"):
-            inner = self._session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(capacity))
-        handle = _ZenohPullSubscriber(inner)
+            inner = self._session.declare_subscriber(expr, zenoh.handlers.FifoChannel(capacity))
+        handle = _ZenohPullSubscriber(inner, keep)
         self._keep(handle)
         return handle
 

@@ -398,3 +398,49 @@ def test_the_reader_measures_each_writers_round_trip_from_its_resends() -> None:
     bus.run_for(2.0)
     rtt = r.round_trips()["t/a"]
     assert 0.009 <= rtt <= 0.05, rtt
+
+
+def _streaming(reader_qos: QosProfile) -> tuple[LossyBus, Node, Node]:
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1000, heartbeat_period_s=0.1)
+    bus, _ = world(1, Link(delay_s=0.001))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", reader_qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    return bus, writer, reader
+
+
+def test_a_streaming_writer_lets_its_data_carry_the_heartbeat() -> None:
+    """At 100 Hz with a 0.1 s heartbeat, a DATA asking for an acknowledgement does each
+    period's heartbeat: almost no heartbeat messages, yet the history is acknowledged as it
+    goes and a lost last sample is still recovered within two periods."""
+    bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    before = w.heartbeats
+    publish(bus, writer, 200, 0.01)
+    assert w.heartbeats - before <= 3, "a streaming writer still sent periodic heartbeats"
+    assert w.heartbeats_piggybacked >= 15
+    assert w.acknowledged_through() >= 190, "acknowledgements stopped with the heartbeats"
+    # the stream stops, and its last sample is lost on the link
+    bus.link = Link(loss=1.0, delay_s=0.001)
+    bus.write(writer, b"last")
+    bus.link = Link(delay_s=0.001)
+    lost_at = bus.clock.now_s
+    while len(reader.delivered) < 201:
+        bus.step()
+        assert bus.clock.now_s - lost_at < 0.25, "the lost last sample was never announced"
+    assert reader.delivered[-1][0] == b"last"
+
+
+def test_a_best_effort_reader_keeps_the_periodic_heartbeat() -> None:
+    """Best-effort readers never answer an acknowledgement request: only heartbeats tell them
+    the tail, so a writer with one keeps sending them."""
+    bus, writer, _ = _streaming(
+        QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, heartbeat_period_s=0.1)
+    )
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    before = w.heartbeats
+    publish(bus, writer, 100, 0.01)
+    assert w.heartbeats_piggybacked == 0
+    assert w.heartbeats - before >= 9

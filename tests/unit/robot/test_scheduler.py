@@ -3,7 +3,9 @@ sensor may be called "stats" like the stats job), and a late job is reported as 
 
 from __future__ import annotations
 
+import contextlib
 import threading
+from collections.abc import Iterator
 
 from arpz.robot.scheduler import Job, Scheduler
 
@@ -66,3 +68,24 @@ def test_the_job_that_fell_behind_is_reported_as_itself_and_realigned() -> None:
     scheduler.run(clock.stop, clock, end_s=1.0, on_late=lambda j, n: late.append((j, n)))
     assert late and all(job is other and n >= 3 for job, n in late), late
     assert runs[0] <= 7, runs  # re-aligned: about 0.5 s of periods, not the 5 it missed as well
+
+
+def test_jobs_due_at_one_instant_share_one_tick() -> None:
+    """The robot bundles what one tick sends: two 100 Hz sensors run inside the same ``tick``
+    context, a 50 Hz one joins every other tick."""
+    scheduler = Scheduler()
+    clock = StepClock()
+    ticks: list[list[str]] = []
+    current: list[str] = []
+
+    @contextlib.contextmanager
+    def tick() -> Iterator[None]:
+        current.clear()
+        yield
+        ticks.append(list(current))
+
+    for name, period in (("imu", 0.01), ("gps", 0.01), ("pir", 0.02)):
+        scheduler.every(period, lambda _now, n=name: current.append(n), name)
+    scheduler.run(clock.stop, clock, end_s=0.1, tick=tick)
+    expected = [{"imu", "gps", "pir"}, {"imu", "gps"}] * 5
+    assert [set(t) for t in ticks] == expected[: len(ticks)] and len(ticks) >= 9, ticks

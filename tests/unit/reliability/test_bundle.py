@@ -1,0 +1,124 @@
+"""Bundles (arpz.protocol.bundle, arpz.bundling): a tick's sensor messages as one message, seen
+by every subscriber as the messages they carry, and unable to name another robot's key."""
+
+from __future__ import annotations
+
+import pytest
+
+from arpz.bundling import Bundler
+from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.protocol import bundle
+
+ROBOT = "arpz/f/robot/r1/sensor"
+
+
+def test_entries_survive_the_round_trip_in_order() -> None:
+    entries: list[bundle.Entry] = [("imu", b"a" * 30, b"h" * 26), ("lidar", b"", None)]
+    payload, attachment = bundle.encode(entries)
+    assert bundle.decode(payload, attachment) == entries
+
+
+@pytest.mark.parametrize(
+    "mangle",
+    [
+        lambda p, a: (p[:-1], a),  # lengths do not add up
+        lambda p, a: (p, a[:-1]),  # table cut short
+        lambda p, a: (p, b"\x02" + a[1:]),  # unknown version
+        lambda p, a: (p, None),
+        lambda p, a: (b"../x" + p[4:], a),  # a name that is not a topic
+    ],
+)
+def test_a_malformed_bundle_is_refused(mangle: object) -> None:
+    payload, attachment = bundle.encode([("imu", b"abcd", b"h"), ("gps", b"efgh", b"h")])
+    bad_payload, bad_attachment = mangle(payload, attachment)  # type: ignore[operator]
+    assert bundle.decode(bad_payload, bad_attachment) is None
+    # the transport hands it up unopened, so the reader counts it as malformed
+    key = f"{ROBOT}/_bundle"
+    assert bundle.expand(key, bad_payload, bad_attachment) == [(key, bad_payload, bad_attachment)]
+
+
+def test_entries_can_only_name_siblings_of_the_bundle() -> None:
+    """A name is one chunk below the bundle's own parent: robot r1 cannot put on r2's keys."""
+    payload, attachment = bundle.encode([("imu", b"x", None), ("gps", b"y", None)])
+    keys = [k for k, _, _ in bundle.expand(f"{ROBOT}/_bundle", payload, attachment)]
+    assert keys == [f"{ROBOT}/imu", f"{ROBOT}/gps"]
+    assert bundle.bundle_key("arpz/f/robot/r1/sensor/imu") == f"{ROBOT}/_bundle"
+    assert bundle.bundle_key("arpz/f/robot/r1/frames/cam") is None
+    assert bundle.bundle_key("arpz/f/robot/r1/stats") is None
+
+
+def test_one_topic_subscriptions_are_widened_and_filtered() -> None:
+    assert bundle.subscription("arpz/f/robot/*/sensor/*") == ("arpz/f/robot/*/sensor/*", None)
+    assert bundle.subscription("arpz/f/robot/r1/stats") == ("arpz/f/robot/r1/stats", None)
+    expr, keep = bundle.subscription(f"{ROBOT}/imu")
+    assert expr == f"{ROBOT}/*" and keep is not None
+    assert keep(f"{ROBOT}/imu") and not keep(f"{ROBOT}/gps") and keep(f"{ROBOT}/_bundle")
+    expr, keep = bundle.subscription(f"{ROBOT}/i$*")
+    assert keep is not None and keep(f"{ROBOT}/imu") and not keep(f"{ROBOT}/gps")
+
+
+def _fleet() -> tuple[MemoryBus, Bundler, list[str]]:
+    bus = MemoryBus()
+    bundler = Bundler(MemoryTransport(bus), max_bytes=1280)
+    raw: list[str] = []  # what crosses the bus, before any subscriber expands it
+    bus.subscribers.append(("**", lambda key, _p, _a: raw.append(key)))
+    return bus, bundler, raw
+
+
+def test_one_tick_leaves_as_one_message_and_arrives_as_its_messages() -> None:
+    bus, bundler, raw = _fleet()
+    fleet: list[tuple[str, bytes, bytes | None]] = []
+    one: list[str] = []
+    reader = MemoryTransport(bus)
+    reader.subscribe("arpz/f/robot/*/sensor/*", lambda k, p, a: fleet.append((k, p, a)))
+    reader.subscribe(f"{ROBOT}/gps", lambda k, _p, _a: one.append(k))
+    pubs = {name: bundler.publisher(f"{ROBOT}/{name}") for name in ("imu", "gps", "lidar")}
+    with bundler.collect():
+        pubs["imu"].put(b"1", attachment=b"h1")
+        pubs["gps"].put(b"2", attachment=b"h2")
+        pubs["lidar"].put(b"3")
+        assert raw == [], "a put inside a tick left before the tick ended"
+    assert raw == [f"{ROBOT}/_bundle"]
+    assert fleet == [
+        (f"{ROBOT}/imu", b"1", b"h1"),
+        (f"{ROBOT}/gps", b"2", b"h2"),
+        (f"{ROBOT}/lidar", b"3", None),
+    ]
+    assert one == [f"{ROBOT}/gps"]
+    assert (bundler.stats.bundles, bundler.stats.bundled) == (1, 3)
+
+
+def test_outside_a_tick_and_alone_a_message_goes_on_its_own_key() -> None:
+    _, bundler, raw = _fleet()
+    imu = bundler.publisher(f"{ROBOT}/imu")
+    imu.put(b"now")  # a writer's worker (heartbeats, resends): never held
+    with bundler.collect():
+        imu.put(b"alone")
+    assert raw == [f"{ROBOT}/imu", f"{ROBOT}/imu"]
+    assert bundler.stats.single == 1 and bundler.stats.bundles == 0
+
+
+def test_a_tick_larger_than_one_bundle_is_cut_within_max_bytes() -> None:
+    bus, bundler, raw = _fleet()
+    got: list[bytes] = []
+    MemoryTransport(bus).subscribe("arpz/f/robot/*/sensor/*", lambda _k, p, _a: got.append(p))
+    pubs = [bundler.publisher(f"{ROBOT}/t{i}") for i in range(10)]
+    payloads = [bytes([i]) * 400 for i in range(10)]
+    with bundler.collect():
+        for pub, payload in zip(pubs, payloads, strict=True):
+            pub.put(payload)
+    assert got == payloads
+    # three 400 B entries and their overhead fill 1280 B: 3 + 3 + 3, and the last goes alone
+    assert raw == [f"{ROBOT}/_bundle"] * 3 + [f"{ROBOT}/t9"]
+
+
+def test_a_refused_bundle_is_counted_not_raised() -> None:
+    bus = MemoryBus()
+    transport = MemoryTransport(bus)
+    bundler = Bundler(transport, max_bytes=1280)
+    pubs = [bundler.publisher(f"{ROBOT}/t{i}") for i in range(2)]
+    with bundler.collect():
+        for pub in pubs:
+            pub.put(b"x")
+        transport.close()
+    assert (bundler.stats.put_failures, bundler.stats.failed_messages) == (1, 2)
