@@ -84,6 +84,34 @@ def sweep(
     return results, doc
 
 
+def bundles_ab(base: FleetOptions, robots: int, out: Path) -> dict[str, Any]:
+    """The same fleet twice, one run after the other: robots sending one Zenoh message per
+    topic, then one bundle per scheduler tick (docs/protocol.md "Bundles")."""
+    runs: dict[str, Any] = {}
+    points = {}
+    for label, bundles in (("per topic", False), ("bundled", True)):
+        options = dataclasses.replace(base, robots=robots, bundles=bundles)
+        workdir = out / f"ab_{'bundled' if bundles else 'per_topic'}"
+        result = run_load(options, workdir, progress=sys.stderr)
+        points[label] = result.point
+        runs[label] = result.as_dict()
+    print(
+        f"bundles A/B: {robots} robots x {base.topics} topics x {base.rate_hz:g} Hz, "
+        f"{base.duration_s:g} s each"
+    )
+    for label, p in points.items():
+        print(f"  {label:>9}: {curve_line(p).strip()}")
+    a, b = points["per topic"], points["bundled"]
+    if a.ceddp_cpu_us_per_sample and b.ceddp_cpu_us_per_sample:
+        ceddp = b.ceddp_cpu_us_per_sample / a.ceddp_cpu_us_per_sample
+        robots_ratio = b.workers_cpu_cores / max(a.workers_cpu_cores, 1e-9)
+        print(
+            f"  bundled / per topic: CEDDP CPU a sample {ceddp:.2f}x, "
+            f"robots' CPU {robots_ratio:.2f}x"
+        )
+    return runs
+
+
 def verdict(name: str, met: bool, measured: str) -> str:
     return f"  {name}: {'MET' if met else 'NOT MET'} (measured {measured})"
 
@@ -97,7 +125,10 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=10.0, help="seconds a sweep point")
     ap.add_argument("--target-duration", type=float, default=20.0)
     ap.add_argument("--processes", type=int, default=4)
-    ap.add_argument("--skip", default="", help="comma list of parts to skip: one,two,target,idle")
+    ap.add_argument(
+        "--skip", default="", help="comma list of parts to skip: one,two,ab,target,idle"
+    )
+    ap.add_argument("--ab-robots", type=int, default=10, help="fleet size of the bundles A/B")
     ap.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp(prefix="fleet-scaling-")))
     ap.add_argument("--png", type=Path, default=ROOT / "docs/figures/fleet_scaling.png")
     ap.add_argument("--png-two", type=Path, default=ROOT / "docs/figures/fleet_scaling_two.png")
@@ -150,6 +181,8 @@ def main() -> int:
                 f", p99 {p99}, CEDDP CPU total {_f(b.ceddp_cpu_cores)} vs "
                 f"{_f(a.ceddp_cpu_cores)} cores ({cpus})"
             )
+    if "ab" not in skip:
+        everything["bundles_ab"] = bundles_ab(base, args.ab_robots, args.out)
     if "target" not in skip:
         options = dataclasses.replace(base, robots=50, duration_s=args.target_duration)
         result = run_load(options, args.out / "target", progress=sys.stderr)

@@ -20,7 +20,7 @@ from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.downlink import Downlink
 from arpz.ceddp.identity import Identity
-from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.planner import Planner
 from arpz.channel_io import Outlet
@@ -112,13 +112,17 @@ class MetricsTicker:
         rates: list[TopicRate] = []
         counts: dict[tuple[str, str], tuple[int, int]] = {}
         latencies: list[float] = []
+        # Under the ingest lock only what is cheap: counters, and each topic's window drained
+        # (a list swap). Folding the windows and their percentiles come after it is released:
+        # done under it, they held every robot's samples back 12-16 ms every tick at 80 topics.
+        drained: list[tuple[tuple[str, str], TopicMetrics, list[float], list[float]]] = []
         with self.ingest.lock:
             for slot, m in self.ingest.topics.items():
                 received0, bytes0 = last_counts.get(slot, (0, 0))
                 counts[slot] = (m.received, m.bytes)
-                window = m.latency_ms.take_window()
-                latencies.extend(window)
-                stale = m.staleness_ms.take_window()
+                window = m.latency_ms.drain_window()
+                stale = m.staleness_ms.drain_window()
+                drained.append((slot, m, window, stale))
                 row = {
                     "rate_hz": (m.received - received0) / interval_s,
                     "bytes_per_s": (m.bytes - bytes0) / interval_s,
@@ -126,12 +130,6 @@ class MetricsTicker:
                     "cc_discarded": float(self.ingest.cache_counters(*slot).hits),
                     "decode_errors": float(m.decode_errors),
                 }
-                if window:  # both from one partition of the window
-                    p50, p99 = percentiles(window, (50, 99))
-                    row["latency_ms_p50"] = p50 or 0.0
-                    row["latency_ms_p99"] = p99 or 0.0
-                if stale:
-                    row["staleness_ms_p99"] = percentile(stale, 99) or 0.0
                 stats = self.robots.get(slot[0], RobotRecord()).stats
                 if stats is not None and slot[1] in stats.topics:
                     row["held_back"] = float(stats.topics[slot[1]].held_back)
@@ -172,6 +170,17 @@ class MetricsTicker:
             flagged = self.clock.flagged() if self.clock is not None else []
             for robot, per_key in refused.items():
                 robots.setdefault(robot, {})["refused"] = float(sum(per_key.values()))
+        for slot, m, window, stale in drained:
+            m.latency_ms.fold_window(window)
+            m.staleness_ms.fold_window(stale)
+            latencies.extend(window)
+            row = frame_topics[slot]
+            if window:  # both from one partition of the window
+                p50, p99 = percentiles(window, (50, 99))
+                row["latency_ms_p50"] = p50 or 0.0
+                row["latency_ms_p99"] = p99 or 0.0
+            if stale:
+                row["staleness_ms_p99"] = percentile(stale, 99) or 0.0
         self._last = (now, cpu, counts)
         cpu_percent = 100.0 * (cpu - last_cpu) / interval_s
         load = self._judge_load(interval_s, percentile(latencies, 99) if latencies else None)

@@ -38,7 +38,7 @@ from arpz.ceddp.mission import MissionRunner
 from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
-from arpz.ceddp.summary import previous_run, qos_summary, robot_summary
+from arpz.ceddp.summary import previous_run, qos_summary, resolve, robot_summary
 from arpz.channel_io import Inlet, Outlet
 from arpz.config import CeddpConfig, ConfigError
 from arpz.frames import DashboardLike, Event, WorldMap, WorldView
@@ -398,13 +398,14 @@ class CeddpServer:
         robots = {}
         for robot in names:
             # the lock per robot, not for the whole fleet: a robot's counts stay consistent
-            # with each other, and ingest never waits for more than one robot's quantiles
+            # with each other; its percentiles are computed once the lock is released
             with self.ingest.lock:
                 report = self.control.robots.get(robot, RobotRecord()).as_report()
                 report.refused.update(refused.get(robot, {}))
                 report.downlink.update(downlink.get(robot, {}))
                 report = dataclasses.replace(report, clock=self.clock.summary(robot))
-                robots[robot] = robot_summary(self.ingest, robot, report)
+                row = robot_summary(self.ingest, robot, report, defer=True)
+            robots[robot] = resolve(row)
         return {
             "fleet": self.config.fleet,
             "partition": self.config.partition,

@@ -93,7 +93,45 @@ def incarnation_summary(
     return rows
 
 
-def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> dict[str, Any]:
+class Deferred:
+    """One percentile of values copied under the ingest lock, computed when ``resolve`` reads it,
+    after the lock is released. Computed under it, a robot's summary held every robot's samples
+    back about 10 ms (percentiles of 20 000-value reservoirs), once per robot every
+    ``summary_period_s``: the p99 latency of a 10-robot fleet at 100 Hz was 20-23 ms with the
+    periodic summary and 3.4 ms without it (issue 17)."""
+
+    def __init__(self, values: np.ndarray, qs: tuple[float, ...], q: float, shared: list[Any]):
+        self._values, self._qs, self._q, self._shared = values, qs, q, shared
+
+    def value(self) -> float | None:
+        if not self._shared:  # the figures of one array in one pass, the first time one is read
+            self._shared.extend(percentiles(self._values, self._qs))
+        result: float | None = self._shared[self._qs.index(self._q)]
+        return result
+
+
+def _figures(values: np.ndarray, qs: tuple[float, ...], defer: bool) -> list[Any]:
+    if not defer:
+        return percentiles(values, qs)
+    shared: list[Any] = []
+    return [Deferred(values, qs, q, shared) for q in qs]
+
+
+def resolve(row: Any) -> Any:
+    """``row`` with every ``Deferred`` replaced by its value (call without the ingest lock)."""
+    if isinstance(row, Deferred):
+        return row.value()
+    if isinstance(row, dict):
+        return {key: resolve(value) for key, value in row.items()}
+    if isinstance(row, list):
+        return [resolve(value) for value in row]
+    return row
+
+
+def topic_summary(
+    ingest: Ingest, m: TopicMetrics, stats: RobotStats | None, *, defer: bool = False
+) -> dict[str, Any]:
+    """Call with ``ingest.lock`` held; ``defer``: percentiles as ``Deferred`` (see ``resolve``)."""
     cc = ingest.cache_counters(m.robot, m.topic)
     counters = stats.topics.get(m.topic) if stats else None
     tail_lost = 0
@@ -109,8 +147,8 @@ def topic_summary(ingest: Ingest, m: TopicMetrics, stats: RobotStats | None) -> 
             # by seqs the robot never wrote (its counters are the truth for one incarnation)
             excess = max(lost - max(counters.sent - m.received, 0), 0)
             lost -= excess
-    latency_p50, latency_p99 = m.latency_ms.quantiles(50, 99)
-    staleness_p50, staleness_p99 = m.staleness_ms.quantiles(50, 99)
+    latency_p50, latency_p99 = _figures(m.latency_ms.values(), (50, 99), defer)
+    staleness_p50, staleness_p99 = _figures(m.staleness_ms.values(), (50, 99), defer)
     return {
         "produced": counters.produced if counters else 0,
         "sent": counters.sent if counters else 0,
@@ -189,15 +227,19 @@ def downlink_summary(
     return rows
 
 
-def robot_summary(ingest: Ingest, robot: str, report: RobotReport) -> dict[str, Any]:
-    """Call with ``ingest.lock`` held."""
+def robot_summary(
+    ingest: Ingest, robot: str, report: RobotReport, *, defer: bool = False
+) -> dict[str, Any]:
+    """Call with ``ingest.lock`` held; ``defer``: percentiles as ``Deferred`` (see ``resolve``)."""
     stats = report.stats
     mine = sorted((t, m) for (r, t), m in ingest.topics.items() if r == robot)
-    topics = {topic: topic_summary(ingest, m, stats) for topic, m in mine}
+    topics = {topic: topic_summary(ingest, m, stats, defer=defer) for topic, m in mine}
     sensors = [row for topic, row in topics.items() if topic != "hello"]
     latencies = [m.latency_ms for topic, m in mine if topic != "hello"]
-    latency_p50, latency_p99 = merged_quantiles(latencies, 50, 99)
-    (staleness_p99,) = merged_quantiles([m.staleness_ms for t, m in mine if t != "hello"], 99)
+    latency_p50, latency_p99 = merged_quantiles(latencies, 50, 99, defer=defer)
+    (staleness_p99,) = merged_quantiles(
+        [m.staleness_ms for t, m in mine if t != "hello"], 99, defer=defer
+    )
     return {
         "alive": report.alive,
         "versions": {
@@ -240,10 +282,12 @@ def qos_summary(qos: QosController) -> dict[str, Any]:
     }
 
 
-def merged_quantiles(distributions: list[Distribution], *qs: float) -> list[float | None]:
-    """Percentiles of several distributions pooled, in one pass."""
+def merged_quantiles(
+    distributions: list[Distribution], *qs: float, defer: bool = False
+) -> list[Any]:
+    """Percentiles of several distributions pooled, in one pass (``Deferred`` with ``defer``)."""
     arrays = [dist.values() for dist in distributions]
-    return percentiles(np.concatenate(arrays), qs) if arrays else [None] * len(qs)
+    return _figures(np.concatenate(arrays), qs, defer) if arrays else [None] * len(qs)
 
 
 def previous_run(summary: dict[str, Any]) -> dict[tuple[str, str], dict[str, int]]:

@@ -78,6 +78,8 @@ class FleetOptions:
     heartbeat_ms: float | None = None
     #: the worker processes' niceness: the CEDDP gets the CPU first, the robots what is left
     robot_nice: int = 10
+    #: a tick's sensor messages as one Zenoh message (the robots' default; False: one per topic)
+    bundles: bool = True
 
 
 def check_options(o: FleetOptions) -> None:
@@ -179,6 +181,7 @@ def robot_config(o: FleetOptions, robot: str, endpoint: str, seed: int) -> dict[
         ],
         "local_cache": {"enabled": o.local_cache},
         "sensor_qos": sensor_qos(o),
+        "bundle_sensors": o.bundles,
     }
     if o.zenoh_config:
         conf["zenoh_config"] = str(Path(o.zenoh_config).resolve())
@@ -504,6 +507,11 @@ def add_fleet_parser(sub: Any) -> None:
     f.add_argument(
         "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"
     )
+    f.add_argument(
+        "--no-bundles",
+        action="store_true",
+        help="robots send one Zenoh message per topic, not one bundle per tick (the A/B)",
+    )
     f.add_argument("--p99-bound-ms", type=float, default=P99_BOUND_MS, help="the knee's bound")
     f.add_argument("--sweep", help="robot counts, e.g. 1,5,10,25,50,100: the scaling curve")
     f.add_argument("--workdir", type=Path, help="configs, logs, summaries (default: a temp dir)")
@@ -538,6 +546,7 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         p99_bound_ms=args.p99_bound_ms,
         robot_nice=args.robot_nice,
         heartbeat_ms=args.heartbeat_ms,
+        bundles=not args.no_bundles,
     )
     check_options(options)
     return options

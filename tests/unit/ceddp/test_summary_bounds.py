@@ -1,11 +1,15 @@
-"""The summary never reports more lost than the robot sent and the CEDDP did not receive."""
+"""The summary never reports more lost than the robot sent and the CEDDP did not receive, and
+computes its percentiles after the ingest lock is released."""
 
 from __future__ import annotations
 
+import pytest
+
 from arpz.ceddp.cache_control import CacheControl
+from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
-from arpz.ceddp.summary import topic_summary
+from arpz.ceddp.summary import Deferred, resolve, robot_summary, topic_summary
 from arpz.messages import RobotStats, Sample, TopicCounters, encode, writer_id
 
 KEY = "arpz/f/robot/r1/sensor/pir"
@@ -28,3 +32,19 @@ def test_loss_claimed_by_seqs_never_sent_is_implausible_not_lost() -> None:
     assert row["received"] == 6 and row["lost"] == 4
     assert row["implausible_lost"] == 8_990
     assert row["lost"] + row["received"] == row["sent"]
+
+
+def test_deferred_percentiles_equal_the_ones_computed_under_the_lock() -> None:
+    """The server builds each robot's row under the ingest lock with its percentiles deferred
+    and computes them after releasing it: the figures must be the same."""
+    ingest = Ingest("f", Planner(), CacheControl(enabled=False))
+    writer = writer_id("r1", "inc1")
+    for seq in range(1, 400):
+        sample = Sample(writer, seq, seq * 1_000_000, seq % 7)  # type: ignore[arg-type]
+        ingest.handle_sensor(KEY, encode(sample), seq * 1_000_000 + (seq % 13) * 100_000)
+    report = RobotRecord().as_report()
+    row = robot_summary(ingest, "r1", report, defer=True)
+    assert isinstance(row["latency_ms_p99"], Deferred)
+    assert isinstance(row["topics"]["pir"]["staleness_ms_p50"], Deferred)
+    assert resolve(row) == robot_summary(ingest, "r1", report)
+    assert resolve(row)["latency_ms_p99"] == pytest.approx(1.2, abs=0.05)
