@@ -71,6 +71,11 @@ class _BundledPublisher:
             return
         held.append((self, payload, attachment))
 
+    def release_held(self) -> None:
+        """Send what this thread holds now (a writer about to wait for acknowledgements: some
+        of what it waits for may be in the open bundle)."""
+        self._bundler.send_held()
+
     @property
     def matching(self) -> bool:
         return self.inner.matching
@@ -118,6 +123,14 @@ class Bundler:
             self._local.held = None
             if held:
                 self._send(held)
+
+    def send_held(self) -> None:
+        """Send what the calling thread's open bundle holds so far; it stays open."""
+        held = self.held()
+        if held:
+            taken = list(held)
+            held.clear()
+            self._send(taken)
 
     def _send(self, held: list[_Held]) -> None:
         """Cut ``held`` (in put order) into bundles of one sibling group within ``max_bytes``."""

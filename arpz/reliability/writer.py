@@ -72,6 +72,11 @@ class Writer(Endpoint):
         self._send_lock = threading.Lock()
         self._machine_write = self._machine.write
         self._put = self._publisher.put
+        #: a bundling publisher's (arpz.bundling): what this thread holds, sent before a
+        #: KEEP_ALL write waits for acknowledgements of samples that may be among it
+        self._release_held: Callable[[], None] = getattr(
+            self._publisher, "release_held", lambda: None
+        )
         try:
             self._channel.start(self._machine.token_key)
         except Exception:
@@ -94,6 +99,7 @@ class Writer(Endpoint):
                 seq, ready, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
                 self._send_due_batch(force=True)  # readers cannot acknowledge what is unsent
+                self._release_held()
                 seq, ready, actions = self._wait_for_room(
                     lambda: self._machine_write(payload, stamp_ns)
                 )

@@ -299,6 +299,7 @@ class RobotAgent:
                 1.0 / sensor.rate_hz,
                 functools.partial(sense, sensor, writer=self.writer),
                 sensor.config.name,
+                in_tick=True,
             )
             self._sensor_jobs.append((sensor, job))
         if cfg.hello.enabled:

@@ -24,6 +24,10 @@ class Job:
     period_s: float = field(compare=False)
     run: Callable[[float], None] = field(compare=False)
     name: str = field(compare=False)
+    #: runs inside the ``tick()`` context of ``Scheduler.run`` (the robot's sensor jobs, whose
+    #: messages are bundled); other jobs run outside it, so that a report or a probe that
+    #: waits never holds a tick's sensor messages back
+    in_tick: bool = field(default=False, compare=False)
 
 
 class Scheduler:
@@ -33,13 +37,19 @@ class Scheduler:
         self._jobs: list[Job] = []
 
     def every(
-        self, period_s: float, run: Callable[[float], None], name: str, *, first_s: float = 0.0
+        self,
+        period_s: float,
+        run: Callable[[float], None],
+        name: str,
+        *,
+        first_s: float = 0.0,
+        in_tick: bool = False,
     ) -> Job:
         """Run ``run(now_s)`` every ``period_s``, first at ``first_s`` (seconds since start).
         The job returned is the handle to change its period by (a QoS assignment's rate; a float
         assignment, picked up at its next run, so any thread may do it): names are for logs only
         and need not be unique (a sensor may be called "stats")."""
-        job = Job(first_s, len(self._jobs), period_s, run, name)
+        job = Job(first_s, len(self._jobs), period_s, run, name, in_tick)
         self._jobs.append(job)
         return job
 
@@ -52,9 +62,10 @@ class Scheduler:
         on_late: Callable[[Job, int], None] | None = None,
         tick: Callable[[], AbstractContextManager[object]] = contextlib.nullcontext,
     ) -> None:
-        """Run the jobs until ``stop`` is set or ``clock()`` reaches ``end_s``. Every job due at
-        one instant runs inside one ``tick()`` context (the robot's ``Bundler.collect``: the
-        sensor messages of one tick leave as one Zenoh message)."""
+        """Run the jobs until ``stop`` is set or ``clock()`` reaches ``end_s``. The ``in_tick``
+        jobs due at one instant run inside one ``tick()`` context (the robot's
+        ``Bundler.collect``: the sensor messages of one tick leave as one Zenoh message); the
+        context is left before any other job runs."""
         jobs = self._jobs
         heapq.heapify(jobs)
         while not stop.is_set():
@@ -67,14 +78,22 @@ class Scheduler:
             if jobs[0].due_s > now_s:
                 stop.wait(min(jobs[0].due_s - now_s, 0.05))
                 continue
-            with tick():
-                # a job's next run is after now (it is re-aligned if late), so this ends
-                while jobs[0].due_s <= now_s:
-                    job = jobs[0]
-                    job.run(now_s)
-                    job.due_s += job.period_s
-                    if job.due_s < now_s - job.period_s:
-                        if on_late is not None:
-                            on_late(job, int((now_s - job.due_s) / job.period_s))
-                        job.due_s = now_s + job.period_s
-                    heapq.heapreplace(jobs, job)
+            due: list[Job] = []
+            while jobs and jobs[0].due_s <= now_s:
+                due.append(heapq.heappop(jobs))
+            # the tick's jobs first (a stable sort keeps their order), all in one context
+            due.sort(key=lambda job: not job.in_tick)
+            ticking = [job for job in due if job.in_tick]
+            if ticking:
+                with tick():
+                    for job in ticking:
+                        job.run(now_s)
+            for job in due[len(ticking) :]:
+                job.run(now_s)
+            for job in due:
+                job.due_s += job.period_s
+                if job.due_s < now_s - job.period_s:
+                    if on_late is not None:
+                        on_late(job, int((now_s - job.due_s) / job.period_s))
+                    job.due_s = now_s + job.period_s
+                heapq.heappush(jobs, job)

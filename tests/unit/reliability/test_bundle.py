@@ -3,13 +3,28 @@ by every subscriber as the messages they carry, and unable to name another robot
 
 from __future__ import annotations
 
+import time
+from collections.abc import Callable
+
 import pytest
 
 from arpz.bundling import Bundler
 from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.protocol import bundle
+from arpz.protocol.qos import HistoryPolicy, QosProfile
+from arpz.reliability import Reader, Writer
 
 ROBOT = "arpz/f/robot/r1/sensor"
+QOS = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1, max_blocking_time_s=2.0)
+
+
+def wait_until(predicate: Callable[[], bool], timeout_s: float = 5.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return predicate()
 
 
 def test_entries_survive_the_round_trip_in_order() -> None:
@@ -122,3 +137,27 @@ def test_a_refused_bundle_is_counted_not_raised() -> None:
             pub.put(b"x")
         transport.close()
     assert (bundler.stats.put_failures, bundler.stats.failed_messages) == (1, 2)
+
+
+def test_a_keep_all_writer_that_waits_for_room_sends_the_open_bundle_first() -> None:
+    """A KEEP_ALL history of one is full once its sample is held in the tick's bundle: the
+    writer must send what the tick holds before it waits, or it would wait for an
+    acknowledgement of a sample nobody can see until its wait gave up."""
+    bus = MemoryBus()
+    bundler = Bundler(MemoryTransport(bus), max_bytes=1280)
+    reader = Reader(MemoryTransport(bus), f"{ROBOT}/*", QOS, on_data=lambda _p, _i: None)
+    writer = Writer(bundler, f"{ROBOT}/imu", QOS, block=False)
+    try:
+        assert wait_until(lambda: writer.matched_count == 1)
+        with bundler.collect():
+            writer.write(b"one")
+            started = time.monotonic()
+            writer.write(b"two")  # history full until "one" is acknowledged
+            waited = time.monotonic() - started
+        assert waited < QOS.max_blocking_time_s / 2, waited
+        assert wait_until(lambda: reader.stats().delivered == 2)
+        # "one" went out with the bundle, not as a resend after a heartbeat revealed it
+        assert writer.stats().retransmitted == 0
+    finally:
+        writer.close()
+        reader.close()

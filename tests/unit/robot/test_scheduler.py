@@ -72,20 +72,27 @@ def test_the_job_that_fell_behind_is_reported_as_itself_and_realigned() -> None:
 
 def test_jobs_due_at_one_instant_share_one_tick() -> None:
     """The robot bundles what one tick sends: two 100 Hz sensors run inside the same ``tick``
-    context, a 50 Hz one joins every other tick."""
+    context, a 50 Hz one joins every other tick, and a report due at the same instant runs
+    outside it (a report that waits must never hold the sensors' messages back)."""
     scheduler = Scheduler()
     clock = StepClock()
     ticks: list[list[str]] = []
     current: list[str] = []
+    inside = [False]
 
     @contextlib.contextmanager
     def tick() -> Iterator[None]:
         current.clear()
+        inside[0] = True
         yield
+        inside[0] = False
         ticks.append(list(current))
 
     for name, period in (("imu", 0.01), ("gps", 0.01), ("pir", 0.02)):
-        scheduler.every(period, lambda _now, n=name: current.append(n), name)
+        scheduler.every(period, lambda _now, n=name: current.append(n), name, in_tick=True)
+    report_inside: list[bool] = []
+    scheduler.every(0.02, lambda _now: report_inside.append(inside[0]), "stats")
     scheduler.run(clock.stop, clock, end_s=0.1, tick=tick)
     expected = [{"imu", "gps", "pir"}, {"imu", "gps"}] * 5
     assert [set(t) for t in ticks] == expected[: len(ticks)] and len(ticks) >= 9, ticks
+    assert len(report_inside) >= 4 and not any(report_inside)
