@@ -444,3 +444,18 @@ def test_a_best_effort_reader_keeps_the_periodic_heartbeat() -> None:
     publish(bus, writer, 100, 0.01)
     assert w.heartbeats_piggybacked == 0
     assert w.heartbeats - before >= 9
+
+
+def test_an_unacknowledged_request_keeps_the_heartbeat() -> None:
+    """Where the DATA asking for an acknowledgement (or its answer) is lost, nothing proves the
+    reader knows the stream: the periodic heartbeat goes as before."""
+    bus, writer, _ = _streaming(QosProfile(heartbeat_period_s=0.1))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    publish(bus, writer, 50, 0.01)  # clean: the data carries the heartbeat
+    before, piggybacked = w.heartbeats, w.heartbeats_piggybacked
+    bus.link = Link(loss=1.0, delay_s=0.001)  # nothing gets through, either way
+    publish(bus, writer, 50, 0.01)
+    assert w.heartbeats - before >= 4
+    # at most the first period, whose request went out (and was answered) before the loss
+    assert w.heartbeats_piggybacked <= piggybacked + 1
