@@ -459,3 +459,17 @@ def test_an_unacknowledged_request_keeps_the_heartbeat() -> None:
     assert w.heartbeats - before >= 4
     # at most the first period, whose request went out (and was answered) before the loss
     assert w.heartbeats_piggybacked <= piggybacked + 1
+
+
+def test_a_link_that_loses_keeps_every_heartbeat() -> None:
+    """Once a reader NACKs, the writer sends every periodic heartbeat for a while even though
+    its data asks for acknowledgements: a heartbeat also prompts the reader to NACK again what
+    it still misses."""
+    bus, writer, _ = _streaming(QosProfile(heartbeat_period_s=0.1))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    bus.link = Link(loss=0.2, delay_s=0.001)
+    before = w.heartbeats
+    publish(bus, writer, 200, 0.01)
+    assert w.nacks > 0
+    assert w.heartbeats - before >= 17, "a lossy link lost its heartbeats to the piggyback"
