@@ -66,9 +66,14 @@ class Watcher(QosWatcher):
 
     def applied_since(self, epoch: int) -> set[str]:
         """Robots that applied this epoch or a later one (the assignment is KEEP_LAST 1: over a
-        lossy link a robot may only ever see the newest of two quick epochs)."""
+        lossy link a robot may only ever see the newest of two quick epochs). From their
+        acknowledgements, or from their periodic stats (``qos_epoch``, the epoch in force): this
+        watcher is a plain subscriber, so an acknowledgement the lossy link lost reaches the
+        CEDDP by resend but never this watcher (about one run in eight at 12 % loss)."""
         with self.lock:
-            return {a.robot for a in self.acks if a.epoch >= epoch and a.status == "applied"}
+            acked = {a.robot for a in self.acks if a.epoch >= epoch and a.status == "applied"}
+            running = {r for r, stats in self.stats.items() if stats.qos_epoch >= epoch}
+        return acked | running
 
     def link_epochs(self, robot: str, after: int) -> list[QosAssignmentMsg]:
         with self.lock:
@@ -135,9 +140,6 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
                 assert told is not None and 0.02 <= told < 0.1, resolved.robots
                 assert resolved.robots["robot1"].heartbeat_period_s is None
                 assert "heartbeat 100 ->" in resolved.reason
-                with watcher.lock:
-                    answers = [a for a in watcher.acks if a.robot == "robot2"]
-                assert answers[-1].heartbeat_period_s == told, answers[-1]
                 # the loss stays: no second re-solve for it (hysteresis)
                 settle(5.0)
                 assert len(watcher.link_epochs("robot2", before.epoch)) == 1, [
@@ -152,5 +154,7 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
     qos = summary["qos"]
     assert qos["mode"] == "per_topic"
     assert qos["links"]["in_force"]["robot2"]["loss_pct"] > 3
+    # robot2's answer (as the CEDDP got it, resends included) says its writers run at it
+    assert qos["acks"]["robot2"]["heartbeat_period_s"] == told, qos["acks"]["robot2"]
     assert any("link robot2" in c["reason"] for c in qos["links"]["measured_changes"])
     assert "QoS epoch" in server.output() and "link robot2" in server.output()

@@ -194,9 +194,20 @@ _CVXPY_AHEAD = (
     ],
 )
 
+#: CI found CVXPY 2.2e-8 relative ahead of the exact optimum here (4.8e-7 of 21.64), beyond the
+#: 1e-8 the test allowed then, with 8e-9 over the capacity
+_CVXPY_AHEAD_2 = (
+    QosLimits(rmax_hz=20.0, rmin_hz=1.5, dmax=200, dmin=1),
+    [
+        TopicDemand(robot="r0", topic=f"t{i}", weight=w, change_hz=None, cost=1.453125)
+        for i, w in enumerate([1.0, 1.0, 4.0, 0.25, 0.25])
+    ],
+)
+
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(_CVXPY_AHEAD)
+@example(_CVXPY_AHEAD_2)
 @given(_instances())
 def test_closed_form_equals_cvxpy(instance: tuple[QosLimits, list[TopicDemand]]) -> None:
     limits, demands = instance
@@ -213,10 +224,10 @@ def test_closed_form_equals_cvxpy(instance: tuple[QosLimits, list[TopicDemand]])
     assert cvx.used_hz <= closed.capacity_hz * (1 + 1e-6)
     # CVXPY may overshoot the capacity by its feasibility tolerance (scaling every rate by
     # 1 + excess buys at most sum(w) * log(1 + excess) of utility) and reports a point within
-    # its optimality tolerance, 1e-8 relative (seen: 6.7e-10 over the capacity and 1.9e-9
-    # relative more utility than the exact optimum, in CI)
+    # its optimality tolerance (seen in CI: 6.7e-10 over the capacity and 1.9e-9 relative more
+    # utility than the exact optimum; 8e-9 over and 2.2e-8 more, _CVXPY_AHEAD_2): 1e-7 relative
     excess = max(0.0, cvx.used_hz / closed.capacity_hz - 1)
-    allowance = sum(weights) * math.log1p(excess) + 1e-8 * abs(_utility(closed, weights))
+    allowance = sum(weights) * math.log1p(excess) + 1e-7 * abs(_utility(closed, weights))
     assert _utility(closed, weights) >= _utility(cvx, weights) - allowance
     for a, b in zip(closed.topics, cvx.topics, strict=True):
         assert a.rate_hz == pytest.approx(b.rate_hz, rel=2e-3, abs=1e-4 * limits.rmax_hz)
