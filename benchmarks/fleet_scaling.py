@@ -13,7 +13,9 @@ niced below the CEDDP, against real CEDDP processes; the CEDDP's CPU and RSS fro
    into one CEDDP: 0 lost, p99 < 10 ms, the CEDDP below one core; each printed MET or NOT MET
    with the measured figure;
 4. the fixed cost: 25 robots x 8 topics at 1 Hz, where the CEDDP's CPU is what a robot costs
-   it whatever it sends.
+   it whatever it sends;
+5. the bundles A/B (``--ab-robots``, 10): the same fleet with ``--no-bundles`` and with bundles
+   (docs/protocol.md "Bundles"), one after the other, and their ratio.
 
     python benchmarks/fleet_scaling.py [--sweep 1,5,10,25,50,100] [--duration 10]
         [--target-duration 20] [--processes 4] [--png docs/figures/fleet_scaling.png]
