@@ -66,7 +66,7 @@ def _run(tmp_path: Path, top: str) -> tuple[dict[str, int], list[str], dict[str,
 def test_a_tick_crosses_the_router_as_one_message_and_every_topic_reconciles(
     tmp_path: Path,
 ) -> None:
-    raw, one_topic, robot = _run(tmp_path, "")
+    raw, one_topic, robot = _run(tmp_path, "bundle_sensors = true\n")
     topics = robot["topics"]
     assert isinstance(topics, dict)
     sent = sum(t["sent"] for t in topics.values())
@@ -82,7 +82,7 @@ def test_a_tick_crosses_the_router_as_one_message_and_every_topic_reconciles(
     assert set(one_topic) == {"arpz/itest/robot/robot1/sensor/imu"}
 
 
-def test_bundle_sensors_false_sends_one_message_per_topic(tmp_path: Path) -> None:
-    raw, _, robot = _run(tmp_path, "bundle_sensors = false\n")
+def test_by_default_one_message_per_topic(tmp_path: Path) -> None:
+    raw, _, robot = _run(tmp_path, "")
     assert bundle.CHUNK not in raw, raw
     assert robot["lost"] == 0 and robot["sent"] == robot["received"], robot
