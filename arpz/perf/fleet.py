@@ -146,6 +146,8 @@ def sensor_qos(o: FleetOptions) -> dict[str, Any]:
         qos["depth"] = o.depth
     if o.heartbeat_ms is not None:
         qos["heartbeat_period_s"] = o.heartbeat_ms / 1000
+    if o.bundles:  # the measured configuration of issue 17: bundles and piggybacked heartbeats
+        qos["piggyback_heartbeats"] = True
     return qos
 
 

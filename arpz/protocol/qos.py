@@ -94,6 +94,11 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     #: with batching, the longest a written sample waits for its batch to fill; a sample written
     #: after a pause at least this long goes out at once, so a slow topic gains no latency
     batch_max_delay_s: float = 0.0005
+    #: a streaming writer lets an acknowledged DATA that asked for an acknowledgement do its
+    #: periodic heartbeat (docs/reliability.md "Heartbeats on a streaming topic"). Off by
+    #: default for now: with it on, two timing tests (the lost-change staleness bound, the
+    #: overload's return within its latency bound) failed under CI's load, not understood yet
+    piggyback_heartbeats: bool = False
 
     def __post_init__(self) -> None:
         if self.depth < 1:

@@ -688,6 +688,8 @@ class WriterMachine:
         again what it still misses; skipping the acknowledged ones raised the weighted p99
         staleness of qos_per_topic.py on wifi-bad from 66 to 79 ms). Manual liveliness,
         best-effort or unsynced readers and an open batch keep the heartbeat too."""
+        if not self.qos.piggyback_heartbeats:
+            return False
         if self._manual or self.batch or self._min_acked() <= self._ack_request_seq:
             return False
         if now - self._last_nack_s < LOSSY_HOLD_PERIODS * self.qos.heartbeat_period_s:

@@ -10,7 +10,6 @@ applying a QoS assignment, and the life cycle (start, run, shutdown).
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
 import threading
@@ -264,7 +263,8 @@ class RobotAgent:
         if not self._started:
             self.start()
         end_s = self.config.duration_s or float("inf")
-        tick = self.bundler.collect if self.bundler is not None else contextlib.nullcontext
+        # without bundles, one job at a time as before them (bundles are opt-in)
+        tick = self.bundler.collect if self.bundler is not None else None
         self.scheduler.run(stop, self._now_s, end_s=end_s, on_late=self._count_late, tick=tick)
 
     def shutdown(self) -> None:

@@ -9,7 +9,6 @@ periods are reported to ``on_late`` with the job.
 
 from __future__ import annotations
 
-import contextlib
 import heapq
 import threading
 from collections.abc import Callable
@@ -60,7 +59,7 @@ class Scheduler:
         *,
         end_s: float = float("inf"),
         on_late: Callable[[Job, int], None] | None = None,
-        tick: Callable[[], AbstractContextManager[object]] = contextlib.nullcontext,
+        tick: Callable[[], AbstractContextManager[object]] | None = None,
     ) -> None:
         """Run the jobs until ``stop`` is set or ``clock()`` reaches ``end_s``. The ``in_tick``
         jobs due at one instant run inside one ``tick()`` context (the robot's
@@ -78,6 +77,12 @@ class Scheduler:
             if jobs[0].due_s > now_s:
                 stop.wait(min(jobs[0].due_s - now_s, 0.05))
                 continue
+            if tick is None:  # one job at a time, each at its own reading of the clock
+                job = jobs[0]
+                job.run(now_s)
+                self._reschedule(job, now_s, on_late)
+                heapq.heapreplace(jobs, job)
+                continue
             due: list[Job] = []
             while jobs and jobs[0].due_s <= now_s:
                 due.append(heapq.heappop(jobs))
@@ -91,9 +96,13 @@ class Scheduler:
             for job in due[len(ticking) :]:
                 job.run(now_s)
             for job in due:
-                job.due_s += job.period_s
-                if job.due_s < now_s - job.period_s:
-                    if on_late is not None:
-                        on_late(job, int((now_s - job.due_s) / job.period_s))
-                    job.due_s = now_s + job.period_s
+                self._reschedule(job, now_s, on_late)
                 heapq.heappush(jobs, job)
+
+    @staticmethod
+    def _reschedule(job: Job, now_s: float, on_late: Callable[[Job, int], None] | None) -> None:
+        job.due_s += job.period_s
+        if job.due_s < now_s - job.period_s:
+            if on_late is not None:
+                on_late(job, int((now_s - job.due_s) / job.period_s))
+            job.due_s = now_s + job.period_s

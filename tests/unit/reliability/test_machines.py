@@ -401,7 +401,12 @@ def test_the_reader_measures_each_writers_round_trip_from_its_resends() -> None:
 
 
 def _streaming(reader_qos: QosProfile) -> tuple[LossyBus, Node, Node]:
-    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1000, heartbeat_period_s=0.1)
+    qos = QosProfile(
+        history=HistoryPolicy.KEEP_ALL,
+        max_samples=1000,
+        heartbeat_period_s=0.1,
+        piggyback_heartbeats=True,
+    )
     bus, _ = world(1, Link(delay_s=0.001))
     writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
     reader = bus.add(ReaderMachine("t/a", reader_qos, new_guid(), bus.clock))
