@@ -14,7 +14,9 @@ import pytest
 
 from arpz.perf.harness import free_port, perf_router, pubsub
 
-pytestmark = pytest.mark.integration
+# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
+# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
+pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("fleet_cpu")]
 
 
 def _gone(pid: int) -> bool:
