@@ -100,3 +100,14 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, object, object]:
             record = handler.records.pop(0)  # any further ones fail the teardown
             assert record.exc_info is not None
             raise record.exc_info[1]  # type: ignore[misc]
+
+
+#: timing-bound tests of the "fleet_cpu" group that run last in it: the group's worker starts
+#: them after the other worker has run the rest of the suite (abuse floods, camera frames),
+#: which held the lost-change test over its 100 ms bound when it ran first (4 CI runs of 5)
+_LAST_IN_GROUP = ("test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value",)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    last = [item for item in items if item.name in _LAST_IN_GROUP]
+    items[:] = [item for item in items if item.name not in _LAST_IN_GROUP] + last
