@@ -12,8 +12,12 @@ later (while fixtures close the channel).
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import logging
+import os
 import sys
+import tempfile
 import traceback
 from collections.abc import Generator, Iterator
 from pathlib import Path
@@ -27,10 +31,17 @@ pytest_plugins = ["pytester"]
 #: the logger the reliable channel reports a raising callback on (arpz/reliability/_channel.py)
 CHANNEL_LOGGER = "arpz.reliability"
 EXPECTED_MARKER = "callback_errors_expected"
+#: the marker of a test that needs the machine's cores to itself (see ``cpu_share``)
+CPU_EXCLUSIVE_MARKER = "cpu_exclusive"
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Register the marker next to the fixture that reads it."""
+    """Register the markers next to the code that reads them."""
+    config.addinivalue_line(
+        "markers",
+        f"{CPU_EXCLUSIVE_MARKER}: a heavy or timing-bound test that runs with no other test "
+        "beside it (the other test worker waits)",
+    )
     config.addinivalue_line(
         "markers",
         f"{EXPECTED_MARKER}: the test makes a channel callback fail an assert on purpose; "
@@ -102,12 +113,50 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, object, object]:
             raise record.exc_info[1]  # type: ignore[misc]
 
 
-#: timing-bound tests of the "fleet_cpu" group that run last in it: the group's worker starts
-#: them after the other worker has run the rest of the suite (abuse floods, camera frames),
-#: which held the lost-change test over its 100 ms bound when it ran first (4 CI runs of 5)
-_LAST_IN_GROUP = ("test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value",)
+@contextlib.contextmanager
+def cpu_share(exclusive: bool) -> Iterator[None]:
+    """Hold this test worker's share of the CPU: shared by ordinary tests, whole for heavy ones.
+
+    The suite runs in two pytest-xdist workers on a 2-core machine. A heavy or timing-bound
+    integration test (a fleet of robot processes, an overload, a latency bound) failed in CI
+    whenever the other worker ran anything CPU-hungry beside it, a different one each run. So the
+    workers share a reader-writer lock (two ``flock`` files): ordinary tests take it shared and
+    run two at a time; a ``cpu_exclusive`` test takes it exclusively and runs alone, while the
+    other worker waits between its tests. The turnstile file makes a waiting exclusive test
+    block new shared holders, so it cannot be starved. Without xdist there is nobody to share
+    with and the lock is skipped."""
+    run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
+    if run_id is None:
+        yield
+        return
+    folder = Path(tempfile.gettempdir())
+    with (
+        open(folder / f"arpz-pytest-{run_id}.turnstile", "a") as turnstile,
+        open(folder / f"arpz-pytest-{run_id}.cpu", "a") as cpu,
+    ):
+        if exclusive:
+            fcntl.flock(turnstile, fcntl.LOCK_EX)
+            fcntl.flock(cpu, fcntl.LOCK_EX)
+            try:
+                yield
+            finally:
+                fcntl.flock(cpu, fcntl.LOCK_UN)
+                fcntl.flock(turnstile, fcntl.LOCK_UN)
+        else:
+            fcntl.flock(turnstile, fcntl.LOCK_SH)
+            fcntl.flock(cpu, fcntl.LOCK_SH)
+            fcntl.flock(turnstile, fcntl.LOCK_UN)
+            try:
+                yield
+            finally:
+                fcntl.flock(cpu, fcntl.LOCK_UN)
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    last = [item for item in items if item.name in _LAST_IN_GROUP]
-    items[:] = [item for item in items if item.name not in _LAST_IN_GROUP] + last
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_protocol(item: pytest.Item) -> Generator[None, object, object]:
+    """Run each test, setup to teardown, inside its share of the CPU.
+
+    ``tryfirst`` makes this the outermost wrapper, so the time a test waits for its share is not
+    counted by pytest-timeout, whose timer starts inside it."""
+    with cpu_share(item.get_closest_marker(CPU_EXCLUSIVE_MARKER) is not None):
+        return (yield)

@@ -50,8 +50,8 @@ def paper_simulation() -> ExperimentSpec:
 
 
 def quick() -> ExperimentSpec:
-    """A few cells that show both ends in under 3 minutes: no loss on a clean link with a deep
-    history, loss with depth 1 at a high rate over a lossy one, and OPT."""
+    """A few cells that show both ends in under 3 minutes: next to no loss on a clean link with a
+    deep history, loss with depth 1 at a high rate over a lossy one, and OPT."""
     return ExperimentSpec(
         name="quick",
         description="test-suite grid: lan vs wifi-bad, depth 1 vs 1000, baseline vs LC + OPT",

@@ -300,8 +300,8 @@ def test_killing_the_ceddp_stops_every_robot_within_its_command_deadline(tmp_pat
 
 # its bound is tight (a heartbeat period): beside the experiment's fleet on two shared cores it
 # measured 141 and 221 ms in two full runs, while alone or beside two CPU hogs 43-85 ms on this
-# code and on stop 24's alike; so it shares their test worker and never runs beside them
-@pytest.mark.xdist_group("fleet_cpu")
+# code and on stop 24's alike; so it runs with the cores to itself (tests/conftest.py, cpu_share)
+@pytest.mark.cpu_exclusive
 def test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value(tmp_path: Path) -> None:
     """The local cache with KEEP_LAST 1 at 1 kHz over wifi-bad: a value that changes every 100 ms
     (99 of 100 readings held back as unchanged). A change the link loses must not leave the CEDDP

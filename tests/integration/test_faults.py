@@ -17,9 +17,8 @@ from arpz.netem import Impairments, NetemProxy, Outage
 from tests.integration.fleet import Process, ceddp, settle, write_robot
 from tests.support import free_port, free_udp_port, wait_until
 
-# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
-# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("fleet_cpu")]
+# heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 
 #: KEEP_ALL + TRANSIENT_LOCAL: a reader that (re)joins gets the writer's whole history
 DURABLE = (

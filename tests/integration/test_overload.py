@@ -22,9 +22,8 @@ from arpz.messages import CEDDP_STATS_DECODER, QOS_ASSIGNMENT_DECODER, CeddpStat
 from tests.integration.fleet import ceddp, robots
 from tests.support import client, wait_until
 
-# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
-# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("fleet_cpu")]
+# heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 
 LATENCY_BOUND_MS = 250.0
 CEDDP = (

@@ -14,9 +14,8 @@ import pytest
 
 from arpz.perf.harness import free_port, perf_router, pubsub
 
-# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
-# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("fleet_cpu")]
+# heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 
 
 def _gone(pid: int) -> bool:

@@ -16,9 +16,8 @@ from tests.integration.fleet import ceddp, robots, settle, udp_link, write_robot
 from tests.integration.test_qos_live import Watcher as QosWatcher
 from tests.support import client, wait_until
 
-# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
-# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
-pytestmark = [pytest.mark.integration, pytest.mark.xdist_group("fleet_cpu")]
+# heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 
 QOS = """[qos]
 enabled = true

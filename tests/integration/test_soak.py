@@ -38,13 +38,12 @@ SOAK_S = float(os.environ.get("ARPZ_SOAK_S", "45"))
 #: 240 s at worst); 300 s on top of the soak covers them with room for a loaded machine.
 TIMEOUT_S = SOAK_S + 300.0
 
-# heavy or timing-bound: runs in the one test worker of the "fleet_cpu" group, never beside
-# the others of it (pyproject: --dist loadgroup; test_mission.py says why)
+# heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
 pytestmark = [
     pytest.mark.integration,
     pytest.mark.slow,
     pytest.mark.timeout(TIMEOUT_S),
-    pytest.mark.xdist_group("fleet_cpu"),
+    pytest.mark.cpu_exclusive,
 ]
 
 WARMUP_S = max(12.0, SOAK_S / 4)
