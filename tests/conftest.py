@@ -114,49 +114,67 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, object, object]:
 
 
 @contextlib.contextmanager
-def cpu_share(exclusive: bool) -> Iterator[None]:
-    """Hold this test worker's share of the CPU: shared by ordinary tests, whole for heavy ones.
+def cpu_share(share: str) -> Iterator[None]:
+    """Hold this test's share of the machine: none (a unit test), shared (an integration test)
+    or whole (a ``cpu_exclusive`` one).
 
     The suite runs in two pytest-xdist workers on a 2-core machine. A heavy or timing-bound
     integration test (a fleet of robot processes, an overload, a latency bound) failed in CI
-    whenever the other worker ran anything CPU-hungry beside it, a different one each run. So the
-    workers share a reader-writer lock (two ``flock`` files): ordinary tests take it shared and
-    run two at a time; a ``cpu_exclusive`` test takes it exclusively and runs alone, while the
-    other worker waits between its tests. The turnstile file makes a waiting exclusive test
-    block new shared holders, so it cannot be starved. Without xdist there is nobody to share
-    with and the lock is skipped."""
+    whenever the other worker ran an integration test beside it (routers, robots, floods: more
+    processes than cores), a different one each run. So the workers share a reader-writer lock
+    (two ``flock`` files): integration tests take it shared and run two at a time; a
+    ``cpu_exclusive`` test takes it exclusively, while the other worker waits before its next
+    integration test. The turnstile makes a waiting exclusive test block new shared holders, so
+    it cannot be starved. A unit test is one process and takes no lock, so the other worker runs
+    the unit tests while the exclusive ones run (see ``pytest_collection_modifyitems``).
+    Without xdist there is nobody to share with."""
     run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-    if run_id is None:
+    if run_id is None or share == SHARE_NONE:
         yield
         return
+    exclusive = share == SHARE_WHOLE
     folder = Path(tempfile.gettempdir())
     with (
         open(folder / f"arpz-pytest-{run_id}.turnstile", "a") as turnstile,
         open(folder / f"arpz-pytest-{run_id}.cpu", "a") as cpu,
     ):
-        if exclusive:
-            fcntl.flock(turnstile, fcntl.LOCK_EX)
-            fcntl.flock(cpu, fcntl.LOCK_EX)
-            try:
-                yield
-            finally:
-                fcntl.flock(cpu, fcntl.LOCK_UN)
-                fcntl.flock(turnstile, fcntl.LOCK_UN)
-        else:
-            fcntl.flock(turnstile, fcntl.LOCK_SH)
-            fcntl.flock(cpu, fcntl.LOCK_SH)
-            fcntl.flock(turnstile, fcntl.LOCK_UN)
-            try:
-                yield
-            finally:
-                fcntl.flock(cpu, fcntl.LOCK_UN)
+        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
+        fcntl.flock(turnstile, mode)
+        fcntl.flock(cpu, mode)
+        if not exclusive:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)  # let the next shared or exclusive one queue
+        yield  # closing the files at the end of the with releases what is still held
+
+
+SHARE_NONE, SHARE_SHARED, SHARE_WHOLE = "none", "shared", "whole"
+
+
+def _share(item: pytest.Item) -> str:
+    if item.get_closest_marker(CPU_EXCLUSIVE_MARKER) is not None:
+        return SHARE_WHOLE
+    if item.get_closest_marker("integration") is not None:
+        return SHARE_SHARED
+    return SHARE_NONE
 
 
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_protocol(item: pytest.Item) -> Generator[None, object, object]:
-    """Run each test, setup to teardown, inside its share of the CPU.
+    """Run each test, setup to teardown, inside its share of the machine.
 
     ``tryfirst`` makes this the outermost wrapper, so the time a test waits for its share is not
     counted by pytest-timeout, whose timer starts inside it."""
-    with cpu_share(item.get_closest_marker(CPU_EXCLUSIVE_MARKER) is not None):
+    with cpu_share(_share(item)):
         return (yield)
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Order the suite so that the exclusive tests overlap the unit tests, not idle time.
+
+    xdist's ``load`` scheduling first hands each worker a chunk of consecutive tests (an eighth
+    of the suite each), then more in collection order as they finish. With the exclusive tests
+    first, one worker's chunk starts with all of them and the other worker's is unit tests, which
+    it keeps taking while the exclusive ones run; the integration tests come last. (Not
+    ``--dist loadgroup``: with pytest 9, pytest-xdist 3.8 sets its group suffix on a node id
+    attribute pytest no longer reads, so ``xdist_group`` is silently ignored.)"""
+    order = {SHARE_WHOLE: 0, SHARE_NONE: 1, SHARE_SHARED: 2}
+    items.sort(key=lambda item: order[_share(item)])  # stable: files keep their order

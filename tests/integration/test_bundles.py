@@ -8,6 +8,7 @@ import json
 import threading
 from pathlib import Path
 
+import pytest
 import zenoh
 
 from arpz.protocol import bundle
@@ -15,6 +16,8 @@ from arpz.transport import SessionSettings
 from arpz.zenoh_transport import ZenohTransport
 from tests.integration.fleet import ceddp, robots, settle
 from tests.support import wait_until
+
+pytestmark = pytest.mark.integration
 
 
 def _client(endpoint: str) -> zenoh.Session:
