@@ -13,6 +13,7 @@ later (while fixtures close the channel).
 from __future__ import annotations
 
 import contextlib
+import enum
 import fcntl
 import logging
 import os
@@ -39,8 +40,8 @@ def pytest_configure(config: pytest.Config) -> None:
     """Register the markers next to the code that reads them."""
     config.addinivalue_line(
         "markers",
-        f"{CPU_EXCLUSIVE_MARKER}: a heavy or timing-bound test that runs with no other test "
-        "beside it (the other test worker waits)",
+        f"{CPU_EXCLUSIVE_MARKER}(whole_machine=False): a heavy or timing-bound test that runs "
+        "with no integration test beside it (whole_machine: no test at all)",
     )
     config.addinivalue_line(
         "markers",
@@ -113,48 +114,72 @@ def pytest_runtest_call(item: pytest.Item) -> Generator[None, object, object]:
             raise record.exc_info[1]  # type: ignore[misc]
 
 
+class Share(enum.IntEnum):
+    """What a test holds of the machine while it runs; the value orders the suite."""
+
+    #: the whole machine: no other test at all (``cpu_exclusive(whole_machine=True)``)
+    MACHINE = 0
+    #: no integration test beside it; unit tests may run (``cpu_exclusive``)
+    CORES = 1
+    #: a unit test: one process, beside anything but a MACHINE test
+    UNIT = 2
+    #: an integration test: beside unit and integration tests
+    SHARED = 3
+
+
+def share_of(item: pytest.Item) -> Share:
+    mark = item.get_closest_marker(CPU_EXCLUSIVE_MARKER)
+    if mark is not None:
+        return Share.MACHINE if mark.kwargs.get("whole_machine") else Share.CORES
+    if item.get_closest_marker("integration") is not None:
+        return Share.SHARED
+    return Share.UNIT
+
+
 @contextlib.contextmanager
-def cpu_share(share: str) -> Iterator[None]:
-    """Hold this test's share of the machine: none (a unit test), shared (an integration test)
-    or whole (a ``cpu_exclusive`` one).
+def _rw_lock(folder: Path, name: str, exclusive: bool) -> Iterator[None]:
+    """A reader-writer lock of the test workers (two ``flock`` files). The turnstile makes a
+    waiting writer block new readers, so it cannot be starved."""
+    with (
+        open(folder / f"{name}.turnstile", "a") as turnstile,
+        open(folder / f"{name}.lock", "a") as lock,
+    ):
+        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
+        fcntl.flock(turnstile, mode)
+        fcntl.flock(lock, mode)
+        if not exclusive:
+            fcntl.flock(turnstile, fcntl.LOCK_UN)  # let the next reader or writer queue
+        yield  # closing the files at the end of the with releases what is still held
+
+
+@contextlib.contextmanager
+def cpu_share(share: Share) -> Iterator[None]:
+    """Hold this test's share of the machine.
 
     The suite runs in two pytest-xdist workers on a 2-core machine. A heavy or timing-bound
     integration test (a fleet of robot processes, an overload, a latency bound) failed in CI
     whenever the other worker ran an integration test beside it (routers, robots, floods: more
-    processes than cores), a different one each run. So the workers share a reader-writer lock
-    (two ``flock`` files): integration tests take it shared and run two at a time; a
-    ``cpu_exclusive`` test takes it exclusively, while the other worker waits before its next
-    integration test. The turnstile makes a waiting exclusive test block new shared holders, so
-    it cannot be starved. A unit test is one process and takes no lock, so the other worker runs
-    the unit tests while the exclusive ones run (see ``pytest_collection_modifyitems``).
-    Without xdist there is nobody to share with."""
+    processes than cores), a different one each run. So the workers share two reader-writer
+    locks: "integration" (integration tests read, ``cpu_exclusive`` ones write) and "machine"
+    (unit tests read, ``whole_machine`` ones write). A unit test is one process, so the other
+    worker runs the unit tests while the exclusive ones run (``pytest_collection_modifyitems``),
+    except beside the quick experiment at 1 kHz, which lost samples even then. Without xdist
+    there is nobody to share with."""
     run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
-    if run_id is None or share == SHARE_NONE:
+    if run_id is None:
         yield
         return
-    exclusive = share == SHARE_WHOLE
     folder = Path(tempfile.gettempdir())
-    with (
-        open(folder / f"arpz-pytest-{run_id}.turnstile", "a") as turnstile,
-        open(folder / f"arpz-pytest-{run_id}.cpu", "a") as cpu,
-    ):
-        mode = fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH
-        fcntl.flock(turnstile, mode)
-        fcntl.flock(cpu, mode)
-        if not exclusive:
-            fcntl.flock(turnstile, fcntl.LOCK_UN)  # let the next shared or exclusive one queue
-        yield  # closing the files at the end of the with releases what is still held
-
-
-SHARE_NONE, SHARE_SHARED, SHARE_WHOLE = "none", "shared", "whole"
-
-
-def _share(item: pytest.Item) -> str:
-    if item.get_closest_marker(CPU_EXCLUSIVE_MARKER) is not None:
-        return SHARE_WHOLE
-    if item.get_closest_marker("integration") is not None:
-        return SHARE_SHARED
-    return SHARE_NONE
+    with contextlib.ExitStack() as held:
+        if share in (Share.MACHINE, Share.UNIT):
+            held.enter_context(
+                _rw_lock(folder, f"arpz-pytest-{run_id}-machine", share is Share.MACHINE)
+            )
+        if share in (Share.MACHINE, Share.CORES, Share.SHARED):
+            held.enter_context(
+                _rw_lock(folder, f"arpz-pytest-{run_id}-integration", share is not Share.SHARED)
+            )
+        yield
 
 
 @pytest.hookimpl(wrapper=True, tryfirst=True)
@@ -163,7 +188,7 @@ def pytest_runtest_protocol(item: pytest.Item) -> Generator[None, object, object
 
     ``tryfirst`` makes this the outermost wrapper, so the time a test waits for its share is not
     counted by pytest-timeout, whose timer starts inside it."""
-    with cpu_share(_share(item)):
+    with cpu_share(share_of(item)):
         return (yield)
 
 
@@ -176,5 +201,4 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     it keeps taking while the exclusive ones run; the integration tests come last. (Not
     ``--dist loadgroup``: with pytest 9, pytest-xdist 3.8 sets its group suffix on a node id
     attribute pytest no longer reads, so ``xdist_group`` is silently ignored.)"""
-    order = {SHARE_WHOLE: 0, SHARE_NONE: 1, SHARE_SHARED: 2}
-    items.sort(key=lambda item: order[_share(item)])  # stable: files keep their order
+    items.sort(key=share_of)  # stable: files keep their order

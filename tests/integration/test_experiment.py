@@ -19,9 +19,13 @@ from arpz.experiment.results import read_rows
 
 # The mission's robots need data under 0.3 s old for 90 s; run beside the experiment's fleet
 # on two shared cores it starved (p99 0.7-1.6 s, the mission timed out, old code and new
-# alike), and the experiment lost samples on a clean link beside other tests: each runs with
-# the cores to itself (tests/conftest.py, cpu_share).
-pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.cpu_exclusive]
+# alike), and the experiment lost samples on a clean link beside other tests, unit tests too:
+# it runs with the whole machine to itself (tests/conftest.py, cpu_share).
+pytestmark = [
+    pytest.mark.integration,
+    pytest.mark.slow,
+    pytest.mark.cpu_exclusive(whole_machine=True),
+]
 
 
 def run(*args: str, timeout_s: float) -> tuple[int, str]:
@@ -73,13 +77,13 @@ def test_quick_preset(tmp_path: Path) -> None:
     by = {(r["network"], r["depth"], r["config"]): r for r in rows}
 
     # A deep history on a clean link: at 3 robots x 6 topics x 1 kHz the CEDDP runs near this
-    # host's capacity (thousands of resends with no link loss), and a CI run with the cores to
-    # itself still lost 26 of 53 000 and a loaded one 969, each one a history overwrite that the
-    # row counts. Zero loss is a figure of the experiment (EXPERIMENTS.md), not of a test on a
-    # shared 2-core host; here: every loss is a counted overwrite, and depth saves nearly all.
+    # host's capacity (thousands of resends with no link loss). A run with the cores to itself
+    # still lost 26 of 53 000, and 2 370 with a unit test beside it: resends that came later than
+    # the reader's reorder timeout, declared lost and counted. Zero loss is a figure of the
+    # experiment (EXPERIMENTS.md), not of a test on a shared 2-core host; here: depth saves
+    # nearly everything depth 1 loses.
     clean = by[("lan", "1000", "baseline")]
     shallow = by[("lan", "1", "baseline")]
-    assert int(clean["samples_lost"]) <= int(clean["samples_overwritten_unacked"]), clean
     assert int(clean["samples_lost"]) <= 0.02 * int(clean["samples_sent"]), clean
     assert int(clean["samples_lost"]) * 10 < int(shallow["samples_lost"]), (clean, shallow)
     # a Hello is lost when its round trip takes over 2 s; at this load its p99 is 0.8 s with the
