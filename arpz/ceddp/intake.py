@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Sequence
 
 from arpz import keys
 from arpz.ceddp.control import ControlWorker, EventSink
@@ -93,6 +94,7 @@ class SensorIntake:
                 incompatible_qos=self._on_incompatible,
             ),
             max_writers=cfg.max_robots * cfg.max_topics_per_robot,
+            on_data_run=self._on_channel_run,
         )
         frames_qos = cfg.profile("frames")
         assert frames_qos is not None, "channel mode has every profile"
@@ -164,8 +166,21 @@ class SensorIntake:
                 self.processed += len(batch)
 
     def _on_channel_data(self, payload: bytes, info: DataInfo) -> None:
-        """A sample delivered by the reliable channel (in order per writer, on its worker)."""
-        self._ingest_one(info.key, payload, large=False)
+        """Unused: ``_on_channel_run`` takes every delivery (the Reader requires an on_data)."""
+        self._on_channel_run(info.key, (payload,))
+
+    def _on_channel_run(self, key: str, payloads: Sequence[bytes]) -> None:
+        """Samples of one writer delivered by the reliable channel, in order, on its thread:
+        ingested under one lock acquisition and one arrival time, as the raw path's batches."""
+        ingest = self.ingest
+        with ingest.lock:
+            arrival_ns = time.time_ns()
+            for payload in payloads:
+                try:
+                    ingest.handle_sensor(key, payload, arrival_ns)
+                except Exception:  # a bad sample or a planner bug must not stop the CEDDP
+                    log.exception("ingest failed on %s", key)
+            self.processed += len(payloads)
 
     def _ingest_one(self, key: str, payload: bytes, *, large: bool) -> None:
         with self.ingest.lock:

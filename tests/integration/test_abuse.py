@@ -27,7 +27,9 @@ from tests.integration.fleet import STEADY_MALLOC, ceddp, robots, settle, write_
 from tests.integration.secure_fleet import rss_mb
 from tests.support import client, wait_until
 
-pytestmark = pytest.mark.integration
+# floods at full speed: the other worker's timing-bound tests must not run beside them, and
+# their own "others still get through" bounds need the cores (tests/conftest.py)
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 R1 = "arpz/itest/robot/robot1"
 #: the tests of raw bytes run both sides in plain mode, where raw puts are the robots' own kind
 #: of traffic; in channel mode a plain put is refused whole (tests/integration/test_downlink.py)

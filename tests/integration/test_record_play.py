@@ -246,6 +246,9 @@ def compare(
     return compared, equal, skipped
 
 
+# a mission in real time at 20 Hz: beside another integration test it fell short of its command
+# count (98 where 104 were required); runs with the cores to itself (tests/conftest.py)
+@pytest.mark.cpu_exclusive
 def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> None:
     """The hallway mission's 3 robots are recorded for MISSION_S with the CEDDP's commands, then
     played into a fresh CEDDP running the same planner; its commands are recorded too.
