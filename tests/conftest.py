@@ -163,8 +163,9 @@ def cpu_share(share: Share) -> Iterator[None]:
     locks: "integration" (integration tests read, ``cpu_exclusive`` ones write) and "machine"
     (unit tests read, ``whole_machine`` ones write). A unit test is one process, so the other
     worker runs the unit tests while the exclusive ones run (``pytest_collection_modifyitems``),
-    except beside the quick experiment at 1 kHz, which lost samples even then. Without xdist
-    there is nobody to share with."""
+    except beside the ``whole_machine`` ones, whose bounds failed even with a unit test beside
+    them (the quick experiment at 1 kHz lost samples). Without xdist there is nobody to share
+    with."""
     run_id = os.environ.get("PYTEST_XDIST_TESTRUNUID")
     if run_id is None:
         yield
