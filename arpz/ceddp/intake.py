@@ -165,9 +165,8 @@ class SensorIntake:
 
     def _on_channel_data(self, payload: bytes, info: DataInfo) -> None:
         """A sample delivered by the reliable channel (in order per writer, on its worker).
-        Not ``on_data_run``: with it (whole runs, then 8 samples per hold of the ingest lock),
-        a CI run failed the soak's reconciliation by 4 samples of 4 128 and the overload
-        recovery test, on a loaded host; not settled, so the per-sample path stays."""
+        Ingesting a writer's whole run per call was tried and withdrawn (benchmarks/RESULTS.md,
+        "the CEDDP's channel ingest by runs")."""
         self._ingest_one(info.key, payload, large=False)
 
     def _ingest_one(self, key: str, payload: bytes, *, large: bool) -> None:

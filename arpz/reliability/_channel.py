@@ -116,7 +116,6 @@ class Channel:
         *,
         inline: bool = False,
         before_tick: Callable[[], None] | None = None,
-        on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
     ) -> None:
         self.transport = transport
         self.inline = inline
@@ -129,8 +128,6 @@ class Channel:
         self.machine = machine
         self.events = events
         self.on_data = on_data
-        #: when set, takes every delivery instead of ``on_data``, a whole in-order run at once
-        self.on_data_run = on_data_run
         #: guards the machine; ``cond`` (on the same lock) wakes a KEEP_ALL write waiting for room
         self.mutex = threading.Lock()
         self.lock = threading.Condition(self.mutex)
@@ -380,21 +377,10 @@ class Channel:
             return []
 
     def perform(self, actions: list[Action]) -> None:
-        on_data, on_run = self.on_data, self.on_data_run
+        on_data = self.on_data
         for action in actions:
             kind = type(action)
-            if on_run is not None and (kind is DeliverRun or kind is Deliver):
-                key, payloads = (
-                    (action.key, action.payloads)  # type: ignore[union-attr]
-                    if kind is DeliverRun
-                    else (action.info.key, (action.payload,))  # type: ignore[union-attr]
-                )
-                try:
-                    on_run(key, payloads)
-                except Exception:
-                    self.callback_errors += 1
-                    log.exception("on_data_run raised; the channel goes on")
-            elif kind is DeliverRun or kind is Deliver:
+            if kind is DeliverRun or kind is Deliver:
                 if on_data is None:
                     continue
                 samples: Iterable[tuple[bytes, DataInfo]] = (

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 
 from arpz.protocol._common import new_guid
 from arpz.protocol.events import DataInfo, ReaderEventCallbacks
@@ -23,12 +23,7 @@ class Reader(Endpoint):
     ``inline_delivery=True`` trades the own threads for latency: samples are processed and
     ``on_data`` runs on the transport's thread (no thread wake-up: usually about 1.2x raw Zenoh's
     round trip against 1.25x, see benchmarks/RESULTS.md). Only for callbacks that return quickly;
-    timers and events still run on the control thread.
-
-    ``on_data_run(key, payloads)``, when given, takes every delivery instead of ``on_data``: a
-    whole in-order run of one writer's samples at once (a batch the writer sent), without a
-    ``DataInfo`` per sample. For a consumer that needs neither seq, stamp nor writer, such as the
-    CEDDP's ingest, it saves about 0.85 us a sample of the 4.5 us the channel path costs."""
+    timers and events still run on the control thread."""
 
     def __init__(
         self,
@@ -41,7 +36,6 @@ class Reader(Endpoint):
         clock: Clock | None = None,
         inline_delivery: bool = False,
         max_writers: int = DEFAULT_MAX_WRITERS,
-        on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
     ) -> None:
         self.key_expr = key_expr
         self._machine = ReaderMachine(
@@ -55,7 +49,6 @@ class Reader(Endpoint):
             on_data,
             f"arpz-reader-{key_expr}",
             inline=inline_delivery,
-            on_data_run=on_data_run,
         )
         self._channel.start()
 

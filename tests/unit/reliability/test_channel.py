@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Sequence
 
 import pytest
 
@@ -53,42 +52,6 @@ def test_samples_flow_in_order_and_callbacks_run_on_the_worker_thread() -> None:
         assert threads == {"arpz-reader-f/robot/*/sensor/*"}
         assert writer.wait_for_acknowledgments(2.0)
         assert reader.stats().delivered == 200 and writer.stats().sent == 200
-
-
-def test_on_data_run_takes_whole_in_order_runs_instead_of_on_data() -> None:
-    """A batching writer's runs reach ``on_data_run`` whole, in order, and ``on_data`` never;
-    a run that raises is counted and the next one still arrives."""
-    bus = MemoryBus()
-    runs: list[tuple[str, list[bytes]]] = []
-    singles: list[bytes] = []
-
-    def on_run(key: str, payloads: Sequence[bytes]) -> None:
-        runs.append((key, list(payloads)))
-        if len(runs) == 1:
-            raise RuntimeError("the first run's consumer fails")
-
-    with (
-        _nullctx(MemoryTransport(bus)) as a,
-        _nullctx(MemoryTransport(bus)) as b,
-        Reader(
-            b,
-            "f/robot/*/sensor/*",
-            QOS_RELIABLE_ALL,
-            lambda payload, _info: singles.append(payload),
-            on_data_run=on_run,
-        ) as reader,
-        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
-    ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
-        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
-        for i in range(500):
-            writer.write(b"%d" % i)
-        wait_until(lambda: sum(len(p) for _, p in runs) == 500, what="all samples")
-        assert [x for _, payloads in runs for x in payloads] == [b"%d" % i for i in range(500)]
-        assert {key for key, _ in runs} == {"f/robot/r1/sensor/lidar"}
-        assert len(runs) < 500  # batches arrived as runs, not one sample at a time
-        assert singles == []
-        assert reader.stats().callback_errors == 1
 
 
 def test_keep_all_write_blocks_then_raises_a_clear_error_when_no_one_acknowledges() -> None:
