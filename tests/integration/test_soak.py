@@ -142,7 +142,13 @@ def test_counts_reconcile_robots_stay_flat_and_the_ceddp_keeps_up(soak: SoakRun)
         assert len(record["topics"]) == TOPICS_PER_ROBOT, sorted(record["topics"])
         for topic, t in record["topics"].items():
             assert t["produced"] == t["sent"] + t["held_back"] > 0, (robot, topic, t)
-            assert t["received"] == t["sent"] and t["lost"] == 0, (robot, topic, t)
+            # nothing silent: what did not arrive was declared lost. On loopback a sample is lost
+            # only when the writer's KEEP_LAST history overwrote it before the CEDDP acknowledged
+            # it, which the writer counts (a slowed host, 260 ms p99, lost 1-10 of about 4 100
+            # per topic this way, each overwrite reported); so every loss must be one of those
+            assert t["received"] + t["lost"] == t["sent"], (robot, topic, t)
+            assert t["lost"] <= t["overwritten_unacked"], (robot, topic, t)
+            assert t["lost"] <= 0.01 * t["sent"], (robot, topic, t)
             assert t["decode_errors"] == 0, (robot, topic, t)
         # a CEDDP falling behind would show as latency growing with the backlog (to seconds
         # within a minute); the bounds leave room for a loaded CI machine's scheduling spikes
