@@ -222,13 +222,19 @@ SLACK_NS = 150_000_000
 
 HOLD = (0.0, 0.0)
 
+#: a command turning at least this fast (rad/s) is part of a corner turn, not lane keeping
+TURNING_RAD_S = 0.5
+#: turning commands that must be compared (2 s of turning at 20 Hz make about 40)
+MIN_TURNING = 5
+
 
 def compare(
     recorded: list[tuple[int, tuple[float, float]]],
     replayed: list[tuple[int, tuple[float, float]]],
     offset_ns: int,
-) -> tuple[int, int, int]:
-    """(commands compared, commands equal, holds skipped): each recorded command from the start
+) -> tuple[int, int, int, int]:
+    """(commands compared, commands equal, holds skipped, turning commands compared): each
+    recorded command from the start
     of motion on against the replayed commands within SLACK_NS of it on the replay's time line
     (its stamp + offset); equal when one of them is (v exactly, omega within 0.01 rad/s).
 
@@ -238,7 +244,7 @@ def compare(
     compared either."""
     start = next(s for s, (v, _) in recorded if v > 0)
     times = [s - offset_ns for s, _ in replayed]
-    compared = equal = skipped = 0
+    compared = equal = skipped = turning = 0
     for stamp, (v, omega) in recorded:
         lo = bisect.bisect_left(times, stamp - SLACK_NS)
         hi = bisect.bisect_right(times, stamp + SLACK_NS)
@@ -249,8 +255,9 @@ def compare(
             skipped += 1
             continue
         compared += 1
+        turning += abs(omega) >= TURNING_RAD_S
         equal += any(v_b == v and abs(omega_b - omega) <= 0.01 for v_b, omega_b in near)
-    return compared, equal, skipped
+    return compared, equal, skipped, turning
 
 
 # a mission in real time at 20 Hz: beside another integration test it fell short of its command
@@ -268,8 +275,9 @@ def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> 
     Hence: each recorded command from the start of motion on is compared with the replayed
     commands within 3 ticks of it on the replay's time line (play shifts all stamps by one
     constant, measured on a beam both files hold), where neither run held; at least 95 % must
-    be equal (v exactly, omega within 0.01 rad/s), and holds may take out at most 40 % of the
-    commands. The recording must hold a corner turn, so the decisions compared include more
+    be equal (v exactly, omega within 0.01 rad/s). How many holds a run has is the host's
+    timing, so what is bounded is what remains: at least a quarter of the nominal 20 Hz
+    decisions compared, MIN_TURNING of them turning, so the decisions compared include more
     than driving straight."""
     original, replay = tmp_path / "original.mcap", tmp_path / "replay.mcap"
     first = tmp_path / "first"
@@ -309,14 +317,19 @@ def test_a_replayed_mission_makes_the_same_planner_decisions(tmp_path: Path) -> 
     offset_ns = replay_offset_ns(original, replay)
     assert sorted(before) == sorted(after) == ["robot1", "robot2", "robot3"]
     for name in before:
-        assert any(abs(omega) >= 0.5 for _, (_, omega) in before[name]), "no turn recorded"
-        compared, equal, skipped = compare(before[name], after[name], offset_ns)
-        # 20 Hz over the recording, less the start; holds for late beams may take out some, not
-        # most. The planner's rate is the CPU it gets: on a VM slowed fourfold by a neighbour,
-        # 98 and 90 commands came where 104 were asked, so half the nominal count is required
-        assert compared + skipped >= 0.5 * recorded_s * 20, (name, compared, skipped, recorded_s)
-        assert compared >= 0.6 * (compared + skipped), (name, compared, skipped)
-        assert equal >= 0.95 * compared, (name, equal, compared, skipped)
+        assert any(abs(omega) >= TURNING_RAD_S for _, (_, omega) in before[name]), "no turn"
+        compared, equal, skipped, turning = compare(before[name], after[name], offset_ns)
+        figures = (name, compared, equal, skipped, turning, recorded_s)
+        # 20 Hz over the recording, less the start. The planner's rate is the CPU it gets: on a
+        # VM slowed fourfold by a neighbour, 98 and 90 commands came where 104 were asked, so
+        # half the nominal count is required
+        assert compared + skipped >= 0.5 * recorded_s * 20, figures
+        # Holds for late beams are the host's timing: idle, none (0-3 of 150 skipped); in CI on
+        # a slow host 71 of 173 (each hold skips the recorded commands within SLACK_NS of it).
+        # What must remain is enough decisions to compare, a turn among them
+        assert compared >= 0.25 * recorded_s * 20, figures
+        assert turning >= MIN_TURNING, figures
+        assert equal >= 0.95 * compared, figures
 
 
 def test_the_camera_replay_driver_sends_the_recorded_frames(every_kind: Path) -> None:
