@@ -26,13 +26,13 @@ DEFAULT_CAPACITY = 20_000
 _SMALL = 2048
 
 
-def _linear(ordered: list[float], q: float) -> float:
+def _linear(ordered: list[float] | np.ndarray, q: float) -> float:
     """numpy's default ("linear") percentile of sorted values: interpolate at (n - 1) q / 100."""
     position = (len(ordered) - 1) * q / 100
     low = int(position)
     if low + 1 >= len(ordered):
-        return ordered[-1]
-    return ordered[low] + (ordered[low + 1] - ordered[low]) * (position - low)
+        return float(ordered[-1])
+    return float(ordered[low] + (ordered[low + 1] - ordered[low]) * (position - low))
 
 
 def percentile(values: list[float] | np.ndarray, q: float) -> float | None:
@@ -45,9 +45,13 @@ def percentiles(values: list[float] | np.ndarray, qs: tuple[float, ...]) -> list
     if len(values) == 0:
         return [None] * len(qs)
     if isinstance(values, list) and len(values) <= _SMALL:
-        ordered = sorted(values)
-        return [float(_linear(ordered, q)) for q in qs]
-    return [float(v) for v in np.percentile(np.asarray(values, dtype=float), qs)]
+        ordered: list[float] | np.ndarray = sorted(values)
+    else:
+        # np.sort and an interpolation by hand, not np.percentile: on a reservoir of 20 000 values
+        # 144 us against 600, on a slow topic's 45 values 9 us against 95 (np.percentile's
+        # overhead made a 25-robot fleet's summary 15 % of an idle CEDDP's CPU, issue 17)
+        ordered = np.sort(np.asarray(values, dtype=float))
+    return [_linear(ordered, q) for q in qs]
 
 
 class Distribution:

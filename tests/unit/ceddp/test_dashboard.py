@@ -1,0 +1,51 @@
+"""The dashboard's metric series, read back from the ``.rrd`` by Rerun's own reader: every value
+at its stamp on its entity path, whatever the series' lengths (the flush sends slices of arrays
+shared by all series, so an offset off by one would move values between series)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from rerun.chunk import RrdReader
+
+from arpz.ceddp.dashboard import Dashboard
+from arpz.frames import TIMELINE, MetricsFrame
+
+T0_NS = 1_700_000_000_000_000_000
+
+
+def series(rrd: Path) -> dict[str, list[tuple[int, float]]]:
+    """entity path -> [(stamp_ns, value)] of every metric row in the file."""
+    out: dict[str, list[tuple[int, float]]] = {}
+    chunks = RrdReader(str(rrd)).stream().filter(content="/metrics/**", is_static=False)
+    for chunk in chunks.to_chunks():
+        batch = chunk.to_record_batch()
+        stamps = batch.column(TIMELINE).cast("int64").to_pylist()
+        values = batch.column("Scalars:scalars").to_pylist()
+        rows = out.setdefault(str(chunk.entity_path), [])
+        rows.extend((stamp, value[0]) for stamp, value in zip(stamps, values, strict=True))
+    return {path: sorted(rows) for path, rows in out.items()}
+
+
+def test_every_value_reaches_its_own_series_at_its_stamp(tmp_path: Path) -> None:
+    rrd = tmp_path / "ceddp.rrd"
+    dashboard = Dashboard(rrd, flush_period_s=3600)  # one flush, at close: all series at once
+    expected: dict[str, list[tuple[int, float]]] = {}
+    for tick in range(5):
+        stamp_ns = T0_NS + tick * 500_000_000
+        topics: dict[tuple[str, str], dict[str, float]] = {}
+        # series of different lengths: robot2's imu joins at tick 2, robot1's pir leaves at 3
+        for robot, topic in (("robot1", "lidar"), ("robot1", "pir"), ("robot2", "imu")):
+            if (topic == "imu" and tick < 2) or (topic == "pir" and tick >= 3):
+                continue
+            rate = 100.0 * tick + len(topic) + (robot == "robot2")
+            topics[(robot, topic)] = {"rate_hz": rate, "lost": float(tick)}
+            for name, value in topics[(robot, topic)].items():
+                path = f"/metrics/{name}/{robot}/{topic}"
+                expected.setdefault(path, []).append((stamp_ns, value))
+        robots = {"robot1": {"cpu_percent": 10.0 + tick}}
+        expected.setdefault("/metrics/cpu_percent/robot1", []).append((stamp_ns, 10.0 + tick))
+        assert dashboard.submit(MetricsFrame(stamp_ns, topics=topics, robots=robots))
+    dashboard.close()
+    assert dashboard.logged_rows == sum(len(rows) for rows in expected.values())
+    assert series(rrd) == expected
