@@ -81,6 +81,11 @@ class LossyBus:
                 self._later(0.002, ("token", node, key, declare))
 
     def run(self, node: Node, actions: Sequence[Action]) -> None:
+        machine = node.machine
+        if isinstance(machine, ReaderMachine):
+            # after every call into a reader, in every scenario of every test on this bus: the
+            # suspects-only ``busy`` says what the scan over all writers says
+            assert machine.busy() == machine.busy_scan()
         for action in actions:
             if isinstance(action, Send):
                 self.send(action)

@@ -1,0 +1,101 @@
+"""What a reader's ``busy`` costs with a fleet's writers behind one wildcard subscription.
+
+The channel asks its reader machine ``busy()`` after every pass of its delivery thread (does a
+gap now need the fine timer?). By its definition it looks at every matched writer; the machine
+keeps the writers that may be busy (its suspects) and looks at those only. A CEDDP's sensor
+reader has robots x topics writers (400 for the issue-17 target), all in order most of the time.
+This matches that many writers to one reader, brings each in sync with one sample, and times
+``busy()`` against ``busy_scan()`` (the definition) in the same run.
+
+    python benchmarks/reader_busy.py [--robots 10,50,100] [--topics 8] [--calls 20000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from arpz.memory_transport import key_matches
+from arpz.protocol._common import new_guid
+from arpz.protocol.actions import Action, Send, TokenChange
+from arpz.protocol.qos import HistoryPolicy, QosProfile
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import FakeClock
+from arpz.protocol.writer_machine import WriterMachine
+
+
+def route(reader: ReaderMachine, actions: list[Action]) -> None:
+    """A writer's messages to the reader, as the router would, without loss or delay."""
+    for action in actions:
+        if isinstance(action, Send):
+            for expr, handler in reader.subscriptions():
+                if key_matches(expr, action.key):
+                    getattr(reader, handler)(action.key, action.payload, action.attachment)
+
+
+def synced_reader(robots: int, topics: int) -> ReaderMachine:
+    clock = FakeClock()
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=30)
+    reader = ReaderMachine("f/robot/*/sensor/*", qos, new_guid(), clock)
+    writers = [
+        WriterMachine(f"f/robot/r{r}/sensor/s{t}", qos, new_guid(), clock)
+        for r in range(robots)
+        for t in range(topics)
+    ]
+    reader_tokens = {  # the reader declares one token per topic as its writers appear
+        action.key
+        for writer in writers
+        for action in reader.on_writer_token(writer.token_key, True)
+        if isinstance(action, TokenChange) and action.declare
+    }
+    for writer in writers:
+        for key in reader_tokens:
+            if key_matches(writer.watch_expr(), key):
+                route(reader, writer.on_reader_token(key, True))
+    for _ in range(3):  # SYNC heartbeats, one sample each, the ACKNACKs back
+        clock.advance(0.2)
+        for writer in writers:
+            route(reader, writer.tick())
+        for writer in writers:
+            _, ready, actions = writer.write(b"x")
+            route(reader, actions)
+            if ready is not None:
+                route(reader, [Send(writer.topic, ready[0], ready[1])])
+        clock.advance(0.2)
+        reader.tick()
+    return reader
+
+
+def per_call_us(fn: Callable[[], object], calls: int) -> float:
+    start = time.perf_counter()
+    for _ in range(calls):
+        fn()
+    return (time.perf_counter() - start) / calls * 1e6
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--robots", default="10,50,100")
+    ap.add_argument("--topics", type=int, default=8)
+    ap.add_argument("--calls", type=int, default=20_000)
+    args = ap.parse_args()
+    print(f"{'writers':>8} {'synced':>7} {'busy() us':>10} {'scan us':>9} {'ratio':>7}")
+    for robots in (int(n) for n in args.robots.split(",")):
+        reader = synced_reader(robots, args.topics)
+        synced = sum(p.synced for p in reader.writers.values())
+        assert reader.busy() == reader.busy_scan()
+        fast = per_call_us(reader.busy, args.calls)
+        scan = per_call_us(reader.busy_scan, max(args.calls // 20, 100))
+        print(
+            f"{len(reader.writers):>8} {synced:>7} {fast:>10.2f} {scan:>9.2f} {fast / scan:>6.3f}x"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
