@@ -313,11 +313,16 @@ class ZenohTransport:
         return pub
 
     def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
-        with _translated(f"put on {key}"):
+        """Through the session, not a publisher kept per key: a kept publisher costs 3 us a put
+        against 12, but lost the downlink's puts over a lossy UDP link (tests/integration/
+        test_downlink.py; benchmarks/RESULTS.md, stop 27)."""
+        try:  # not ``_translated``: once per ACKNACK on the CEDDP's sensor path
             if attachment is None:
                 self._session.put(key, payload)
             else:
                 self._session.put(key, payload, attachment=attachment)
+        except zenoh.ZError as exc:
+            raise TransportError(f"put on {key}: {zenoh_message(exc)}") from exc
 
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
         expr, keep = bundle.subscription(key_expr)
