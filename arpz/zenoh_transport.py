@@ -314,8 +314,8 @@ class ZenohTransport:
 
     def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
         """Through the session, not a publisher kept per key: a kept publisher costs 3 us a put
-        against 12, but lost the downlink's puts over a lossy UDP link (tests/integration/
-        test_downlink.py; benchmarks/RESULTS.md, stop 27)."""
+        against 12, but with it the downlink over a lossy UDP link failed its test
+        (tests/integration/test_downlink.py; benchmarks/RESULTS.md, stop 27)."""
         try:  # not ``_translated``: once per ACKNACK on the CEDDP's sensor path
             if attachment is None:
                 self._session.put(key, payload)

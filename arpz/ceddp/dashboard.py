@@ -171,6 +171,7 @@ class Dashboard:
 
     def _add(self, path: str, t_s: float, value: float) -> None:
         times, values = self._pending.setdefault(path, ([], []))
+        value = float(value)  # here, in the caller's try: a bad value is logged, not flushed
         times.append(t_s)
         values.append(value)
 
@@ -189,18 +190,22 @@ class Dashboard:
             return
         lengths = [len(times) for times, _ in pending.values()]
         total = sum(lengths)
-        times = np.fromiter(
-            itertools.chain.from_iterable(t for t, _ in pending.values()), float, total
-        )
-        values = np.fromiter(
-            itertools.chain.from_iterable(v for _, v in pending.values()), float, total
-        )
-        stamps = pa.array((times * 1e9).astype("datetime64[ns]"), pa.timestamp("ns"))
-        scalars = pa.ListArray.from_arrays(
-            pa.array(np.arange(total + 1, dtype=np.int32)),
-            pa.array(values, pa.float64()),
-            type=_SCALARS_TYPE,
-        )
+        try:  # on the dashboard's thread, outside ``_run``'s per-item guard
+            times = np.fromiter(
+                itertools.chain.from_iterable(t for t, _ in pending.values()), float, total
+            )
+            values = np.fromiter(
+                itertools.chain.from_iterable(v for _, v in pending.values()), float, total
+            )
+            stamps = pa.array((times * 1e9).astype("datetime64[ns]"), pa.timestamp("ns"))
+            scalars = pa.ListArray.from_arrays(
+                pa.array(np.arange(total + 1, dtype=np.int32)),
+                pa.array(values, pa.float64()),
+                type=_SCALARS_TYPE,
+            )
+        except Exception:
+            log.exception("Rerun logging failed: %d metric rows not logged", total)
+            return
         start = 0
         for path, length in zip(pending, lengths, strict=True):
             try:

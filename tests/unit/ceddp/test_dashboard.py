@@ -5,7 +5,9 @@ shared by all series, so an offset off by one would move values between series).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
+import pytest
 from rerun.chunk import RrdReader
 
 from arpz.ceddp.dashboard import Dashboard
@@ -49,3 +51,16 @@ def test_every_value_reaches_its_own_series_at_its_stamp(tmp_path: Path) -> None
     dashboard.close()
     assert dashboard.logged_rows == sum(len(rows) for rows in expected.values())
     assert series(rrd) == expected
+
+
+def test_a_bad_value_is_logged_and_the_dashboard_goes_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    rrd = tmp_path / "ceddp.rrd"
+    dashboard = Dashboard(rrd, flush_period_s=3600)
+    bad: dict[str, Any] = {"rate_hz": None}
+    dashboard.submit(MetricsFrame(T0_NS, robots={"robot1": bad}))
+    dashboard.submit(MetricsFrame(T0_NS + 10**9, robots={"robot1": {"rate_hz": 5.0}}))
+    dashboard.close()
+    assert "Rerun logging failed" in caplog.text
+    assert series(rrd) == {"/metrics/rate_hz/robot1": [(T0_NS + 10**9, 5.0)]}
