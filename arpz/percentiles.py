@@ -48,8 +48,9 @@ def percentiles(values: list[float] | np.ndarray, qs: tuple[float, ...]) -> list
         ordered: list[float] | np.ndarray = sorted(values)
     else:
         # np.sort and an interpolation by hand, not np.percentile: on a reservoir of 20 000 values
-        # 144 us against 600, on a slow topic's 45 values 9 us against 95 (np.percentile's
-        # overhead made a 25-robot fleet's summary 15 % of an idle CEDDP's CPU, issue 17)
+        # 120 us against 409, on a slow topic's 45 values 6 us against 70 (``python
+        # benchmarks/metrics_cost.py``); np.percentile made a 25-robot fleet's summary 15 % of
+        # an idle CEDDP's Python time (a py-spy profile, benchmarks/RESULTS.md, issue 17)
         ordered = np.sort(np.asarray(values, dtype=float))
     return [_linear(ordered, q) for q in qs]
 

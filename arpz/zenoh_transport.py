@@ -313,9 +313,10 @@ class ZenohTransport:
         return pub
 
     def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
-        """Through the session, not a publisher kept per key: a kept publisher costs 3 us a put
-        against 12, but with it the downlink over a lossy UDP link failed its test
-        (tests/integration/test_downlink.py; benchmarks/RESULTS.md, stop 27)."""
+        """Through the session, not a publisher kept per key: a kept publisher's put costs
+        0.56-0.85x of this one (``python benchmarks/zenoh_put.py``), but with it the downlink
+        over a lossy UDP link failed its test (tests/integration/test_downlink.py;
+        benchmarks/RESULTS.md, stop 27)."""
         try:  # not ``_translated``: once per ACKNACK on the CEDDP's sensor path
             if attachment is None:
                 self._session.put(key, payload)

@@ -13,6 +13,7 @@ This matches that many writers to one reader, brings each in sync with one sampl
 from __future__ import annotations
 
 import argparse
+import random
 import sys
 import time
 from collections.abc import Callable
@@ -20,55 +21,31 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from arpz.memory_transport import key_matches
 from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Action, Send, TokenChange
 from arpz.protocol.qos import HistoryPolicy, QosProfile
 from arpz.protocol.reader_machine import ReaderMachine
 from arpz.protocol.timers import FakeClock
 from arpz.protocol.writer_machine import WriterMachine
-
-
-def route(reader: ReaderMachine, actions: list[Action]) -> None:
-    """A writer's messages to the reader, as the router would, without loss or delay."""
-    for action in actions:
-        if isinstance(action, Send):
-            for expr, handler in reader.subscriptions():
-                if key_matches(expr, action.key):
-                    getattr(reader, handler)(action.key, action.payload, action.attachment)
+from tests.unit.reliability.lossy_bus import Link, LossyBus
 
 
 def synced_reader(robots: int, topics: int) -> ReaderMachine:
-    clock = FakeClock()
+    """One reader of ``f/robot/*/sensor/*`` matched to robots x topics writers over the tests'
+    in-memory bus (no loss), each writer in sync and one sample delivered."""
+    bus = LossyBus(random.Random(1), Link(), FakeClock())
     qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=30)
-    reader = ReaderMachine("f/robot/*/sensor/*", qos, new_guid(), clock)
     writers = [
-        WriterMachine(f"f/robot/r{r}/sensor/s{t}", qos, new_guid(), clock)
+        bus.add(WriterMachine(f"f/robot/r{r}/sensor/s{t}", qos, new_guid(), bus.clock))
         for r in range(robots)
         for t in range(topics)
     ]
-    reader_tokens = {  # the reader declares one token per topic as its writers appear
-        action.key
-        for writer in writers
-        for action in reader.on_writer_token(writer.token_key, True)
-        if isinstance(action, TokenChange) and action.declare
-    }
+    reader = bus.add(ReaderMachine("f/robot/*/sensor/*", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
     for writer in writers:
-        for key in reader_tokens:
-            if key_matches(writer.watch_expr(), key):
-                route(reader, writer.on_reader_token(key, True))
-    for _ in range(3):  # SYNC heartbeats, one sample each, the ACKNACKs back
-        clock.advance(0.2)
-        for writer in writers:
-            route(reader, writer.tick())
-        for writer in writers:
-            _, ready, actions = writer.write(b"x")
-            route(reader, actions)
-            if ready is not None:
-                route(reader, [Send(writer.topic, ready[0], ready[1])])
-        clock.advance(0.2)
-        reader.tick()
-    return reader
+        bus.write(writer, b"x")
+    bus.run_for(1.0)
+    assert isinstance(reader.machine, ReaderMachine)
+    return reader.machine
 
 
 def per_call_us(fn: Callable[[], object], calls: int) -> float:

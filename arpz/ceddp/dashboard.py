@@ -65,7 +65,8 @@ _SCALARS_TYPE = _SCALARS.as_arrow_array().type
 class _Column:
     """A column already in Arrow form, for ``send_columns``: what ``rr.TimeColumn`` and Rerun's
     component columns hand it (a name or descriptor, and an Arrow array), without their
-    conversion from Python."""
+    conversion from Python. Not ``rr.ComponentColumn``: it partitions its batch again into
+    unit-length rows, a cost a series the flush is rid of."""
 
     def __init__(self, name: Any, array: pa.Array) -> None:
         self._name = name
@@ -181,9 +182,10 @@ class Dashboard:
         columns of a few seconds cost tens of bytes a value.
 
         The arrays of all series are built once and each series sends a zero-copy slice of
-        them: Rerun's own column builders (``rr.TimeColumn``, ``rr.Scalars.columns``) cost
-        about 120 of the 210 us a series took, and a fleet of 25 robots has about 2 400
-        series; its flush was a quarter of an idle CEDDP's CPU (issue 17)."""
+        them: 43 us a series, against 208 through Rerun's own column builders (``rr.TimeColumn``,
+        ``rr.Scalars.columns``; ``python benchmarks/metrics_cost.py``). A fleet of 25 robots
+        has about 2 400 series; with the builders its flush was a quarter of an idle CEDDP's
+        Python time (a py-spy profile, benchmarks/RESULTS.md, issue 17)."""
         self._last_flush = time.monotonic()
         pending, self._pending = self._pending, {}
         if not pending:
