@@ -16,6 +16,7 @@ called twice at once, and always in the order the machine decided.
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -234,11 +235,26 @@ class Channel:
         assert pull is not None and handler is not None
         recv, try_recv = pull.recv, pull.try_recv
         wait = self.delivery_wait
+        reader = self.machine if isinstance(self.machine, ReaderMachine) else None
+        clock = self.machine.clock.monotonic_s
         while True:
             try:
-                wait.start()
-                items = [recv()]
-                wait.stop()
+                first = try_recv()
+                if first is None:
+                    # the FIFO is empty: a heartbeat seen while we wait has no data behind it
+                    if reader is not None and reader.drain_waited:
+                        with self.lock:
+                            wake = reader.drained(math.inf)
+                        if wake:
+                            self.wake()
+                    elif reader is not None:
+                        reader.drained_s = math.inf
+                    wait.start()
+                    first = recv()
+                    wait.stop()
+                    if reader is not None:  # more may be queued behind it
+                        reader.drained_s = clock()
+                items = [first]
             except TransportError:  # undeclared by close() and drained, or the session went away
                 wait.stop()
                 if self._closing:
@@ -251,19 +267,22 @@ class Channel:
                         exc_info=True,
                     )
                 return
+            empty_at: float | None = None
             while len(items) < _BATCH:
+                before = clock()
                 try:
                     item = try_recv()
                 except TransportError:  # closed meanwhile: handle what came, recv says the rest
                     break
                 if item is None:
+                    empty_at = before
                     break
                 items.append(item)
             out: list[Action] = []
             with self.lock:
-                if isinstance(self.machine, ReaderMachine):
+                if reader is not None:
                     # a full pull leaves more queued: a NACK now would ask for some of it
-                    self.machine.queued = len(items) >= _BATCH
+                    reader.queued = len(items) >= _BATCH
                 for item in items:
                     try:
                         out.extend(handler(item[0], item[1], item[2]))
@@ -271,8 +290,9 @@ class Channel:
                         self.callback_errors += 1
                         log.exception("reliable channel delivery: unexpected error")
                 self._pull_backlog = len(items) >= _BATCH
+                drained = reader is not None and empty_at is not None and reader.drained(empty_at)
                 ticket = self._ticket(out)
-                wake = self._worker_needed()
+                wake = drained or self._worker_needed()
             if wake:
                 self.wake()
             if ticket is not None:
