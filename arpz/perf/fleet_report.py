@@ -119,6 +119,10 @@ class CeddpFigures:
     capacity_hz: float | None = None
     ingest_backlog: int | None = None
     latency_ms_max: float | None = None
+    #: the sensor reader's NACKs and the samples it received twice (a resend of what had come):
+    #: on a link that loses nothing, every NACK asked for what was only queued
+    ingest_nacks: int | None = None
+    ingest_duplicates: int | None = None
 
 
 @dataclass(frozen=True)
@@ -227,6 +231,10 @@ def _worst(values: Iterable[float | None]) -> float | None:
     return max(present) if present else None
 
 
+def _count(value: object) -> int | None:
+    return value if isinstance(value, int) else None
+
+
 def ceddp_figures(
     index: int,
     summary: Mapping[str, Any],
@@ -239,7 +247,7 @@ def ceddp_figures(
     ``capacity_hz``; absent keys or None: not published)."""
     mine = [r for r in rows if r.ceddp == index]
     channel = (summary.get("ingest") or {}).get("channel") or {}
-    dropped = channel.get("queue_dropped")
+    dropped = _count(channel.get("queue_dropped"))
     delivered = sum(r.delivered for r in mine)
     own = self_report or {}
     return CeddpFigures(
@@ -254,7 +262,9 @@ def ceddp_figures(
         latency_ms_p50=_median(r.latency_ms_p50 for r in mine),
         latency_ms_p99=_worst(r.latency_ms_p99 for r in mine),
         staleness_ms_p99=_worst(r.staleness_ms_p99 for r in mine),
-        ingest_queue_dropped=int(dropped) if isinstance(dropped, int) else None,
+        ingest_queue_dropped=dropped,
+        ingest_nacks=_count(channel.get("nacks")),
+        ingest_duplicates=_count(channel.get("duplicates")),
         cpu_us_per_sample=per_sample_us(
             process.cpu_cores if process else None, window_s, delivered
         ),
@@ -469,7 +479,8 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
             f"{c.delivered_per_s:,.0f}/s, lost {c.lost}, p50 {_fmt(c.latency_ms_p50)} ms, "
             f"p99 {_fmt(c.latency_ms_p99)} ms, max {_fmt(c.latency_ms_max)} ms, CPU {cpu}, "
             f"RSS {rss}, ingest queue dropped "
-            f"{_fmt(c.ingest_queue_dropped, 'd')}, sensor path busy (max) "
+            f"{_fmt(c.ingest_queue_dropped, 'd')}, NACKs {_fmt(c.ingest_nacks, 'd')}, "
+            f"duplicates {_fmt(c.ingest_duplicates, 'd')}, sensor path busy (max) "
             f"{_fmt(c.ingest_load_max)}, dashboard frames dropped "
             f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
             f"{_fmt(c.cpu_us_per_sample, '.0f')} us"

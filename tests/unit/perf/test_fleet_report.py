@@ -33,7 +33,7 @@ def _summary(robots: dict[str, dict[str, Any]], partition: str = "*") -> dict[st
     return {
         "partition": partition,
         "robots": robots,
-        "ingest": {"channel": {"queue_dropped": 3}},
+        "ingest": {"channel": {"queue_dropped": 3, "nacks": 5, "duplicates": 7}},
     }
 
 
@@ -98,6 +98,7 @@ def test_fleet_point_aggregates_and_flags_a_generator_limited_run() -> None:
     assert ceddp.delivered == 4000 and ceddp.delivered_per_s == 400.0
     assert ceddp.latency_ms_p99 == 6.0  # the worst robot
     assert ceddp.ingest_queue_dropped == 3
+    assert (ceddp.ingest_nacks, ceddp.ingest_duplicates) == (5, 7)
     assert ceddp.cpu_us_per_sample == 1250.0  # 0.5 core x 10 s / 4000
     point = fleet_point(
         rows=rows,
