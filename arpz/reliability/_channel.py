@@ -96,7 +96,14 @@ def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, flo
     is pending the worker sleeps for the idle one, so an idle channel does not wake 500 times a
     second and take the GIL from the threads that carry data."""
     qos = machine.qos
-    fine = min(0.05, max(0.001, min(qos.nack_delay_s or qos.nack_period_s, qos.nack_period_s)))
+    if isinstance(machine, WriterMachine):
+        # a writer sends no NACKs (their delay is the reader's): its fine timer repeats SYNC,
+        # every nack_period_s. A streaming writer ticks at it; at the reader's nack_delay_s a
+        # publisher of 18 bulk writers spent more CPU ticking than writing
+        # (benchmarks/ceddp_ingest.py, issue 17).
+        fine = min(0.05, max(0.001, qos.nack_period_s))
+    else:
+        fine = min(0.05, max(0.001, min(qos.nack_delay_s or qos.nack_period_s, qos.nack_period_s)))
     periods = [qos.heartbeat_period_s, qos.reorder_timeout_s / 4, 0.05]
     for value in (qos.deadline_s, qos.lease_duration_s):
         if value > 0:

@@ -10,6 +10,10 @@ import pytest
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.protocol import wire
+from arpz.protocol._common import new_guid
+from arpz.protocol.reader_machine import ReaderMachine
+from arpz.protocol.timers import FakeClock
+from arpz.protocol.writer_machine import WriterMachine
 from arpz.reliability import (
     QOS_RELIABLE_ALL,
     DataInfo,
@@ -22,7 +26,7 @@ from arpz.reliability import (
     Writer,
     WriterEventCallbacks,
 )
-from arpz.reliability._channel import _Turns
+from arpz.reliability._channel import _Turns, tick_intervals_s
 from arpz.transport import TransportError
 from tests.support import wait_until
 
@@ -281,3 +285,15 @@ def test_a_readers_delivery_idle_time_counts_its_waits_and_not_its_work() -> Non
         elapsed = time.perf_counter() - busy_from
         assert elapsed >= 0.3
         assert reader.delivery_idle_s - idle1 < elapsed - 0.25
+
+
+def test_a_writer_ticks_at_its_batch_delay_or_sync_period_not_at_the_reader_s_nack_delay() -> None:
+    """nack_delay_s is how long a reader waits before it NACKs: a writer has no use for it. A
+    streaming bulk writer (20 ms batches) that ticked at it spent more CPU ticking than writing."""
+    qos = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.02)
+    writer = WriterMachine("t/a", qos, new_guid(), FakeClock())
+    reader = ReaderMachine("t/a", qos, new_guid(), FakeClock())
+    assert tick_intervals_s(writer)[0] == 0.02
+    assert tick_intervals_s(reader)[0] == 0.002
+    quick = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.0005)
+    assert tick_intervals_s(WriterMachine("t/a", quick, new_guid(), FakeClock()))[0] == 0.0005
