@@ -493,15 +493,21 @@ class WriterMachine:
 
     def _heartbeat_due(self, now: float) -> bool:
         """Whether the periodic heartbeat has anything to say. Once every reader is reliable,
-        in sync, acknowledged everything and was told so by a FINAL heartbeat, a writer that
-        writes nothing goes quiet (as RTPS writers do): the next write, a new reader or a
-        liveliness lease (every lease/4) makes it speak again. Best-effort readers learn the
-        tail only from heartbeats, so they keep them coming. Going quiet halved what a fleet of
-        quiet robots costs its CEDDP (26.8 -> 12.4 ms of CPU per robot a second,
-        ``python benchmarks/fleet_scaling.py``; docs/performance.md)."""
-        if self._final_hb_at != self.last_seq or self.batch:
+        in sync and acknowledged everything, a writer that writes nothing goes quiet (as RTPS
+        writers do): the next write, a new reader or a liveliness lease (every lease/4) makes it
+        speak again. Best-effort readers learn the tail only from heartbeats, so they keep them
+        coming. Going quiet halved what a fleet of quiet robots costs its CEDDP (26.8 -> 12.4 ms
+        of CPU per robot a second, ``python benchmarks/fleet_scaling.py``; docs/performance.md).
+        A write acknowledged before the next period (its DATA asked for it) needs no heartbeat
+        at all: a FINAL one would tell readers only what their own ACKNACK said. A robot at
+        1 Hz sent one after every sample, a third of an idle fleet's messages (issue 17)."""
+        if self.batch:
             return True
         if any(not (p.reliable and p.synced) for p in self.proxies.values()):
+            return True
+        if self._final_hb_at != self.last_seq and (
+            not self.proxies or self._min_acked() <= self.last_seq
+        ):
             return True
         lease = self.qos.lease_duration_s
         return lease > 0 and now - self._last_live_hb_s >= lease / 4

@@ -363,9 +363,8 @@ def _heartbeats_while_idle(qos: QosProfile, reader_qos: QosProfile, idle_s: floa
     before = w.heartbeats
     bus.run_for(idle_s)
     idle = w.heartbeats - before
-    publish(bus, writer, 1, 0.01)  # a write makes it speak again
+    publish(bus, writer, 1, 0.01)  # a write makes it speak again (its DATA asks for an ACK)
     bus.run_for(0.5)
-    assert w.heartbeats > before + idle
     assert [info.seq for _, info in reader.delivered] == [1, 2, 3, 4, 5, 6]
     return idle
 
@@ -379,6 +378,44 @@ def test_an_idle_writer_whose_readers_have_everything_goes_quiet() -> None:
     # a liveliness lease is kept alive with a heartbeat every lease / 4
     leased = QosProfile(history=HistoryPolicy.KEEP_ALL, lease_duration_s=2.0)
     assert 3 <= _heartbeats_while_idle(leased, leased, idle_s=2.0) <= 5
+
+
+def _keep_all_pair() -> tuple[LossyBus, Node, Node, WriterMachine]:
+    """A KEEP_ALL writer and reader over a clean link, matched: (bus, writer, reader, its
+    machine)."""
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL)
+    bus, _ = world(1, Link(delay_s=0.001))
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    return bus, writer, reader, w
+
+
+def test_a_slow_stream_acknowledged_in_time_sends_no_heartbeats() -> None:
+    """At 1 Hz each DATA asks for an ACKNACK, and the reader's answer arrives long before the
+    next heartbeat period: the writer has nothing to announce, so it sends no heartbeat (it
+    sent a FINAL one after every sample, a third of an idle fleet's messages)."""
+    bus, writer, reader, w = _keep_all_pair()
+    before = w.heartbeats
+    publish(bus, writer, 5, 1.0)
+    assert [info.seq for _, info in reader.delivered] == [1, 2, 3, 4, 5]
+    assert w.heartbeats == before
+
+
+def test_a_write_whose_data_is_lost_is_heartbeated_until_it_is_acknowledged() -> None:
+    bus, writer, reader, w = _keep_all_pair()
+    publish(bus, writer, 2, 1.0)
+    before = w.heartbeats
+    send = bus.send
+    bus.send = lambda msg: None if msg.key == "t/a" else send(msg)  # type: ignore[method-assign]
+    bus.write(writer, b"2")  # lost on the link
+    bus.send = send  # type: ignore[method-assign]
+    bus.run_for(1.0)
+    assert w.heartbeats > before
+    assert [info.seq for _, info in reader.delivered] == [1, 2, 3]
+    assert w.stats().retransmitted == 1
 
 
 def test_the_reader_measures_each_writers_round_trip_from_its_resends() -> None:
