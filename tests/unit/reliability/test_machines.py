@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import random
+from typing import Any
 
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -515,3 +516,30 @@ def test_a_link_that_loses_keeps_every_heartbeat() -> None:
     publish(bus, writer, 200, 0.01)
     assert w.nacks > 0
     assert w.heartbeats - before >= 17, "a lossy link lost its heartbeats to the piggyback"
+
+
+def test_a_tick_polls_every_writers_timers_once_a_period_not_at_every_tick() -> None:
+    """The fine timer ticks every few ms while any writer is busy; polling all of a CEDDP's
+    writers' deadlines and leases each time grew with the fleet (400 us a tick at 400 writers,
+    benchmarks/reader_busy.py). Every writer is polled once a full period (50 ms at most)."""
+    bus, _ = world(1, Link(delay_s=0.001))
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, deadline_s=0.2)
+    for t in range(50):
+        bus.add(WriterMachine(f"f/r/t{t}", qos, new_guid(), bus.clock))
+    reader = bus.add(ReaderMachine("f/r/*", qos, new_guid(), bus.clock))
+    bus.run_for(0.3)
+    r = reader.machine
+    assert isinstance(r, ReaderMachine) and len(r.writers) == 50
+    polled: list[str] = []
+    poll = r._poll_timers
+
+    def counting(p: Any, now: float, actions: list[Any]) -> None:
+        polled.append(p.hex)
+        poll(p, now, actions)
+
+    r._poll_timers = counting  # type: ignore[method-assign]
+    bus.run_for(0.2)  # 200 ticks of 1 ms
+    periods = 0.2 / r._full_period_s
+    assert 50 * periods <= len(polled) <= 50 * (periods / 0.8 + 1), len(polled)
+    # and the deadline is still noticed: the writers wrote nothing for 0.5 s
+    assert r.stats().deadline_missed >= 50
