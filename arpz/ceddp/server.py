@@ -71,6 +71,18 @@ def previous_summary_path(config: CeddpConfig) -> Path | None:
     return found[-1] if found else None
 
 
+def write_json_atomically(path: Path, doc: dict[str, Any]) -> None:
+    """Write ``doc`` as indented JSON atomically: a reader, or a kill -9 mid-write, never sees
+    half. msgspec's encoder and formatter, not ``json.dumps(indent=2)``: with an indent the
+    standard library falls back to its pure-Python encoder, 22 ms against 1.4 ms for a 25-robot
+    summary (268 KB), every summary_period_s on the metrics thread (issue 17). A float that is
+    not finite is written as null (``json.dumps`` wrote NaN, which is not JSON)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".partial")
+    partial.write_bytes(msgspec.json.format(msgspec.json.encode(doc), indent=2))
+    os.replace(partial, path)
+
+
 class CeddpServer:
     """One CEDDP: ``start`` opens every key and starts the workers, ``run`` waits for a stop,
     ``shutdown`` drains, closes, and returns (and writes) the reconciled summary."""
@@ -338,14 +350,8 @@ class CeddpServer:
         return summary
 
     def _persist(self, summary: dict[str, Any]) -> None:
-        """Write the summary atomically (a reader, or a kill -9 mid-write, never sees half)."""
-        if not self.config.summary_json:
-            return
-        path = Path(self.config.summary_json)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(path.name + ".partial")
-        partial.write_text(json.dumps(summary, indent=2), encoding="utf-8")
-        os.replace(partial, path)
+        if self.config.summary_json:
+            write_json_atomically(Path(self.config.summary_json), summary)
 
     # -- events -------------------------------------------------------------------------------
 
