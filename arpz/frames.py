@@ -85,6 +85,8 @@ class DashboardLike(Protocol):
     """Where the server submits frames; ``submit`` never blocks (False: dropped and counted)."""
 
     dropped: int
+    #: metric rows not logged (not a number, or refused by the recorder), counted not silent
+    rows_refused: int
 
     def submit(self, item: MetricsFrame | WorldMap | WorldView | Event) -> bool: ...
     def close(self) -> None: ...

@@ -12,7 +12,10 @@ repeating as the simulated sensors do, so cache control has both hits and misses
 - arpz channel-unbatched: the same with one sample per message (``batch_max_samples = 1``), the
   CEDDP's per-message cost, as a fleet of robots at 100 Hz per topic makes it pay.
 
-Throughput = samples / (time the last one was processed - time publishing started). Rounds
+Throughput = samples / (time the last one was processed - time publishing started). Each arpz
+run also prints the CPU a sample of the CEDDP (``ceddp_us``) and of the publishers
+(``publishers_us``): on 2 shared cores a costly publisher lowers the rate the CEDDP is offered,
+and ``dup``, samples the CEDDP received twice (resends of what it NACKed). Rounds
 alternate raw/arpz so drift on a shared machine hits both. Targets: the raw path >= 0.5x raw
 (issue 2), the reliable channel >= 0.5x raw (issue 17).
 
@@ -81,6 +84,7 @@ for i in range(count):
              "flame": False}.get(n, float((i // 90) % 7))
     payloads.append(encode(Sample(f"{r}:p{index}", i // len(topics) + 1, time.time_ns(), value)))
 time.sleep(0.5)
+cpu0 = time.process_time()
 print("go", flush=True)
 for i, payload in enumerate(payloads):
     puts[i % len(puts)](payload)
@@ -90,6 +94,7 @@ if path.startswith("channel"):
     for w in writers:
         w.close()
 t.close()
+print(f"cpu {time.process_time() - cpu0}", flush=True)
 """
 
 
@@ -127,12 +132,18 @@ def start_publishers(
     return procs, time.perf_counter()
 
 
-def stop_publishers(procs: list[subprocess.Popen[str]]) -> None:
+def stop_publishers(procs: list[subprocess.Popen[str]]) -> float:
+    """Stop the publishers; the CPU seconds they spent from "go" to their end."""
+    cpu_s = 0.0
     for proc in procs:
         assert proc.stdin is not None and proc.stdout is not None
         proc.stdin.close()
+        for line in proc.stdout.read().splitlines():
+            if line.startswith("cpu "):
+                cpu_s += float(line.split()[1])
         proc.wait(timeout=30)
         proc.stdout.close()
+    return cpu_s
 
 
 def wait_count(get: Callable[[], int], total: int, timeout_s: float) -> float:
@@ -178,8 +189,10 @@ def run_arpz(
     try:
         server.start()
         procs, t0 = start_publishers(endpoint, total // publishers, publishers, path, batch_delay_s)
+        cpu0 = time.process_time()  # this process is the CEDDP (and a thread polling its count)
         t1 = wait_count(lambda: server.processed, total, 300)
-        stop_publishers(procs)
+        ceddp_cpu_s = time.process_time() - cpu0
+        publishers_cpu_s = stop_publishers(procs)
         # samples that came twice: resends of what the CEDDP had asked for again (spurious
         # NACKs, since nothing is lost on loopback TCP)
         reader = server.intake.reader
@@ -190,7 +203,16 @@ def run_arpz(
         dashboard.close()
     hits = sum(t["cc_discarded"] for r in summary["robots"].values() for t in r["topics"].values())
     lost = sum(r["lost"] for r in summary["robots"].values())
-    info = {"processed": server.processed, "cc_discarded": hits, "lost": lost, "dup": duplicates}
+    info = {
+        "processed": server.processed,
+        "cc_discarded": hits,
+        "lost": lost,
+        "dup": duplicates,
+        # CPU a sample, microseconds: the CEDDP while it took the samples in, the publishers
+        # from their start to their end (what they cost a sample, acknowledgements included)
+        "ceddp_us": round(ceddp_cpu_s / total * 1e6, 1),
+        "publishers_us": round(publishers_cpu_s / total * 1e6, 1),
+    }
     return total / (t1 - t0), info
 
 

@@ -11,12 +11,17 @@ The summary computes p50 and p99 of every topic's latency and staleness reservoi
 ``numpy.percentile``, on reservoirs of a slow topic (45 values), a list's bound (2 048) and a full
 reservoir (20 000).
 
+The summary file is rewritten every ``summary_period_s``: ``write_json_atomically`` (msgspec's
+encoder and formatter) against ``json.dumps(indent=2)``, whose indent sends the standard library
+to its pure-Python encoder, on a summary shaped as a fleet's (``--robots``, 8 topics each).
+
     python benchmarks/metrics_cost.py [--series 2400] [--rows 10] [--rounds 3]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import sys
 import tempfile
@@ -30,6 +35,7 @@ import rerun as rr
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arpz.ceddp.dashboard import Dashboard
+from arpz.ceddp.server import write_json_atomically
 from arpz.frames import TIMELINE
 from arpz.percentiles import DEFAULT_CAPACITY, percentiles
 
@@ -91,11 +97,38 @@ def per_call_us(fn: Callable[[], object], seconds: float = 0.5) -> float:
     return (time.perf_counter() - start) / calls * 1e6
 
 
+def fleet_summary(robots: int, topics: int = 8) -> dict[str, object]:
+    """A summary shaped as the CEDDP's: per robot its counters and, per topic, about 30 figures
+    (a 25-robot one is about 270 KB of indented JSON, as a real one)."""
+    rng = np.random.default_rng(3)
+
+    def figures(n: int, prefix: str) -> dict[str, object]:
+        return {f"{prefix}_{i}": round(float(rng.random() * 1000), 3) for i in range(n)}
+
+    return {
+        "fleet": "bench",
+        "robots": {
+            f"robot{r}": {
+                **figures(30, "robot"),
+                "topics": {f"topic{t}": figures(30, "topic") for t in range(topics)},
+                "incarnations": {"0123456789abcdef": {"sent": 100, "reconciled": True}},
+            }
+            for r in range(robots)
+        },
+    }
+
+
+def write_dumps(path: Path, doc: dict[str, object]) -> None:
+    """How the summary was written before."""
+    path.write_text(json.dumps(doc, indent=2), encoding="utf-8")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--series", type=int, default=2400)
     ap.add_argument("--rows", type=int, default=10, help="rows a series holds at a flush")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--robots", type=int, default=25, help="robots in the summary file")
     args = ap.parse_args()
     pending = rows(args.series, args.rows)
     ours, theirs = [], []
@@ -124,6 +157,17 @@ def main() -> int:
             f"  {n:>6} values: arpz {mine:7.1f} us, numpy.percentile {numpy:7.1f} us, "
             f"ratio {mine / numpy:.2f}x"
         )
+    doc = fleet_summary(args.robots)
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "summary.json"
+        fast = per_call_us(lambda: write_json_atomically(path, doc), seconds=1.0)
+        size = path.stat().st_size
+        assert json.loads(path.read_text(encoding="utf-8")) == doc
+        slow = per_call_us(lambda: write_dumps(path, doc), seconds=1.0)
+    print(f"summary file, {args.robots} robots ({size / 1e3:.0f} KB):")
+    print(f"  json.dumps(indent=2)      : {slow / 1e3:8.1f} ms")
+    print(f"  write_json_atomically     : {fast / 1e3:8.1f} ms")
+    print(f"  {'ratio':<25} : {fast / slow:8.2f}x")
     return 0
 
 

@@ -31,8 +31,10 @@ import rerun.blueprint as rrb
 
 from arpz.errors import ConfigError
 from arpz.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
+from arpz.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
+throttled = ThrottledLog(log)
 
 
 def blueprint() -> rrb.Blueprint:
@@ -100,6 +102,8 @@ class Dashboard:
         self.previous = preserve_previous(self.rrd_path)
         self.dropped = 0
         self.logged_rows = 0
+        #: metric rows not logged: a value that was not a number, or a flush Rerun failed
+        self.rows_refused = 0
         self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_limit)
         #: metric rows waiting to be sent as columns: entity path -> (timestamps_s, values)
         self._pending: dict[str, tuple[list[float], list[float]]] = {}
@@ -171,10 +175,17 @@ class Dashboard:
                 log.exception("Rerun logging failed")
 
     def _add(self, path: str, t_s: float, value: float) -> None:
+        """A bad value (not a number) is refused here, counted and logged; the frame's other
+        values go on (a bad one must never reach the flush, which builds one array of all)."""
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            self.rows_refused += 1
+            throttled.warning(path, "dashboard: %s is not a number: %r (not logged)", path, value)
+            return
         times, values = self._pending.setdefault(path, ([], []))
-        value = float(value)  # here, in the caller's try: a bad value is logged, not flushed
         times.append(t_s)
-        values.append(value)
+        values.append(number)
 
     def _flush_metrics(self) -> None:
         """Send every series' pending rows as one column chunk. One ``rr.log`` per value made a
@@ -206,6 +217,7 @@ class Dashboard:
                 type=_SCALARS_TYPE,
             )
         except Exception:
+            self.rows_refused += total
             log.exception("Rerun logging failed: %d metric rows not logged", total)
             return
         start = 0
@@ -221,6 +233,7 @@ class Dashboard:
                 )
                 self.logged_rows += length
             except Exception:
+                self.rows_refused += length
                 log.exception("Rerun logging failed for %s", path)
             start += length
 

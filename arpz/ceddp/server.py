@@ -345,6 +345,7 @@ class CeddpServer:
         if self.dashboard is not None:
             self.dashboard.close()
             summary["dashboard"]["dropped"] = self.dashboard.dropped
+            summary["dashboard"]["rows_refused"] = self.dashboard.rows_refused
         summary["complete"] = True
         self._persist(summary)
         return summary
@@ -436,7 +437,7 @@ class CeddpServer:
                     "reports_over_limit": self.control.counters.reports_over_limit,
                 },
             },
-            "dashboard": {"rrd": self.config.rrd, "dropped": 0},
+            "dashboard": {"rrd": self.config.rrd, "dropped": 0, "rows_refused": 0},
             "foxglove": self.foxglove.counters() if self.foxglove is not None else None,
             "qos": qos_summary(self.qos) if self.qos is not None else None,
             "overload": self.metrics.governor.summary(),

@@ -22,6 +22,7 @@ class Frames:
     """A dashboard that keeps what it is given."""
 
     dropped = 0
+    rows_refused = 0
 
     def __init__(self) -> None:
         self.items: list[MetricsFrame | WorldMap | WorldView | Event] = []

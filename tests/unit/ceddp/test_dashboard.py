@@ -58,9 +58,13 @@ def test_a_bad_value_is_logged_and_the_dashboard_goes_on(
 ) -> None:
     rrd = tmp_path / "ceddp.rrd"
     dashboard = Dashboard(rrd, flush_period_s=3600)
-    bad: dict[str, Any] = {"rate_hz": None}
+    bad: dict[str, Any] = {"rate_hz": None, "cpu_percent": 7.0}  # the good one after the bad
     dashboard.submit(MetricsFrame(T0_NS, robots={"robot1": bad}))
     dashboard.submit(MetricsFrame(T0_NS + 10**9, robots={"robot1": {"rate_hz": 5.0}}))
     dashboard.close()
-    assert "Rerun logging failed" in caplog.text
-    assert series(rrd) == {"/metrics/rate_hz/robot1": [(T0_NS + 10**9, 5.0)]}
+    assert "/metrics/rate_hz/robot1 is not a number" in caplog.text
+    assert dashboard.rows_refused == 1
+    assert series(rrd) == {
+        "/metrics/rate_hz/robot1": [(T0_NS + 10**9, 5.0)],
+        "/metrics/cpu_percent/robot1": [(T0_NS, 7.0)],
+    }
