@@ -491,6 +491,11 @@ class WriterMachine:
             return [self._heartbeat(now, 0)]
         return []
 
+    @property
+    def next_heartbeat_s(self) -> float:
+        """When the periodic heartbeat timer next fires (monotonic s): its driver wakes then."""
+        return self._next_hb_s
+
     def _heartbeat_due(self, now: float) -> bool:
         """Whether the periodic heartbeat has anything to say. Once every reader is reliable,
         in sync and acknowledged everything, a writer that writes nothing goes quiet (as RTPS

@@ -89,6 +89,13 @@ class _Turns:
 
 _TOKEN = object()
 _POST = object()
+#: the longest a worker sleeps with nothing to do (a writer's next heartbeat comes sooner)
+MAX_IDLE_S = 1.0
+
+
+def _heartbeat_at(writer: WriterMachine, now: float) -> float:
+    """When (``time.monotonic``) the writer's heartbeat timer fires; its clock may be another."""
+    return now + max(0.0, writer.next_heartbeat_s - writer.clock.monotonic_s())
 
 
 def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, float]:
@@ -102,12 +109,16 @@ def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, flo
         # publisher of 18 bulk writers spent more CPU ticking than writing
         # (benchmarks/ceddp_ingest.py, issue 17).
         fine = min(0.05, max(0.001, qos.nack_period_s))
+        # Idle, it wakes for its heartbeat (``_run`` aims at the machine's next one) and for
+        # its offered deadline, liveliness lease and lifespan; not every 50 ms besides: a CEDDP
+        # keeps a Hello writer per robot, 25 of them woke 500 times a second (issue 17).
+        periods = [MAX_IDLE_S]
+        lasting: tuple[float, ...] = (qos.deadline_s, qos.lease_duration_s, qos.lifespan_s)
     else:
         fine = min(0.05, max(0.001, min(qos.nack_delay_s or qos.nack_period_s, qos.nack_period_s)))
-    periods = [qos.heartbeat_period_s, qos.reorder_timeout_s / 4, 0.05]
-    for value in (qos.deadline_s, qos.lease_duration_s):
-        if value > 0:
-            periods.append(value / 10)
+        periods = [qos.heartbeat_period_s, qos.reorder_timeout_s / 4, 0.05]
+        lasting = (qos.deadline_s, qos.lease_duration_s)
+    periods += [value / 10 for value in lasting if value > 0]
     if qos.batching:  # an open batch must go out within about its delay
         fine = min(fine, qos.batch_max_delay_s)
     return fine, max(fine, min(periods))
@@ -328,7 +339,7 @@ class Channel:
     def _run(self) -> None:
         q = self._queue
         next_tick = 0.0
-        is_writer = isinstance(self.machine, WriterMachine)
+        writer = self.machine if isinstance(self.machine, WriterMachine) else None
         while True:
             try:
                 batch = [q.get(timeout=max(0.0, next_tick - time.monotonic()))]
@@ -357,8 +368,12 @@ class Channel:
                         except Exception:
                             self.callback_errors += 1
                             log.exception("reliable channel worker: unexpected error")
-                    if is_writer:
+                    if writer is not None:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
+                        if any(item is not _STOP and item[0] is _POST for item in batch):
+                            # a retune may have changed the heartbeat, deadline or lease
+                            self._fine_s, self._idle_s = tick_intervals_s(self.machine)
+                        next_tick = min(next_tick, _heartbeat_at(writer, time.monotonic()))
                     if self.machine.busy():
                         next_tick = min(next_tick, time.monotonic() + self._fine_s)
                     self.next_tick_s = next_tick
@@ -375,6 +390,8 @@ class Channel:
                     backlog = q.qsize() + (_BATCH if self._pull_backlog else 0)
                     actions = self.machine.tick(backlog)
                     next_tick = now + (self._fine_s if self.machine.busy() else self._idle_s)
+                    if writer is not None:
+                        next_tick = min(next_tick, _heartbeat_at(writer, now))
                     self.next_tick_s = next_tick
                     ticket = self._ticket(actions)
                 self._perform_in_turn(ticket, actions)

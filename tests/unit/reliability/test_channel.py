@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from typing import Any
 
 import pytest
 
@@ -297,3 +298,37 @@ def test_a_writer_ticks_at_its_batch_delay_or_sync_period_not_at_the_reader_s_na
     assert tick_intervals_s(reader)[0] == 0.002
     quick = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.0005)
     assert tick_intervals_s(WriterMachine("t/a", quick, new_guid(), FakeClock()))[0] == 0.0005
+
+
+def test_an_idle_writer_wakes_for_its_heartbeat_not_every_50_ms() -> None:
+    """A CEDDP keeps a Hello writer per robot: idle, each woke 20 times a second (a 50 ms cap
+    on its worker's sleep). It now wakes when its heartbeat timer fires, and heartbeats still
+    go out at their period while a reader misses something."""
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    qos = QosProfile(heartbeat_period_s=0.2)
+    writer = Writer(a, "t/idle", qos)
+    ticks: list[float] = []
+    machine = writer._machine
+    tick = machine.tick
+
+    def counting(backlog: int = 0) -> list[Any]:
+        ticks.append(time.monotonic())
+        return tick(backlog)
+
+    try:
+        with writer._channel.lock:
+            machine.tick = counting  # type: ignore[method-assign]
+        time.sleep(1.0)  # deliberately: the wakes of an idle second
+        assert 2 <= len(ticks) <= 8, ticks  # one a heartbeat period (20 with the 50 ms cap)
+        # a reader that matched and never acknowledges: heartbeats every period
+        b.declare_token(wire.reader_token("t/idle", "ab" * 8, "RVA_0_0"))
+        wait_until(lambda: writer.matched_count == 1, what="match")
+        writer.write(b"x")
+        before = machine.heartbeats
+        time.sleep(1.0)  # deliberately: the heartbeats of a second
+        assert 3 <= machine.heartbeats - before <= 7
+    finally:
+        writer.close()
+        a.close()
+        b.close()
