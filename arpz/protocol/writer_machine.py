@@ -504,8 +504,8 @@ class WriterMachine:
         coming. Going quiet halved what a fleet of quiet robots costs its CEDDP (26.8 -> 12.4 ms
         of CPU per robot a second, ``python benchmarks/fleet_scaling.py``; docs/performance.md).
         A write acknowledged before the next period (its DATA asked for it) needs no heartbeat
-        at all: a FINAL one would tell readers only what their own ACKNACK said. A robot at
-        1 Hz sent one after every sample, a third of an idle fleet's messages (issue 17)."""
+        at all: a FINAL one would tell readers only what their own ACKNACK said (a 1 Hz stream
+        sent one after every sample: tests/unit/reliability/test_machines.py, issue 17)."""
         if self.batch:
             return True
         if any(not (p.reliable and p.synced) for p in self.proxies.values()):
