@@ -166,9 +166,7 @@ class _WriterProxy:
         #: GAP ranges not yet reached, sorted
         self.gaps: list[tuple[int, int]] = []
         #: (last seq of a missing run, time it was first seen missing), increasing in both
-        #: a heartbeat announced it (True), or the data showed it (a later seq arrived): only the
-        #: first kind can be still queued in the channel's FIFO (see ``drained``)
-        self.detect: list[tuple[int, float, bool]] = []
+        self.detect: list[tuple[int, float]] = []
         self.an_due_s = math.inf
         self.an_count = 0
         #: the writer's token vanished; the match ends (and losses are counted) at this time
@@ -599,7 +597,7 @@ class ReaderMachine:
         else:
             p.buffer[seq] = (payload, h.stamp_ns, h.flags)
             if seq > p.highest + 1:
-                p.detect.append((seq - 1, now, False))
+                p.detect.append((seq - 1, now))
                 p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
             if len(p.buffer) > self._cap:
                 self._skip_to(p, min(p.buffer), actions)
@@ -760,7 +758,7 @@ class ReaderMachine:
                     # NACKed now. Up to max(buffer) only, the samples beyond the buffer were
                     # never asked for again (a late TRANSIENT_LOCAL reader that received a
                     # delayed batch before its SYNC missed them for good).
-                    p.detect.append((p.highest, now, False))
+                    p.detect.append((p.highest, now))
             p.an_due_s = now
         elif not p.synced:
             return actions
@@ -770,7 +768,7 @@ class ReaderMachine:
             p.held_from = hb.first
         if hb.last > p.highest:
             # A heartbeat may overtake its data through a router: give the data a head start.
-            p.detect.append((hb.last, now + self.qos.nack_period_s / 4, True))
+            p.detect.append((hb.last, now + self.qos.nack_period_s / 4))
             p.highest = hb.last
             p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
         self._drain(p, actions)
@@ -810,16 +808,13 @@ class ReaderMachine:
         """
         ripe = now - self.qos.nack_delay_s
         upto, next_s = p.expected - 1, math.inf
-        for run_end, seen_s, announced in p.detect:
+        for run_end, seen_s in p.detect:
             if seen_s > ripe:
                 next_s = seen_s + self.qos.nack_delay_s
                 break
-            if announced and seen_s > self.drained_s:
-                # ripe by time, but the channel's FIFO may still hold what the heartbeat
-                # announced: asked when it has drained past (``drained``), or a heartbeat period
-                # from now. A gap the data showed is not waited for: the FIFO is in link order,
-                # so what is missing there was lost (waiting delayed every recovery on a lossy
-                # link by a pass of the delivery thread)
+            if seen_s > self.drained_s:
+                # ripe by time, but what the channel's FIFO still holds may answer it: asked
+                # again when it has drained past (``drained``), or a heartbeat period from now
                 self._drain_waiters[p] = seen_s
                 next_s = now + self.qos.heartbeat_period_s
                 break
