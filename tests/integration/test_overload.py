@@ -23,9 +23,9 @@ from tests.integration.fleet import ceddp, robots
 from tests.support import client, wait_until
 
 # heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share), the unit
-# tests included: how fast the CEDDP drains its backlog after the cut is the host's speed, and
-# beside the unit tests' worker it missed the 10 s twice (stop 28: CI, and a parallel run) while
-# alone it passed every run (13-18 s); that run had no NACK, no resend, no duplicate
+# tests included: how fast the CEDDP drains its backlog after the cut depends on the host. Stop
+# 28 saw it miss its 10 s in three full runs (two with a change since reverted, one of them with
+# this marking) and pass alone in every run (13-18 s)
 pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive(whole_machine=True)]
 
 LATENCY_BOUND_MS = 250.0
