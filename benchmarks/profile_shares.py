@@ -31,22 +31,51 @@ def thread_row(frame: str) -> str:
     return re.sub(r"c\d+-r\d+", "ROBOT", name)
 
 
+_PROCESS = re.compile(r'process (\d+):"')
+_THREAD_FRAME = "thread ("
+
+
+def stacks(raw: str) -> list[tuple[str, list[str], int]]:
+    """(thread, function frames, samples) of each stack of py-spy's raw output, a stack a line:
+    ``[process...;]thread (tid): name;frame;...;frame count``. With ``--subprocesses`` a process
+    frame carries the command line, which may hold newlines, quotes and semicolons (``python -c``
+    scripts): a stack ends at the first line ending in a count, and the thread frame (``--threads``
+    is needed) marks where the functions begin; the thread is named with the last process's pid."""
+    out: list[tuple[str, list[str], int]] = []
+    pending: list[str] = []
+    for line in raw.splitlines():
+        pending.append(line)
+        stack, _, count = line.rpartition(" ")
+        if not (stack and count.isdigit()):
+            continue
+        text = "\n".join(pending).rpartition(" ")[0]
+        at = 0 if text.startswith(_THREAD_FRAME) else text.find(";" + _THREAD_FRAME) + 1
+        if at == 0 and not text.startswith(_THREAD_FRAME):
+            continue  # a line of a command line that happens to end in a number
+        pending = []
+        frames = [_LINE.sub(")", f) for f in text[at:].split(";")]
+        pids = _PROCESS.findall(text[:at])
+        thread = (f"process {pids[-1]}: " if pids else "") + thread_row(frames[0])
+        out.append((thread, frames[1:], int(count)))
+    if any(p.strip() for p in pending):
+        raise ValueError(
+            f"py-spy raw output ends inside a stack (recorded without --threads?): "
+            f"{pending[-1][:80]!r}"
+        )
+    return out
+
+
 def shares(raw: str) -> tuple[int, dict[str, collections.Counter[str]]]:
-    """(samples, {"thread": ..., "inclusive": ..., "self": ...}) of py-spy's raw output: one
-    line a stack, ``thread;frame;...;frame count``."""
+    """(samples, {"thread": ..., "inclusive": ..., "self": ...}) of py-spy's raw output."""
     counters = {k: collections.Counter[str]() for k in ("thread", "inclusive", "self")}
     total = 0
-    for line in raw.splitlines():
-        stack, _, count = line.rpartition(" ")
-        if not stack:
-            continue
-        n = int(count)
-        frames = [_LINE.sub(")", f) for f in stack.split(";")]
+    for thread, functions, n in stacks(raw):
         total += n
-        counters["thread"][thread_row(frames[0])] += n
-        for function in set(frames[1:]):
+        counters["thread"][thread] += n
+        for function in set(functions):
             counters["inclusive"][function] += n
-        counters["self"][frames[-1]] += n
+        if functions:
+            counters["self"][functions[-1]] += n
     return total, counters
 
 
@@ -55,7 +84,10 @@ def main() -> int:
     ap.add_argument("raw", type=Path, help="py-spy record --format raw output")
     ap.add_argument("--top", type=int, default=30)
     args = ap.parse_args()
-    total, counters = shares(args.raw.read_text())
+    try:
+        total, counters = shares(args.raw.read_text())
+    except ValueError as exc:
+        ap.error(str(exc))
     print(f"{total} samples")
     for kind, counter in counters.items():
         print(f"--- by {kind}")

@@ -256,8 +256,8 @@ class ReaderMachine:
         #: s; inf: no FIFO, or it is empty now). A heartbeat seen later than it may announce
         #: data that are only queued there, not lost: its NACK waits until the FIFO has drained
         #: past it (``drained``). Without this wait a CEDDP behind on its sensor FIFO NACKed
-        #: what it had not read yet: 116 211 duplicates for 100 000 samples in
-        #: ``python benchmarks/ceddp_ingest.py --paths channel-unbatched`` (issue 17).
+        #: what it had not read yet: ``python benchmarks/ceddp_ingest.py`` printed 52 000-109 000
+        #: duplicates of 200 000 samples batched, 173 000-223 000 unbatched (issue 17).
         self.drained_s = math.inf
         #: writers whose NACK waits only for the FIFO to drain, with the time it must pass
         self._drain_waiters: dict[_WriterProxy, float] = {}

@@ -105,8 +105,8 @@ def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, flo
     qos = machine.qos
     if isinstance(machine, WriterMachine):
         # a writer sends no NACKs (their delay is the reader's): its fine timer repeats SYNC,
-        # every nack_period_s. A streaming writer ticks at it; at the reader's nack_delay_s a
-        # publisher of 18 bulk writers spent more CPU ticking than writing
+        # every nack_period_s. A streaming writer ticks at it; at the reader's nack_delay_s
+        # each of a publisher's 18 bulk writers (20 ms batches) woke every 2 ms
         # (benchmarks/ceddp_ingest.py, issue 17).
         fine = min(0.05, max(0.001, qos.nack_period_s))
         # Idle, it wakes for its heartbeat (``_run`` aims at the machine's next one) and for
@@ -144,6 +144,8 @@ class Channel:
         #: when the worker will next tick (monotonic s), set with the lock held: a writer that
         #: opens a batch wakes the worker only if that is too late for the batch's delay
         self.next_tick_s = 0.0
+        #: ``retimed``: tick at the worker's next pass (set with the lock held)
+        self._tick_now = False
         self.machine = machine
         self.events = events
         self.on_data = on_data
@@ -327,6 +329,13 @@ class Channel:
     def _on_token(self, key: str, alive: bool) -> None:
         self._queue.put((_TOKEN, key, alive, None))
 
+    def retimed(self) -> None:
+        """The machine's QoS changed (a retune, the lock held): its timer periods follow, and
+        the worker ticks now rather than at the end of a sleep timed by the old QoS."""
+        self._fine_s, self._idle_s = tick_intervals_s(self.machine)
+        self._tick_now = True
+        self.wake()
+
     def wake(self) -> None:
         """Make the worker look at the machine now (it may have become busy)."""
         self._queue.put((_POST, [], None, None))
@@ -370,12 +379,11 @@ class Channel:
                             log.exception("reliable channel worker: unexpected error")
                     if writer is not None:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
-                        if any(item is not _STOP and item[0] is _POST for item in batch):
-                            # a retune may have changed the heartbeat, deadline or lease
-                            self._fine_s, self._idle_s = tick_intervals_s(self.machine)
                         next_tick = min(next_tick, _heartbeat_at(writer, time.monotonic()))
                     if self.machine.busy():
                         next_tick = min(next_tick, time.monotonic() + self._fine_s)
+                    if self._tick_now:
+                        self._tick_now, next_tick = False, 0.0
                     self.next_tick_s = next_tick
                     ticket = self._ticket(todo)
                 self._perform_in_turn(ticket, todo)

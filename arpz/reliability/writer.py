@@ -170,6 +170,7 @@ class Writer(Endpoint):
             actions = self._machine.retune(
                 depth=depth, deadline_s=deadline_s, heartbeat_period_s=heartbeat_period_s
             )
+            self._channel.retimed()  # a new heartbeat or deadline: the worker's sleep follows
         self._channel.post(actions)
 
     def assert_liveliness(self) -> None:

@@ -290,7 +290,7 @@ def test_a_readers_delivery_idle_time_counts_its_waits_and_not_its_work() -> Non
 
 def test_a_writer_ticks_at_its_batch_delay_or_sync_period_not_at_the_reader_s_nack_delay() -> None:
     """nack_delay_s is how long a reader waits before it NACKs: a writer has no use for it. A
-    streaming bulk writer (20 ms batches) that ticked at it spent more CPU ticking than writing."""
+    streaming bulk writer (20 ms batches) ticked at it, ten times a batch."""
     qos = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.02)
     writer = WriterMachine("t/a", qos, new_guid(), FakeClock())
     reader = ReaderMachine("t/a", qos, new_guid(), FakeClock())
@@ -298,6 +298,21 @@ def test_a_writer_ticks_at_its_batch_delay_or_sync_period_not_at_the_reader_s_na
     assert tick_intervals_s(reader)[0] == 0.002
     quick = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.0005)
     assert tick_intervals_s(WriterMachine("t/a", quick, new_guid(), FakeClock()))[0] == 0.0005
+
+
+def count_ticks(writer: Writer) -> list[float]:
+    """The times of the writer's worker's ticks from now on (appended as they happen)."""
+    machine = writer._machine
+    ticks: list[float] = []
+    tick = machine.tick
+
+    def counting(backlog: int = 0) -> list[Any]:
+        ticks.append(time.monotonic())
+        return tick(backlog)
+
+    with writer._channel.lock:
+        machine.tick = counting  # type: ignore[method-assign]
+    return ticks
 
 
 def test_an_idle_writer_wakes_for_its_heartbeat_not_every_50_ms() -> None:
@@ -308,17 +323,9 @@ def test_an_idle_writer_wakes_for_its_heartbeat_not_every_50_ms() -> None:
     a, b = MemoryTransport(bus), MemoryTransport(bus)
     qos = QosProfile(heartbeat_period_s=0.2)
     writer = Writer(a, "t/idle", qos)
-    ticks: list[float] = []
     machine = writer._machine
-    tick = machine.tick
-
-    def counting(backlog: int = 0) -> list[Any]:
-        ticks.append(time.monotonic())
-        return tick(backlog)
-
+    ticks = count_ticks(writer)
     try:
-        with writer._channel.lock:
-            machine.tick = counting  # type: ignore[method-assign]
         time.sleep(1.0)  # deliberately: the wakes of an idle second
         assert 2 <= len(ticks) <= 8, ticks  # one a heartbeat period (20 with the 50 ms cap)
         # a reader that matched and never acknowledges: heartbeats every period
@@ -332,3 +339,22 @@ def test_an_idle_writer_wakes_for_its_heartbeat_not_every_50_ms() -> None:
         writer.close()
         a.close()
         b.close()
+
+
+def test_a_retuned_deadline_shortens_an_idle_writer_s_sleep() -> None:
+    """An idle writer sleeps until its heartbeat (1 s here); a QoS assignment that gives it a
+    deadline must make it wake often enough to notice a missed one (a tenth of the deadline)."""
+    bus = MemoryBus()
+    a = MemoryTransport(bus)
+    writer = Writer(a, "t/retuned", QosProfile(heartbeat_period_s=1.0))
+    ticks = count_ticks(writer)
+    try:
+        time.sleep(0.5)  # deliberately: an idle half second
+        assert len(ticks) <= 2, ticks
+        writer.retune(depth=10, deadline_s=0.2)
+        ticks.clear()
+        time.sleep(0.5)  # deliberately: wakes every 20 ms now
+        assert len(ticks) >= 10, ticks
+    finally:
+        writer.close()
+        a.close()
