@@ -67,7 +67,12 @@ if path.startswith("channel"):
     from arpz.reliability import QOS_RELIABLE_ALL, Writer
     # bulk publishers (see BULK_BATCH_DELAY_S); "channel-unbatched": one sample per message,
     # what a fleet of robots at 100 Hz per topic sends
-    qos = msgspec.structs.replace(QOS_RELIABLE_ALL, batch_max_delay_s=float(sys.argv[5]))
+    # written flat out, a publisher runs ahead of the CEDDP by the whole KEEP_ALL history and
+    # then waits for acknowledgements as long as the CEDDP takes to read its backlog: with the
+    # profile's 0.1 s a write failed (HistoryFullError) in runs of 600 000 samples
+    qos = msgspec.structs.replace(
+        QOS_RELIABLE_ALL, batch_max_delay_s=float(sys.argv[5]), max_blocking_time_s=60.0
+    )
     if path == "channel-unbatched":
         qos = msgspec.structs.replace(qos, batch_max_samples=1)
     writers = [Writer(t, key, qos) for key in keys]
@@ -146,11 +151,18 @@ def stop_publishers(procs: list[subprocess.Popen[str]]) -> float:
     return cpu_s
 
 
-def wait_count(get: Callable[[], int], total: int, timeout_s: float) -> float:
+def wait_count(
+    get: Callable[[], int], total: int, timeout_s: float, procs: list[subprocess.Popen[str]]
+) -> float:
+    """When ``total`` samples were processed; fails at once if a publisher died (its traceback
+    is on stderr), rather than waiting out the timeout for samples that will never come."""
     deadline = time.perf_counter() + timeout_s
     while time.perf_counter() < deadline:
         if get() >= total:
             return time.perf_counter()
+        dead = [p.returncode for p in procs if p.poll() is not None]
+        if dead:
+            raise RuntimeError(f"a publisher exited (code {dead[0]}) after {get()} of {total}")
         time.sleep(0.001)
     raise RuntimeError(f"only {get()} of {total} samples arrived within {timeout_s} s")
 
@@ -163,7 +175,7 @@ def run_raw(total: int, publishers: int) -> float:
         sub = ZenohCounter(session, "arpz/bench/robot/*/sensor/*")
         try:
             procs, t0 = start_publishers(endpoint, total // publishers, publishers)
-            t1 = wait_count(lambda: sub.count, total, 120)
+            t1 = wait_count(lambda: sub.count, total, 120, procs)
             stop_publishers(procs)
         finally:
             sub.close()
@@ -190,7 +202,7 @@ def run_arpz(
         server.start()
         procs, t0 = start_publishers(endpoint, total // publishers, publishers, path, batch_delay_s)
         cpu0 = time.process_time()  # this process is the CEDDP (and a thread polling its count)
-        t1 = wait_count(lambda: server.processed, total, 300)
+        t1 = wait_count(lambda: server.processed, total, 300, procs)
         ceddp_cpu_s = time.process_time() - cpu0
         publishers_cpu_s = stop_publishers(procs)
         # samples that came twice: resends of what the CEDDP had asked for again (spurious

@@ -20,6 +20,7 @@ import os
 import sys
 import tempfile
 import traceback
+import uuid
 from collections.abc import Generator, Iterator
 from pathlib import Path
 
@@ -48,6 +49,22 @@ def pytest_configure(config: pytest.Config) -> None:
         f"{EXPECTED_MARKER}: the test makes a channel callback fail an assert on purpose; "
         "the callback-assertion check collects the failures but does not fail the test",
     )
+    if _is_xdist_controller(config) and config.getoption("testrunuid", None) is None:
+        # chosen here rather than by xdist, so the controller knows whose lock files to remove
+        config.option.testrunuid = uuid.uuid4().hex
+
+
+def _is_xdist_controller(config: pytest.Config) -> bool:
+    return config.pluginmanager.hasplugin("xdist") and not hasattr(config, "workerinput")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    """The controller removes the run's lock files (``cpu_share``): every worker has ended, so
+    nothing holds them; the runs before this one left one set each in the temp folder."""
+    run_id = config.getoption("testrunuid", None) if _is_xdist_controller(config) else None
+    if run_id:
+        for path in Path(tempfile.gettempdir()).glob(f"arpz-pytest-{run_id}-*"):
+            path.unlink(missing_ok=True)
 
 
 class CallbackAssertions(logging.Handler):

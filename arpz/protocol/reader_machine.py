@@ -259,6 +259,12 @@ class ReaderMachine:
         #: what it had not read yet: ``python benchmarks/ceddp_ingest.py`` printed 52 000-109 000
         #: duplicates of 200 000 samples batched, 173 000-223 000 unbatched (issue 17).
         self.drained_s = math.inf
+        #: the channel's delivery thread found data waiting in its FIFO (more than one message
+        #: at its last pull): it is behind, and only then does a NACK wait for the drain. A
+        #: reader keeping up finds one message a pull; there the wait only delayed the recovery
+        #: of real losses (``python benchmarks/reliability_lossy.py``: p99 at 30 % loss about
+        #: 1.4x without this condition, benchmarks/RESULTS.md)
+        self.fifo_behind = False
         #: writers whose NACK waits only for the FIFO to drain, with the time it must pass
         self._drain_waiters: dict[_WriterProxy, float] = {}
         #: how often ``tick`` polls every writer's deadline and lease (as often as the
@@ -812,7 +818,7 @@ class ReaderMachine:
             if seen_s > ripe:
                 next_s = seen_s + self.qos.nack_delay_s
                 break
-            if seen_s > self.drained_s:
+            if self.fifo_behind and seen_s > self.drained_s:
                 # ripe by time, but what the channel's FIFO still holds may answer it: asked
                 # again when it has drained past (``drained``), or a heartbeat period from now
                 self._drain_waiters[p] = seen_s

@@ -303,6 +303,8 @@ class Channel:
                 if reader is not None:
                     # a full pull leaves more queued: a NACK now would ask for some of it
                     reader.queued = len(items) >= _BATCH
+                    # more than one message waited for us: we are behind (ReaderMachine)
+                    reader.fifo_behind = len(items) > 1
                 for item in items:
                     try:
                         out.extend(handler(item[0], item[1], item[2]))
