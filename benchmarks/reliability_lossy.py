@@ -6,7 +6,7 @@ rate: delivered %, losses the transport reported, samples that vanished unreport
 (source stamp to delivery) and the longest stall between two deliveries. Target (issue 3): arpz
 delivers 100 % with a longest stall of a few round trips plus the NACK delay.
 
-    python benchmarks/reliability_lossy.py --loss 10 30 --count 5000
+    python benchmarks/reliability_lossy.py --loss 10 30 --count 5000 [--transports arpz]
 """
 
 from __future__ import annotations
@@ -23,10 +23,19 @@ def main() -> None:
     ap.add_argument("--loss", type=float, nargs="+", default=[10.0, 30.0])
     ap.add_argument("--count", type=int, default=5000)
     ap.add_argument("--rate", type=float, default=1000.0)
+    ap.add_argument(
+        "--transports",
+        default=",".join(TRANSPORTS),
+        help="comma-separated subset of %(default)s (arpz alone for an A/B of two arpz commits)",
+    )
     args = ap.parse_args()
+    transports = [t for t in args.transports.split(",") if t]
+    unknown = sorted(set(transports) - set(TRANSPORTS))
+    if unknown:
+        ap.error(f"unknown transport(s) {', '.join(unknown)}; choose from {', '.join(TRANSPORTS)}")
     rows = []
     for loss in args.loss:
-        for transport in TRANSPORTS:
+        for transport in transports:
             with lossy_setup(loss, 3.0) as (lossy, tcp):
                 _, r = pubsub(
                     transport=transport,
