@@ -144,7 +144,8 @@ class Channel:
         #: when the worker will next tick (monotonic s), set with the lock held: a writer that
         #: opens a batch wakes the worker only if that is too late for the batch's delay
         self.next_tick_s = 0.0
-        #: ``retimed``: tick at the worker's next pass (set with the lock held)
+        #: tick at the worker's next pass (set with the lock held): a retune, or a NACK that
+        #: waited for the FIFO to drain and is due now
         self._tick_now = False
         self.machine = machine
         self.events = events
@@ -265,6 +266,8 @@ class Channel:
                     if reader is not None and reader.drain_waited:
                         with self.lock:
                             wake = reader.drained(math.inf)
+                            if wake:  # the NACK that waited is due now, not a fine tick later
+                                self._tick_now = True
                         if wake:
                             self.wake()
                     elif reader is not None:
@@ -313,6 +316,8 @@ class Channel:
                         log.exception("reliable channel delivery: unexpected error")
                 self._pull_backlog = len(items) >= _BATCH
                 drained = reader is not None and empty_at is not None and reader.drained(empty_at)
+                if drained:  # a NACK that waited for the drain is due now, not a fine tick later
+                    self._tick_now = True
                 ticket = self._ticket(out)
                 wake = drained or self._worker_needed()
             if wake:
