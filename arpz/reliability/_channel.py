@@ -20,7 +20,7 @@ import math
 import queue
 import threading
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from types import TracebackType
 from typing import Any, Self, TypeVar
 
@@ -439,20 +439,15 @@ class Channel:
         on_data = self.on_data
         for action in actions:
             kind = type(action)
-            if kind is DeliverRun or kind is Deliver:
-                if on_data is None:
-                    continue
-                samples: Iterable[tuple[bytes, DataInfo]] = (
-                    action.samples()  # type: ignore[union-attr]
-                    if kind is DeliverRun
-                    else ((action.payload, action.info),)  # type: ignore[union-attr]
-                )
-                for payload, info in samples:
+            if kind is DeliverRun:
+                if on_data is not None:
+                    self._deliver_run(on_data, action)  # type: ignore[arg-type]
+            elif kind is Deliver:
+                if on_data is not None:
                     try:
-                        on_data(payload, info)
+                        on_data(action.payload, action.info)  # type: ignore[union-attr]
                     except Exception:
-                        self.callback_errors += 1
-                        log.exception("on_data raised; the channel goes on")
+                        self._on_data_raised()
             elif kind is Send:
                 try:
                     self.transport.put(action.key, action.payload, attachment=action.attachment)  # type: ignore[union-attr]
@@ -462,6 +457,23 @@ class Channel:
                 self._call(getattr(self.events, action.event, None), action.status)  # type: ignore[union-attr]
             elif kind is TokenChange:
                 self._token(action)  # type: ignore[arg-type]
+
+    def _deliver_run(self, on_data: Callable[[bytes, DataInfo], None], run: DeliverRun) -> None:
+        """Each sample of the run to ``on_data``, with its own ``DataInfo``. A loop here rather
+        than over ``DeliverRun.samples()``, whose generator took 1.3-1.4x as long at one sample
+        a message (what robots at 100 Hz send: about 0.3 us of the CEDDP's 20 a message) and
+        about 2x a sample in a batch (``python benchmarks/delivery_cost.py``; issue 17)."""
+        key, writer, retransmitted, seq = run.key, run.writer, run.retransmitted, run.first
+        for stamp, payload in zip(run.stamps, run.payloads, strict=True):
+            try:
+                on_data(payload, DataInfo(key, writer, seq, stamp, retransmitted))
+            except Exception:
+                self._on_data_raised()
+            seq += 1
+
+    def _on_data_raised(self) -> None:
+        self.callback_errors += 1
+        log.exception("on_data raised; the channel goes on")
 
     def _call(self, callback: Callable[..., None] | None, *args: object) -> None:
         if callback is None:

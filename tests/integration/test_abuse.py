@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import statistics
 import threading
 import time
 from collections.abc import Callable
@@ -177,14 +178,20 @@ def test_bad_input_is_counted_and_the_fleet_keeps_flowing(tmp_path: Path) -> Non
         assert t["produced"] == t["sent"] + t["held_back"] > 0, (topic, t)
         assert t["received"] == t["sent"] and t["lost"] == 0, (topic, t)
     # each round pushes 20 MB of oversized payloads and 20 000 flood messages through the CEDDP.
-    # A single reading jumps by tens of MB (payloads in flight, allocator arenas), so the test
-    # compares peaks, not readings: the second half of the rounds may not peak more than 40 MB
-    # above the first half (a leak of 5 MB a round adds 50), and no reading may be more than
-    # 200 MB above the start (keeping each round's payloads would add 400).
+    # RSS moves without a leak: one reading may jump by tens of MB and come back (payloads in
+    # flight), and the level may step up by 30-40 MB at a random round and stay (allocator
+    # caches, even with STEADY_MALLOC). A leak is a rise every round. So the second half of the
+    # rounds counts as grown only when both its peak and its level (median) are 40 MB above the
+    # first half's: a leak of 5 MB a round raises both by about 50, while each pattern seen
+    # without one raised only one of them (a clean-clone CI run: one reading 40 MB up and back,
+    # peak +40, level +12; a local run: two steps, level +84, peak +21). No reading may be more
+    # than 200 MB above the start (keeping each round's payloads would add 400).
     report = f"RSS (MB) before, after each round, at the end: {rss}"
     print(report)
     half = 1 + ROUNDS // 2
-    assert max(rss[half:]) - max(rss[1:half]) < 40, report
+    peak_rise = max(rss[half:]) - max(rss[1:half])
+    level_rise = statistics.median(rss[half:]) - statistics.median(rss[1:half])
+    assert peak_rise < 40 or level_rise < 40, report
     assert max(rss) - rss[0] < 200, report
 
 

@@ -358,3 +358,37 @@ def test_a_retuned_deadline_shortens_an_idle_writer_s_sleep() -> None:
     finally:
         writer.close()
         a.close()
+
+
+@pytest.mark.callback_errors_expected
+def test_a_batch_s_samples_each_get_their_info_and_one_that_raises_does_not_lose_the_rest() -> None:
+    """A batch reaches the reader as one run (``DeliverRun``), delivered sample by sample: each
+    with its own seq and stamp, and a callback that raises on one is counted and the run goes
+    on."""
+    bus = MemoryBus()
+    got: list[DataInfo] = []
+
+    def on_data(payload: bytes, info: DataInfo) -> None:
+        got.append(info)
+        if payload == b"c":  # the middle of the batch's run
+            raise RuntimeError("on purpose")
+
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_delay_s=10.0)
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(b, "t/run", qos, on_data) as reader,
+        Writer(a, "t/run", qos) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+        stamps = [1_000, 2_000, 3_000, 4_000]
+        writer.write(b"a", stamp_ns=stamps[0])  # goes alone (the first after a pause)
+        for payload, stamp in zip((b"b", b"c", b"d"), stamps[1:], strict=True):
+            writer.write(payload, stamp_ns=stamp)  # these three wait in one batch
+        writer.flush()
+        wait_until(lambda: len(got) == 4, what="every sample")
+        assert [(i.seq, i.stamp_ns, i.writer) for i in got] == [
+            (seq, stamp, writer.guid) for seq, stamp in zip(range(1, 5), stamps, strict=True)
+        ]
+        assert reader.stats().callback_errors == 1
