@@ -31,8 +31,10 @@ def main() -> None:
     args = ap.parse_args()
     transports = [t for t in args.transports.split(",") if t]
     unknown = sorted(set(transports) - set(TRANSPORTS))
-    if unknown:
-        ap.error(f"unknown transport(s) {', '.join(unknown)}; choose from {', '.join(TRANSPORTS)}")
+    if unknown or not transports:
+        ap.error(
+            f"unknown or no transport(s) {', '.join(unknown)}; choose from {', '.join(TRANSPORTS)}"
+        )
     rows = []
     for loss in args.loss:
         for transport in transports:

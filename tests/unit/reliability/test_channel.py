@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -33,7 +35,6 @@ from tests.support import wait_until
 
 
 def test_samples_flow_in_order_and_callbacks_run_on_the_worker_thread() -> None:
-    bus = MemoryBus()
     got: list[tuple[bytes, DataInfo]] = []
     threads: set[str] = set()
 
@@ -41,14 +42,10 @@ def test_samples_flow_in_order_and_callbacks_run_on_the_worker_thread() -> None:
         threads.add(threading.current_thread().name)
         got.append((payload, info))
 
-    with (
-        _nullctx(MemoryTransport(bus)) as a,
-        _nullctx(MemoryTransport(bus)) as b,
-        Reader(b, "f/robot/*/sensor/*", QOS_RELIABLE_ALL, on_data) as reader,
-        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+    with _pair("f/robot/*/sensor/*", "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL, on_data) as (
+        reader,
+        writer,
     ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
-        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
         seqs = [writer.write(b"%d" % i) for i in range(200)]
         assert seqs == list(range(1, 201))
         wait_until(lambda: len(got) == 200, what="all samples")
@@ -111,6 +108,30 @@ class _nullctx:
 
     def __exit__(self, *exc: object) -> None:
         self.t.close()
+
+
+@contextlib.contextmanager
+def _pair(
+    reader_key: str,
+    writer_key: str,
+    qos: QosProfile,
+    on_data: Callable[[bytes, DataInfo], None],
+    *,
+    synced: bool = True,
+) -> Iterator[tuple[Reader, Writer]]:
+    """A Reader and a Writer on two in-memory transports of one bus, matched (and, ``synced``,
+    with the writer's SYNC acknowledged, so its first write is not held back)."""
+    bus = MemoryBus()
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(b, reader_key, qos, on_data) as reader,
+        Writer(a, writer_key, qos) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        if synced:
+            wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+        yield reader, writer
 
 
 def test_a_double_wildcard_reader_gets_data_but_never_control_traffic() -> None:
@@ -261,20 +282,15 @@ def test_a_delivery_thread_that_cannot_receive_says_so_and_counts_it(
 def test_a_readers_delivery_idle_time_counts_its_waits_and_not_its_work() -> None:
     """What the CEDDP's overload governor reads: a reader waiting for data is idle, the wait in
     progress included; a slow on_data is work, not idleness."""
-    bus = MemoryBus()
     done: list[bytes] = []
 
     def slow(payload: bytes, info: DataInfo) -> None:
         time.sleep(0.3)  # deliberately: on_data's own time is the delivery thread's work
         done.append(payload)
 
-    with (
-        _nullctx(MemoryTransport(bus)) as a,
-        _nullctx(MemoryTransport(bus)) as b,
-        Reader(b, "f/robot/*/sensor/*", QOS_RELIABLE_ALL, slow) as reader,
-        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
-    ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+    with _pair(
+        "f/robot/*/sensor/*", "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL, slow, synced=False
+    ) as (reader, writer):
         start, idle0 = time.perf_counter(), reader.delivery_idle_s
         time.sleep(0.3)  # deliberately: nothing is written, the reader waits the whole time
         assert reader.delivery_idle_s - idle0 == pytest.approx(
@@ -365,7 +381,6 @@ def test_a_batch_s_samples_each_get_their_info_and_one_that_raises_does_not_lose
     """A batch reaches the reader as one run (``DeliverRun``), delivered sample by sample: each
     with its own seq and stamp, and a callback that raises on one is counted and the run goes
     on."""
-    bus = MemoryBus()
     got: list[DataInfo] = []
 
     def on_data(payload: bytes, info: DataInfo) -> None:
@@ -374,14 +389,7 @@ def test_a_batch_s_samples_each_get_their_info_and_one_that_raises_does_not_lose
             raise RuntimeError("on purpose")
 
     qos = QosProfile(history=HistoryPolicy.KEEP_ALL, batch_max_delay_s=10.0)
-    with (
-        _nullctx(MemoryTransport(bus)) as a,
-        _nullctx(MemoryTransport(bus)) as b,
-        Reader(b, "t/run", qos, on_data) as reader,
-        Writer(a, "t/run", qos) as writer,
-    ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
-        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+    with _pair("t/run", "t/run", qos, on_data) as (reader, writer):
         stamps = [1_000, 2_000, 3_000, 4_000]
         writer.write(b"a", stamp_ns=stamps[0])  # goes alone (the first after a pause)
         for payload, stamp in zip((b"b", b"c", b"d"), stamps[1:], strict=True):
