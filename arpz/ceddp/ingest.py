@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import threading
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from arpz import keys
@@ -271,6 +272,33 @@ class Ingest:
                 return
             metrics.large = True
             metrics.max_bytes = max(metrics.max_bytes, self._large_limit)
+        self._ingest(metrics, key, payload, arrival_ns)
+
+    def handle_run(self, key: str, payloads: Sequence[bytes], arrival_ns: int) -> None:
+        """Samples of one writer on ``key``, in order, that arrived together (a batch the
+        reliable channel delivered): the topic is looked up once, not once a sample. A sample
+        that fails is logged and the run goes on; nothing else of it is lost."""
+        metrics = self._by_key.get(key)
+        if metrics is None:  # a new, unknown or refused key: counted a sample, as one by one
+            for payload in payloads:
+                self._handle_logged(key, payload, arrival_ns)
+            return
+        ingest = self._ingest
+        for payload in payloads:
+            try:
+                ingest(metrics, key, payload, arrival_ns)
+            except Exception:  # a bad sample or a planner bug must not lose the rest
+                log.exception("ingest failed on %s", key)
+
+    def _handle_logged(self, key: str, payload: bytes, arrival_ns: int) -> None:
+        try:
+            self.handle_sensor(key, payload, arrival_ns)
+        except Exception:  # a bad sample or a planner bug must not lose the rest
+            log.exception("ingest failed on %s", key)
+
+    def _ingest(self, metrics: TopicMetrics, key: str, payload: bytes, arrival_ns: int) -> None:
+        """One sample of a known topic: size bound, decode, sequence, latency, cache control,
+        planner."""
         if len(payload) > metrics.max_bytes:
             metrics.oversize += 1
             if metrics.oversize in (1, 10, 100) or metrics.oversize % 10000 == 0:

@@ -28,7 +28,8 @@ class Deliver(msgspec.Struct, frozen=True, gc=False):
 class DeliverRun(msgspec.Struct, frozen=True, gc=False):
     """Deliver ``payloads`` from ``writer`` on ``key``, seqs ``first, first + 1, ...`` stamped
     ``stamps``: a whole in-order run (a batch) as one action, so that a batch of 64 costs one
-    allocation and one dispatch, not 64 of each. Each sample still gets its own ``DataInfo``."""
+    allocation and one dispatch, not 64 of each. Each sample still gets its own ``DataInfo``,
+    unless the reader takes runs whole (``Reader(on_data_run=...)``)."""
 
     key: str
     writer: str

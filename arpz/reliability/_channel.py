@@ -135,6 +135,7 @@ class Channel:
         *,
         inline: bool = False,
         before_tick: Callable[[], None] | None = None,
+        on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
     ) -> None:
         self.transport = transport
         self.inline = inline
@@ -150,6 +151,8 @@ class Channel:
         self.machine = machine
         self.events = events
         self.on_data = on_data
+        #: when set, takes every delivery instead of ``on_data``: a whole in-order run at once
+        self.on_data_run = on_data_run
         #: guards the machine; ``cond`` (on the same lock) wakes a KEEP_ALL write waiting for room
         self.mutex = threading.Lock()
         self.lock = threading.Condition(self.mutex)
@@ -436,10 +439,12 @@ class Channel:
             return []
 
     def perform(self, actions: list[Action]) -> None:
-        on_data = self.on_data
+        on_data, on_run = self.on_data, self.on_data_run
         for action in actions:
             kind = type(action)
-            if kind is DeliverRun:
+            if on_run is not None and (kind is DeliverRun or kind is Deliver):
+                self._deliver_whole(on_run, action)  # type: ignore[arg-type]
+            elif kind is DeliverRun:
                 if on_data is not None:
                     self._deliver_run(on_data, action)  # type: ignore[arg-type]
             elif kind is Deliver:
@@ -470,6 +475,19 @@ class Channel:
             except Exception:
                 self._on_data_raised()
             seq += 1
+
+    def _deliver_whole(
+        self, on_run: Callable[[str, Sequence[bytes]], None], action: DeliverRun | Deliver
+    ) -> None:
+        if isinstance(action, DeliverRun):
+            key, payloads = action.key, action.payloads
+        else:
+            key, payloads = action.info.key, (action.payload,)
+        try:
+            on_run(key, payloads)
+        except Exception:
+            self.callback_errors += 1
+            log.exception("on_data_run raised; the channel goes on")
 
     def _on_data_raised(self) -> None:
         self.callback_errors += 1

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from arpz.protocol._common import new_guid
 from arpz.protocol.events import DataInfo, ReaderEventCallbacks
@@ -23,20 +23,28 @@ class Reader(Endpoint):
     ``inline_delivery=True`` trades the own threads for latency: samples are processed and
     ``on_data`` runs on the transport's thread (no thread wake-up: usually about 1.2x raw Zenoh's
     round trip against 1.25x, see benchmarks/RESULTS.md). Only for callbacks that return quickly;
-    timers and events still run on the control thread."""
+    timers and events still run on the control thread.
+
+    ``on_data_run(key, payloads)``, when given, takes every delivery instead of ``on_data``
+    (which may then be None): a whole in-order run of one writer's samples at once (a batch the
+    writer sent), without a ``DataInfo`` per sample. For a consumer that needs neither seq,
+    stamp nor writer, such as the CEDDP's ingest (``benchmarks/ceddp_ingest.py``, issue 17)."""
 
     def __init__(
         self,
         transport: Transport,
         key_expr: str,
         qos: QosProfile,
-        on_data: Callable[[bytes, DataInfo], None],
+        on_data: Callable[[bytes, DataInfo], None] | None,
         *,
         events: ReaderEventCallbacks | None = None,
         clock: Clock | None = None,
         inline_delivery: bool = False,
         max_writers: int = DEFAULT_MAX_WRITERS,
+        on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
     ) -> None:
+        if on_data is None and on_data_run is None:
+            raise ValueError("a Reader needs on_data or on_data_run")
         self.key_expr = key_expr
         self._machine = ReaderMachine(
             key_expr, qos, new_guid(), clock or SystemClock(), max_writers=max_writers
@@ -49,6 +57,7 @@ class Reader(Endpoint):
             on_data,
             f"arpz-reader-{key_expr}",
             inline=inline_delivery,
+            on_data_run=on_data_run,
         )
         self._channel.start()
 

@@ -190,3 +190,46 @@ def test_a_frame_on_a_topic_announced_small_is_refused_not_a_change_of_kind() ->
     feed(ingest, KEY, [2])  # the small sensor's own next sample still decodes
     m = ingest.topics[("r1", "pir")]
     assert (m.received, m.decode_errors, m.large) == (2, 1, False)
+
+
+def test_a_run_is_ingested_as_its_samples_one_by_one_would_be() -> None:
+    """``handle_run`` (a batch the reliable channel delivered) counts, measures and plans each
+    sample as ``handle_sensor`` does, the first run of a topic included; a bad sample in the
+    middle is counted and the rest of the run still arrives."""
+    values = ["detect", "detect", "not detect", "not detect", "detect"]
+    payloads = [encode(Sample("r1:a", seq, 1000, v)) for seq, v in enumerate(values, 1)]
+    one_planner, run_planner = Collect(), Collect()
+    one = Ingest("f", one_planner, CacheControl())
+    by_run = Ingest("f", run_planner, CacheControl())
+    for payload in payloads:
+        one.handle_sensor(KEY, payload, 2_001_000)
+    by_run.handle_run(KEY, payloads[:2], 2_001_000)  # a new topic: looked up a sample at a time
+    by_run.handle_run(KEY, [*payloads[2:4], b"\xff\x00garbage", payloads[4]], 2_001_000)
+    a, b = one.topics[("r1", "pir")], by_run.topics[("r1", "pir")]
+    assert (b.received, b.lost, b.next_seq, b.decode_errors) == (5, 0, 6, 1)
+    assert (a.received, a.lost, a.next_seq, a.decode_errors) == (5, 0, 6, 0)
+    assert b.latency_ms.sample() == a.latency_ms.sample() == [2.0] * 5
+    planned = [r.seq for r in run_planner.readings]
+    assert planned == [r.seq for r in one_planner.readings] == [1, 3, 5]
+    assert by_run.cache_counters("r1", "pir").hits == one.cache_counters("r1", "pir").hits == 2
+
+
+def test_a_run_on_an_unknown_key_is_counted_a_sample_at_a_time() -> None:
+    ingest = Ingest("f", Collect(), CacheControl())
+    ingest.handle_run("arpz/f/robot/r1/sensor/pir/extra", [b"", b"", b""], 0)
+    assert ingest.counters.unknown_keys == 3
+
+
+def test_a_planner_that_raises_loses_only_its_own_sample_of_a_run() -> None:
+    class Fails(Collect):
+        def on_reading(self, reading: Reading) -> None:
+            if reading.seq == 2:
+                raise RuntimeError("planner bug")
+            super().on_reading(reading)
+
+    planner = Fails()
+    ingest = Ingest("f", planner, CacheControl(enabled=False))
+    feed(ingest, KEY, [1])  # the topic exists: the run takes the fast path
+    ingest.handle_run(KEY, [encode(Sample("r1:a", seq, 1000, "x")) for seq in (2, 3, 4)], 0)
+    assert [r.seq for r in planner.readings] == [1, 3, 4]
+    assert ingest.topics[("r1", "pir")].received == 4

@@ -6,7 +6,7 @@ import contextlib
 import logging
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 import pytest
@@ -399,4 +399,40 @@ def test_a_batch_s_samples_each_get_their_info_and_one_that_raises_does_not_lose
         assert [(i.seq, i.stamp_ns, i.writer) for i in got] == [
             (seq, stamp, writer.guid) for seq, stamp in zip(range(1, 5), stamps, strict=True)
         ]
+        assert reader.stats().callback_errors == 1
+
+
+def test_on_data_run_takes_whole_in_order_runs_instead_of_on_data() -> None:
+    """A batching writer's runs reach ``on_data_run`` whole, in order, and ``on_data`` never;
+    a run whose consumer raises is counted and the next one still arrives."""
+    runs: list[tuple[str, list[bytes]]] = []
+    singles: list[bytes] = []
+
+    def on_run(key: str, payloads: Sequence[bytes]) -> None:
+        runs.append((key, list(payloads)))
+        if len(runs) == 1:
+            raise RuntimeError("the first run's consumer fails")
+
+    bus = MemoryBus()
+    with (
+        _nullctx(MemoryTransport(bus)) as a,
+        _nullctx(MemoryTransport(bus)) as b,
+        Reader(
+            b,
+            "f/robot/*/sensor/*",
+            QOS_RELIABLE_ALL,
+            lambda payload, _info: singles.append(payload),
+            on_data_run=on_run,
+        ) as reader,
+        Writer(a, "f/robot/r1/sensor/lidar", QOS_RELIABLE_ALL) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        wait_until(lambda: writer.wait_for_acknowledgments(0.01), what="sync")
+        for i in range(500):
+            writer.write(b"%d" % i)
+        wait_until(lambda: sum(len(p) for _, p in runs) == 500, what="all samples")
+        assert [x for _, payloads in runs for x in payloads] == [b"%d" % i for i in range(500)]
+        assert {key for key, _ in runs} == {"f/robot/r1/sensor/lidar"}
+        assert len(runs) < 500  # batches arrived as runs, not one sample at a time
+        assert singles == []
         assert reader.stats().callback_errors == 1
