@@ -41,6 +41,8 @@ log = logging.getLogger(__name__)
 _RAW_BATCH = 2000
 #: channel samples ingested under one hold of the ingest lock (``_on_channel_run``)
 _RUN_CHUNK = 8
+#: a hold of the ingest lock longer than this takes the next chunks down to one sample a hold
+_RUN_HOLD_NS = 1_000_000
 
 
 class SensorIntake:
@@ -68,6 +70,8 @@ class SensorIntake:
         self.frames: FrameReader | None = None
         self.raw: PullSubscriber | None = None
         self.processed = 0
+        #: samples of a channel run per hold of the ingest lock (``_on_channel_run``)
+        self._run_chunk = _RUN_CHUNK
         #: samples the reliable channel reported irrecoverably lost (GAP, timeout, writer gone)
         self.channel_lost = 0
         #: raw path: channel-headed sensor samples refused per (robot, topic) (INCOMPATIBLE_QOS)
@@ -168,17 +172,28 @@ class SensorIntake:
 
     def _on_channel_run(self, key: str, payloads: Sequence[bytes]) -> None:
         """Samples of one writer delivered by the reliable channel (a batch), in order, on its
-        worker: ``_RUN_CHUNK`` at a time under one hold of the ingest lock and one arrival time,
-        the topic looked up once a chunk. A call per sample, with its ``DataInfo``, lock and
-        clock read, cost about 5 us a sample of the CEDDP's GIL against 3 (issue 17). Chunks,
-        not whole runs: a run of 64 under one hold kept the control worker and the overload
-        governor off the lock (test_overload failed 1 of 2 runs that way, stop 26)."""
+        worker: a chunk at a time under one hold of the ingest lock and one arrival time, the
+        topic looked up once a chunk. A call per sample, with its ``DataInfo``, lock and clock
+        read, cost about 5 us of the CEDDP's GIL a sample against 3 (issue 17).
+
+        Chunks of ``_RUN_CHUNK``, down to one sample while a hold takes longer than
+        ``_RUN_HOLD_NS``: the lock also serves the control worker (joins, clock replies, QoS)
+        and the overload governor, and a slow planner (``[overload] planner_cost_us``, 10 ms a
+        reading in test_overload) held it for a whole chunk's readings at a time; a whole run
+        per hold failed that test at stop 26, chunks of 8 without the bound at this one."""
         ingest = self.ingest
-        for start in range(0, len(payloads), _RUN_CHUNK):
-            chunk = payloads[start : start + _RUN_CHUNK]
+        start, end = 0, len(payloads)
+        while start < end:
+            chunk = payloads[start : start + self._run_chunk]
             with ingest.lock:
-                ingest.handle_run(key, chunk, time.time_ns())
+                arrival_ns = time.time_ns()
+                ingest.handle_run(key, chunk, arrival_ns)
                 self.processed += len(chunk)
+                held_ns = time.time_ns() - arrival_ns
+            start += len(chunk)
+            # what a whole chunk would hold the lock for at this pace decides the next chunk
+            pace_ns = held_ns * _RUN_CHUNK // len(chunk)
+            self._run_chunk = _RUN_CHUNK if pace_ns <= _RUN_HOLD_NS else 1
 
     def _ingest_one(self, key: str, payload: bytes, *, large: bool) -> None:
         with self.ingest.lock:
