@@ -436,3 +436,8 @@ def test_on_data_run_takes_whole_in_order_runs_instead_of_on_data() -> None:
         assert len(runs) < 500  # batches arrived as runs, not one sample at a time
         assert singles == []
         assert reader.stats().callback_errors == 1
+
+
+def test_a_reader_without_a_callback_is_refused() -> None:
+    with pytest.raises(ValueError, match="on_data or on_data_run"):
+        Reader(MemoryTransport(MemoryBus()), "f/robot/*/sensor/*", QOS_RELIABLE_ALL, None)
