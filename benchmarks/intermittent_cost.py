@@ -24,9 +24,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from arpz.launch import free_port  # noqa: E402
 from arpz.perf.zenoh_baselines import open_session  # noqa: E402
 from arpz.transport import SessionSettings  # noqa: E402
-from tests.support import free_port  # noqa: E402
 
 ROUTER = r"""
 import os, sys, time
@@ -49,27 +49,36 @@ def python_work() -> int:
     return total
 
 
-def per_call_us(call: Callable[[], object], gap_s: float, count: int) -> tuple[float, float]:
-    """(calling thread, whole process) CPU microseconds a call, the pauses' own cost taken out."""
+def cpu_us(call: Callable[[], object], gap_s: float, count: int) -> tuple[float, float]:
+    """(calling thread, whole process) CPU microseconds a call, pauses included."""
+    thread0, process0 = time.thread_time(), time.process_time()
+    for _ in range(count):
+        call()
+        if gap_s:
+            time.sleep(gap_s)
+    return (
+        (time.thread_time() - thread0) / count * 1e6,
+        (time.process_time() - process0) / count * 1e6,
+    )
 
-    def run(work: Callable[[], object]) -> tuple[float, float]:
-        thread0, process0 = time.thread_time(), time.process_time()
-        for _ in range(count):
-            work()
-            if gap_s:
-                time.sleep(gap_s)
-        return time.thread_time() - thread0, time.process_time() - process0
 
-    idle_thread, idle_process = run(lambda: None)
-    thread, process = run(call)
-    return (thread - idle_thread) / count * 1e6, (process - idle_process) / count * 1e6
+def _gaps_ms(text: str) -> list[float]:
+    try:
+        gaps = [float(g) for g in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a list of milliseconds: {text!r}") from None
+    if not gaps or any(g < 0 or g > 1000 for g in gaps):
+        raise argparse.ArgumentTypeError(f"each pause must be 0 to 1000 ms: {text!r}")
+    return gaps
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--gaps-ms", default="0,1,10", help="pauses between calls, ms")
+    parser.add_argument(
+        "--gaps-ms", type=_gaps_ms, default=[0.0, 1.0, 10.0], help="pauses between calls, ms"
+    )
     args = parser.parse_args()
-    gaps = [float(g) / 1000 for g in args.gaps_ms.split(",")]
+    gaps = [g / 1000 for g in args.gaps_ms]
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen(
         [sys.executable, "-c", ROUTER, endpoint],
@@ -95,16 +104,22 @@ def main() -> int:
         time.sleep(1.0)
         payload = bytes(600)
         print("CPU a call, us: python work (calling thread) | zenoh put (calling thread / this")
-        print("process / the router process); ratios to the same figure back to back (gap 0)")
+        print("process / the router process), the pause's own cost taken out; ratios to the")
+        print("first pause's figure")
         first: tuple[float, float] | None = None
         for gap in gaps:
             count = 3000 if gap < 0.005 else 300
-            work_us, _ = per_call_us(python_work, gap, count)
-            received0, router0 = router_state()
-            thread_us, process_us = per_call_us(lambda: publisher.put(payload), gap, count)
+            # the pauses alone, in both processes: taken out of the figures below
+            _, router0 = router_state()
+            idle_thread, idle_process = cpu_us(lambda: None, gap, count)
+            _, router1 = router_state()
+            work_us = cpu_us(python_work, gap, count)[0] - idle_thread
+            received0, router2 = router_state()
+            thread_us, process_us = cpu_us(lambda: publisher.put(payload), gap, count)
             time.sleep(0.1)  # the last puts reach the router
-            received1, router1 = router_state()
-            router_us = (router1 - router0) / count * 1e6
+            received1, router3 = router_state()
+            thread_us, process_us = thread_us - idle_thread, process_us - idle_process
+            router_us = ((router3 - router2) - (router1 - router0)) / count * 1e6
             first = first or (work_us, process_us)
             print(
                 f"  gap {gap * 1e3:4g} ms: python work {work_us:6.1f} ({work_us / first[0]:.1f}x)"

@@ -480,14 +480,9 @@ class Channel:
         self, on_run: Callable[[str, Sequence[bytes]], None], action: DeliverRun | Deliver
     ) -> None:
         if isinstance(action, DeliverRun):
-            key, payloads = action.key, action.payloads
+            self._call(on_run, action.key, action.payloads)
         else:
-            key, payloads = action.info.key, (action.payload,)
-        try:
-            on_run(key, payloads)
-        except Exception:
-            self.callback_errors += 1
-            log.exception("on_data_run raised; the channel goes on")
+            self._call(on_run, action.info.key, (action.payload,))
 
     def _on_data_raised(self) -> None:
         self.callback_errors += 1
