@@ -25,12 +25,13 @@ alternate raw/arpz so drift on a shared machine hits both. Targets: the raw path
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -184,22 +185,34 @@ def run_raw(total: int, publishers: int) -> float:
     return total / (t1 - t0)
 
 
-def run_arpz(
-    total: int, publishers: int, workdir: Path, path: str, batch_delay_s: float
-) -> tuple[float, dict[str, int]]:
+@contextlib.contextmanager
+def ceddp_server(workdir: Path, path: str) -> Iterator[tuple[CeddpServer, str]]:
+    """The real ``CeddpServer`` and its Rerun dashboard in a router session of this process
+    (the CEDDP is this process), on the channel or the raw path; yields it started, with the
+    router's endpoint. The caller shuts it down (its summary is the run's counts)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     config = CeddpConfig(
         fleet="bench",
         listen=[endpoint],
-        rrd=str(workdir / "bench.rrd"),
+        rrd=str(workdir / f"bench-{path}.rrd"),
         reliability="channel" if path.startswith("channel") else "none",
         sensor_qos=QOS_RELIABLE_ALL,
     )
     router = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))
     dashboard = Dashboard(config.rrd)
-    server = CeddpServer(config, router, dashboard=dashboard)
     try:
+        server = CeddpServer(config, router, dashboard=dashboard)
         server.start()
+        yield server, endpoint
+    finally:
+        router.close()
+        dashboard.close()
+
+
+def run_arpz(
+    total: int, publishers: int, workdir: Path, path: str, batch_delay_s: float
+) -> tuple[float, dict[str, int]]:
+    with ceddp_server(workdir, path) as (server, endpoint):
         procs, t0 = start_publishers(endpoint, total // publishers, publishers, path, batch_delay_s)
         cpu0 = time.process_time()  # this process is the CEDDP (and a thread polling its count)
         t1 = wait_count(lambda: server.processed, total, 300, procs)
@@ -210,9 +223,6 @@ def run_arpz(
         reader = server.intake.reader
         duplicates = reader.stats().duplicates if reader is not None else 0
         summary = server.shutdown()
-    finally:
-        router.close()
-        dashboard.close()
     hits = sum(t["cc_discarded"] for r in summary["robots"].values() for t in r["topics"].values())
     lost = sum(r["lost"] for r in summary["robots"].values())
     info = {

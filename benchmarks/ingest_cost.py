@@ -20,15 +20,10 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from arpz.ceddp.dashboard import Dashboard
-from arpz.ceddp.server import CeddpServer
-from arpz.config import CeddpConfig
-from arpz.launch import free_port
+from ceddp_ingest import ceddp_server  # benchmarks/: the same CEDDP as the ingest benchmark
+
 from arpz.messages import Sample, encode
 from arpz.protocol.events import DataInfo
-from arpz.reliability import QOS_RELIABLE_ALL
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
 
 TOPICS = [
     (f"robot{r}", name)
@@ -58,19 +53,7 @@ def runs_of(count: int, size: int) -> list[tuple[str, list[bytes]]]:
 
 
 def cpu_us_a_sample(whole: bool, runs: list[tuple[str, list[bytes]]], workdir: Path) -> float:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    config = CeddpConfig(
-        fleet="bench",
-        listen=[endpoint],
-        rrd=str(workdir / f"ingest-{whole}.rrd"),
-        reliability="channel",
-        sensor_qos=QOS_RELIABLE_ALL,
-    )
-    router = ZenohTransport.open(SessionSettings(mode="router", listen=[endpoint]))
-    dashboard = Dashboard(config.rrd)
-    server = CeddpServer(config, router, dashboard=dashboard)
-    try:
-        server.start()
+    with ceddp_server(workdir, "channel") as (server, _endpoint):
         intake = server.intake
         total = sum(len(payloads) for _, payloads in runs)
         cpu0 = time.thread_time()
@@ -83,12 +66,9 @@ def cpu_us_a_sample(whole: bool, runs: list[tuple[str, list[bytes]]], workdir: P
                     info = DataInfo(key, "w", seq, 0)
                     intake._ingest_one(info.key, payload, large=False)
         cpu_s = time.thread_time() - cpu0
-        if intake.processed != total:
-            raise RuntimeError(f"ingested {intake.processed} of {total}")
-    finally:
         server.shutdown()
-        router.close()
-        dashboard.close()
+    if intake.processed != total:
+        raise RuntimeError(f"ingested {intake.processed} of {total}")
     return cpu_s / total * 1e6
 
 
