@@ -298,19 +298,24 @@ def test_killing_the_ceddp_stops_every_robot_within_its_command_deadline(tmp_pat
         assert down["written"] > 0 and down["reconciled"] is True, down
 
 
-# its bound is tight (a heartbeat period): beside the experiment's fleet on two shared cores it
-# measured 141 and 221 ms in two full runs, while alone or beside two CPU hogs 43-85 ms on this
-# code and on stop 24's alike; so it runs with the cores to itself (tests/conftest.py, cpu_share)
+# timing-bound: beside the experiment's fleet on two shared cores its recoveries measured 141 and
+# 221 ms in two full runs, while alone or beside two CPU hogs 43-85 ms; so it runs with the cores
+# to itself (tests/conftest.py, cpu_share)
 @pytest.mark.cpu_exclusive
 def test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value(tmp_path: Path) -> None:
     """The local cache with KEEP_LAST 1 at 1 kHz over wifi-bad: a value that changes every 100 ms
     (99 of 100 readings held back as unchanged). A change the link loses must not leave the CEDDP
     on the old value until the next change or heartbeat: the repeats held back announce it (a
-    heartbeat at every held-back reading while it is unacknowledged), so it is NACKed one period
-    later and resent. Each recovery round takes a period, one and a half round trips and the NACK
-    delay; a round whose NACK or resend is lost too adds the NACK period (20 ms). So no change
-    may take a heartbeat period (100 ms) to arrive: with heartbeats at their period, every lost
-    change did (and the test failed)."""
+    heartbeat at every held-back reading while it is unacknowledged, at most one per NACK
+    delay), so it is NACKed and resent within a round trip or a few. Each recovery round takes
+    one and a half round trips and the NACK delay; a round whose NACK or resend is lost too adds
+    the NACK period (20 ms).
+
+    The writers' heartbeat period is 500 ms here, five changes: a change recovered only by a
+    heartbeat is overwritten by the next change first (KEEP_LAST 1), reported lost. With the
+    period at 100 ms that effect was too small to see in ~10 losses a run: with the announcing
+    heartbeats turned off the worst change still arrived within 73-121 ms (4 runs) against
+    33-52 ms with them, 100.3 and 102.8 ms on a slowed CI host."""
     from arpz.experiment.runner import impairments
     from arpz.experiment.spec import PROFILES
 
@@ -318,7 +323,10 @@ def test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value(tmp_path: Path)
     trace.write_text(
         "t_s,value\n" + "".join(f"{i * 0.1:.1f},{10.0 if i % 2 else 20.0}\n" for i in range(100))
     )
-    qos = '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_last"\ndepth = 1\n'
+    qos = (
+        '[sensor_qos]\nreliability = "reliable"\nhistory = "keep_last"\ndepth = 1\n'
+        "heartbeat_period_s = 0.5\n"
+    )
     sensor = (
         '[[sensors]]\nname = "step"\nkind = "ultrasonic"\nrate_hz = 1000\ndriver = "replay"\n'
         f'trace = "{trace.as_posix()}"\noptions = {{ loop = true }}\n'
@@ -348,5 +356,13 @@ def test_a_lost_change_does_not_leave_the_ceddp_on_a_stale_value(tmp_path: Path)
     step = summary(tmp_path)["robots"]["robot1"]["topics"]["step"]
     assert step["held_back"] > 10 * step["sent"] > 0, step  # the cache did hold repeats back
     assert step["received"] > 100, step
-    heartbeat_period_ms = 100.0
-    assert step["staleness_ms_max"] < heartbeat_period_ms, step
+    # some changes were lost on the link and recovered (wifi-bad loses about 8 % of datagrams)
+    assert step["retransmitted"] > 0, step
+    # none waited for a heartbeat: not one overwritten by the next change (one allowed for a
+    # slowed host's 4-5 lost rounds in a row; with the announcing heartbeats off, 4 runs lost
+    # 1-4 at a 100 ms period, more at 500), and none took a change period to arrive
+    change_period_ms = 100.0
+    assert step["lost"] <= 1, step
+    assert step["received"] + step["lost"] == step["sent"], step
+    assert step["staleness_ms_p99"] < 0.75 * change_period_ms, step
+    assert step["staleness_ms_max"] < 1.5 * change_period_ms, step

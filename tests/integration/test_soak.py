@@ -69,6 +69,8 @@ class SoakRun:
     robot_mb: dict[str, list[float]] = field(default_factory=dict)
     #: (time since start, total samples per second arriving at the CEDDP) from its own reports
     rates: list[tuple[float, float]] = field(default_factory=list)
+    #: (time since start, the interval's pooled p99 latency, ms) from the same reports
+    latencies: list[tuple[float, float]] = field(default_factory=list)
     summary: dict[str, Any] = field(default_factory=dict)
     rrd_bytes: int = 0
 
@@ -106,7 +108,10 @@ def soak(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SoakRun]:
     def on_stats(_key: str, payload: bytes, _att: bytes | None) -> None:
         stats = CEDDP_STATS_DECODER.decode(payload)
         with lock:
-            run.rates.append((time.monotonic() - start, sum(t.rate_hz for t in stats.topics)))
+            at = time.monotonic() - start
+            run.rates.append((at, sum(t.rate_hz for t in stats.topics)))
+            if stats.latency_ms_p99 is not None:
+                run.latencies.append((at, stats.latency_ms_p99))
 
     with ceddp(tmp, env=STEADY_MALLOC) as (server, endpoint):
         configs = [_robot_config(tmp, robot, endpoint) for robot in ROBOTS]
@@ -168,7 +173,18 @@ def test_counts_reconcile_robots_stay_flat_and_the_ceddp_keeps_up(soak: SoakRun)
     # (the robots' Python schedulers may run below the nominal rate on a loaded machine: that is
     # measured above; here only the trend matters)
     offered = len(ROBOTS) * TOPICS_PER_ROBOT * RATE_HZ
-    assert late > 0.85 * early and late > 0.5 * offered, (offered, early, late)
+    assert late > 0.5 * offered, (offered, early, late)
+    if late <= 0.85 * early:
+        # fewer arrivals late: a CEDDP falling behind, or robots sending less on a host that
+        # slowed down mid-run (CI saw 0.84 of early once). A queue building up behind a slow
+        # CEDDP delays every sample in it, so its latency grows; robots that send less do not
+        # delay what they send. Tell them apart by the CEDDP's own latency reports.
+        waits = [v for t, v in soak.latencies if t >= WARMUP_S]
+        assert len(waits) >= 3, soak.latencies
+        third_lat = len(waits) // 3
+        early_p99 = sorted(waits[:third_lat])[third_lat // 2]
+        late_p99 = sorted(waits[-third_lat:])[third_lat // 2]
+        assert late_p99 < max(50.0, 2 * early_p99), (early, late, early_p99, late_p99, waits)
 
 
 def test_the_ceddp_memory_stays_flat_after_warmup(soak: SoakRun) -> None:
