@@ -21,6 +21,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from arpz.cli import wait_for_stop
 from arpz.config import RobotConfig, from_dict
 from arpz.robot.agent import RobotAgent
 from arpz.transport import SessionSettings
@@ -97,7 +98,7 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         # counts them late once: that is not load, so it is taken off as a baseline
         stop.wait(0.5)
         baseline = {name: sum(s.late_ticks for s in a.sensors) for name, a in agents.items()}
-        stop.wait()
+        wait_for_stop(stop)  # not stop.wait(): a signal may land on any of its threads
         for thread in threads:
             thread.join()
         ran_s = time.monotonic() - started
