@@ -9,6 +9,7 @@ import logging
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 
 from arpz.endpoints import DEFAULT_CONNECT, check_endpoints
@@ -44,16 +45,25 @@ def stop_on_signals() -> threading.Event:
     return stop
 
 
-def wait_for_stop(stop: threading.Event, poll_s: float = 0.2) -> None:
-    """Block the main thread until ``stop`` is set, in timed waits.
+def wait_for_stop(
+    stop: threading.Event, timeout_s: float | None = None, *, poll_s: float = 0.2
+) -> bool:
+    """Block the main thread until ``stop`` is set (or ``timeout_s`` passed), in timed waits;
+    True when ``stop`` is set.
 
     Python runs a signal's handler on the main thread only, at its next bytecode. When the
     kernel delivers the signal to another thread (a process with Zenoh sessions and writers has
     hundreds), a main thread blocked in an untimed ``stop.wait()`` never gets there and the
     process ignores SIGINT (seen: 2 of 4 workers of a 50-robot fleet run, killed after 70 s,
-    their robots' final reports lost). A timed wait returns to bytecode every ``poll_s``."""
-    while not stop.wait(poll_s):
-        pass
+    their robots' final reports lost); a long timed one gets there late. A wait here returns to
+    bytecode every ``poll_s``."""
+    end = None if timeout_s is None else time.monotonic() + timeout_s
+    while True:
+        step = poll_s if end is None else min(poll_s, end - time.monotonic())
+        if step <= 0:
+            return stop.is_set()
+        if stop.wait(step):
+            return True
 
 
 # --- the options and conventions every command shares (docs/tools.md "Conventions") ---------

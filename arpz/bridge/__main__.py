@@ -27,6 +27,7 @@ from arpz.cli import (
     emit_json,
     fail,
     stop_on_signals,
+    wait_for_stop,
 )
 from arpz.config import BridgeConfig, ConfigError, from_dict, load_toml
 from arpz.endpoints import DEFAULT_CONNECT
@@ -88,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             f"{config.ros2.domain_id}, fleet {config.fleet!r} via {','.join(config.connect)}",
             flush=True,
         )
-        stop.wait(args.duration if args.duration > 0 else None)
+        wait_for_stop(stop, args.duration if args.duration > 0 else None)
         bridge.close()
         emit_json(bridge.stats(), args.json or "-")
     finally:

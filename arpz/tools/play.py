@@ -233,14 +233,14 @@ class Player:
             self._start_wall_ns = time.time_ns()
             for topic, log_ns, data in self._messages():
                 offset_s = (log_ns - self.first_ns) / 1e9 / self.rate
-                if stop.wait(max(0.0, start_mono + offset_s - time.monotonic())):
+                if cli.wait_for_stop(stop, start_mono + offset_s - time.monotonic()):
                     return
                 self._publish(topic, log_ns, data)
             self.loops += 1
             if not self.loop:
                 return
             # the next pass starts one recording span after this one began
-            stop.wait(max(0.0, start_mono + span_ns / 1e9 / self.rate - time.monotonic()))
+            cli.wait_for_stop(stop, start_mono + span_ns / 1e9 / self.rate - time.monotonic())
 
     def _restamp(self, stamp_ns: int) -> int:
         """A recorded stamp moved to this pass: as long after its start as it was after the

@@ -50,3 +50,19 @@ def test_an_untimed_wait_misses_it() -> None:
     """The case above is real: the same script with ``stop.wait()`` never stops."""
     with pytest.raises(subprocess.TimeoutExpired):
         _run("untimed", timeout_s=3)
+
+
+def test_wait_for_stop_times_out_and_reports_the_stop() -> None:
+    import threading
+    import time
+
+    from arpz.cli import wait_for_stop
+
+    stop = threading.Event()
+    start = time.monotonic()
+    assert wait_for_stop(stop, 0.3, poll_s=0.05) is False
+    assert 0.3 <= time.monotonic() - start < 2.0
+    assert wait_for_stop(stop, -1.0) is False  # a deadline already past: no wait at all
+    threading.Timer(0.1, stop.set).start()
+    assert wait_for_stop(stop, 10.0) is True
+    assert wait_for_stop(stop) is True
