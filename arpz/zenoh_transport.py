@@ -397,10 +397,15 @@ class ZenohTransport:
             if sample is not None:
                 on_reply(sample.payload.to_bytes())
 
+        # Run on Zenoh's network thread (indirect=False), not on a Python thread zenoh-python
+        # would start for every request: ``get`` returns only once that thread holds the GIL,
+        # and a robot's clock bursts (4 requests every 2 s) stalled its sensing loop by that
+        # much. ``python benchmarks/request_cost.py``: 505 against 161 us in the call; with 300
+        # busy threads beside (a fleet worker has 770), 2 034 against 643 us
         with _translated(f"request on {key}"):
             self._session.get(
                 key,
-                on_answer,
+                zenoh.handlers.Callback(on_answer, indirect=False),
                 payload=payload,
                 timeout=timeout_s,
                 express=True,

@@ -1,7 +1,8 @@
 """CPU by thread of a running process over an interval: what each of a CEDDP's threads costs,
 Zenoh's native ones (``rx-N``, ``tx-N``) included, which a Python profiler does not see.
 
-CPU comes from /proc/PID/task/*/stat (utime + stime); Python thread names from ``py-spy dump``
+CPU comes from /proc/PID/task/*/stat (utime + stime), wake-ups from the voluntary context
+switches in /proc/PID/task/*/status; Python thread names from ``py-spy dump``
 (py-spy's thread ids are the native ones), other threads keep their kernel name. Names are folded
 as ``profile_shares.py`` folds them, so 25 robots' Hello writers show as one row with a count.
 How stop 28 of issue 17 read an idle fleet's CEDDP (benchmarks/RESULTS.md):
@@ -26,19 +27,27 @@ from profile_shares import thread_row  # benchmarks/: one folding of thread name
 
 _TICK_S = 1 / os.sysconf("SC_CLK_TCK")
 _THREAD = re.compile(r'Thread (\d+) \([^)]*\): "([^"]*)"')
+_SWITCHES = re.compile(r"^voluntary_ctxt_switches:\s+(\d+)", re.MULTILINE)
 
 
-def cpu_by_thread(pid: int) -> dict[int, tuple[str, float]]:
-    """tid -> (kernel name, CPU seconds so far)."""
-    out: dict[int, tuple[str, float]] = {}
+def cpu_by_thread(pid: int) -> dict[int, tuple[str, float, int]]:
+    """tid -> (kernel name, CPU seconds so far, wake-ups so far: voluntary context switches,
+    each a sleep the thread woke from)."""
+    out: dict[int, tuple[str, float, int]] = {}
     for task in Path(f"/proc/{pid}/task").iterdir():
         try:
             stat = (task / "stat").read_text()
             comm = (task / "comm").read_text().strip()
+            status = (task / "status").read_text()
         except OSError:  # the thread ended meanwhile
             continue
         fields = stat[stat.rfind(")") + 2 :].split()
-        out[int(task.name)] = (comm, (int(fields[11]) + int(fields[12])) * _TICK_S)
+        switches = _SWITCHES.search(status)
+        out[int(task.name)] = (
+            comm,
+            (int(fields[11]) + int(fields[12])) * _TICK_S,
+            int(switches.group(1)) if switches else 0,
+        )
     return out
 
 
@@ -61,15 +70,24 @@ def main() -> int:
     time.sleep(args.seconds)
     after, elapsed = cpu_by_thread(args.pid), time.monotonic() - t0
     cpu: collections.Counter[str] = collections.Counter()
+    wakes: collections.Counter[str] = collections.Counter()
     count: collections.Counter[str] = collections.Counter()
-    for tid, (comm, seconds) in after.items():
+    for tid, (comm, seconds, switches) in after.items():
         row = thread_row(names.get(tid, comm))
-        cpu[row] += seconds - before.get(tid, (comm, 0.0))[1]
+        _, seconds_before, switches_before = before.get(tid, (comm, 0.0, 0))
+        cpu[row] += seconds - seconds_before
+        wakes[row] += switches - switches_before
         count[row] += 1
     total = sum(cpu.values())
-    print(f"pid {args.pid}: {total / elapsed:.3f} cores over {elapsed:.1f} s, {len(after)} threads")
+    print(
+        f"pid {args.pid}: {total / elapsed:.3f} cores over {elapsed:.1f} s, {len(after)} threads, "
+        f"{sum(wakes.values()) / elapsed:,.0f} wake-ups/s"
+    )
     for row, seconds in cpu.most_common(args.top):
-        print(f"  {seconds / elapsed * 1e3:8.1f} ms/s  x{count[row]:<4} {row}")
+        print(
+            f"  {seconds / elapsed * 1e3:8.1f} ms/s {wakes[row] / elapsed:9,.0f} wake-ups/s"
+            f"  x{count[row]:<4} {row}"
+        )
     return 0
 
 

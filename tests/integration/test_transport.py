@@ -82,3 +82,26 @@ def test_zenoh_errors_come_out_of_the_seam_as_transport_errors() -> None:
                 call()
             assert isinstance(caught.value, ArpzError)
             assert type(caught.value.__cause__).__module__.startswith("zenoh"), caught.value
+
+
+def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.MonkeyPatch) -> None:
+    """zenoh-python starts a Python thread per request for a callable reply handler, and ``get``
+    waits until it holds the GIL (benchmarks/request_cost.py); arpz's replies run on Zenoh's
+    network thread, so a robot's clock bursts start none."""
+    started: list[str] = []
+    original_start = threading.Thread.start
+
+    def counting_start(self: threading.Thread) -> None:
+        started.append(self.name)
+        original_start(self)
+
+    with router() as (server, endpoint), client(endpoint) as robot:
+        server.serve("clock/q", lambda payload: payload + b"!")
+        replies: list[bytes] = []
+        monkeypatch.setattr(threading.Thread, "start", counting_start)
+        for i in range(10):
+            robot.request("clock/q", str(i).encode(), replies.append, timeout_s=5.0)
+        wait_until(lambda: len(replies) == 10, what="10 replies")
+        monkeypatch.setattr(threading.Thread, "start", original_start)
+    assert sorted(replies) == sorted(f"{i}!".encode() for i in range(10))
+    assert started == [], started
