@@ -112,15 +112,21 @@ def test_one_wildcard_reader_serves_many_writers_in_other_sessions() -> None:
 
 def test_late_transient_local_reader_gets_the_history_and_a_volatile_one_does_not() -> None:
     qos = QosProfile(depth=5, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    late, volatile = Sink(), Sink()
+    late, volatile, witness = Sink(), Sink(), Sink()
     with (
         router() as (_, endpoint),
         client(endpoint) as a,
         client(endpoint) as b,
         Writer(a, "arpz/f/robot/r1/sensor/map", qos) as writer,
+        # b's session sees the 12 samples go by before the late readers subscribe: a batch
+        # still on its way when they did reached them as original data (CI of 669574f)
+        Reader(b, "arpz/f/robot/r1/sensor/map", QosProfile(depth=20), witness),
     ):
+        wait_until(lambda: synced(writer, 1), what="the witness synced")
         for i in range(12):
             writer.write(b"%d" % i)
+        writer.flush()
+        wait_until(lambda: len(witness.seqs()) == 12, what="the 12 samples through b's session")
         with (
             Reader(b, "arpz/f/robot/r1/sensor/map", qos, late),
             Reader(b, "arpz/f/robot/r1/sensor/map", QosProfile(depth=5), volatile),
@@ -128,7 +134,7 @@ def test_late_transient_local_reader_gets_the_history_and_a_volatile_one_does_no
             wait_until(lambda: len(late.seqs()) == 5, what="history")
             assert late.seqs() == [8, 9, 10, 11, 12]
             assert late.items[0][0] == b"7" and late.items[0][1].retransmitted
-            wait_until(lambda: synced(writer, 2), what="both readers synced")
+            wait_until(lambda: synced(writer, 3), what="the three readers synced")
             writer.write(b"12")
             wait_until(lambda: volatile.seqs() == [13] and late.seqs()[-1] == 13, what="new sample")
 
