@@ -394,8 +394,12 @@ class ZenohTransport:
     ) -> None:
         def on_answer(reply: zenoh.Reply) -> None:
             sample = reply.ok
-            if sample is not None:
+            if sample is None:
+                return
+            try:
                 on_reply(sample.payload.to_bytes())
+            except Exception:  # on Zenoh's network thread: log it, never let it reach Zenoh
+                log.exception("reply handler for %s raised", key)
 
         # Run on Zenoh's network thread (indirect=False), not on a Python thread zenoh-python
         # would start for every request: ``get`` returns only once that thread holds the GIL,

@@ -105,3 +105,18 @@ def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.M
         monkeypatch.setattr(threading.Thread, "start", original_start)
     assert sorted(replies) == sorted(f"{i}!".encode() for i in range(10))
     assert started == [], started
+
+
+def test_a_reply_handler_that_raises_is_logged_and_later_requests_still_get_replies(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    def broken(_payload: bytes) -> None:
+        raise ValueError("a bad reply")
+
+    with router() as (server, endpoint), client(endpoint) as robot:
+        server.serve("clock/q", lambda payload: payload)
+        robot.request("clock/q", b"1", broken, timeout_s=5.0)
+        wait_until(lambda: "reply handler for clock/q raised" in caplog.text, what="the log")
+        replies: list[bytes] = []
+        robot.request("clock/q", b"2", replies.append, timeout_s=5.0)
+        wait_until(lambda: replies == [b"2"], what="the next reply")
