@@ -57,6 +57,8 @@ def wait_for_stop(
     process ignores SIGINT (seen: 2 of 4 workers of a 50-robot fleet run, killed after 70 s,
     their robots' final reports lost); a long timed one gets there late. A wait here returns to
     bytecode every ``poll_s``."""
+    if not poll_s > 0:
+        raise ValueError(f"poll_s must be > 0 (a zero wait spins), got {poll_s}")
     end = None if timeout_s is None else time.monotonic() + timeout_s
     while True:
         step = poll_s if end is None else min(poll_s, end - time.monotonic())

@@ -128,6 +128,10 @@ def main() -> int:
         f"{raw_cpu:6.0f} us CPU\n  arpz ZenohTransport.request  : {arpz_call:7.0f} us in the "
         f"call ({arpz_call / raw_call:.2f}x), {arpz_cpu:6.0f} us CPU ({arpz_cpu / raw_cpu:.2f}x)"
     )
+    missing = {name: sum(args.requests - r[2] for r in rs) for name, rs in rows.items()}
+    if any(missing.values()):
+        print(f"FAILED: replies missing (a figure a request is then not one): {missing}")
+        return 1
     return 0
 
 

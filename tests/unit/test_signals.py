@@ -11,8 +11,12 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import threading
+import time
 
 import pytest
+
+from arpz.cli import wait_for_stop
 
 SCRIPT = r"""
 import signal, sys, threading, time
@@ -53,11 +57,6 @@ def test_an_untimed_wait_misses_it() -> None:
 
 
 def test_wait_for_stop_times_out_and_reports_the_stop() -> None:
-    import threading
-    import time
-
-    from arpz.cli import wait_for_stop
-
     stop = threading.Event()
     start = time.monotonic()
     assert wait_for_stop(stop, 0.3, poll_s=0.05) is False
@@ -66,3 +65,8 @@ def test_wait_for_stop_times_out_and_reports_the_stop() -> None:
     threading.Timer(0.1, stop.set).start()
     assert wait_for_stop(stop, 10.0) is True
     assert wait_for_stop(stop) is True
+
+
+def test_wait_for_stop_refuses_a_poll_that_would_spin() -> None:
+    with pytest.raises(ValueError, match="poll_s"):
+        wait_for_stop(threading.Event(), 1.0, poll_s=0.0)
