@@ -48,6 +48,8 @@ def _error_bound_ms(row: dict[str, Any]) -> float:
     """How far a robot's clock estimate may be from the truth: 5 ms, or half the round trip of
     the exchange it came from, beyond which a request/reply estimate cannot tell (on a loaded
     two-core host a best round trip of tens of ms happens: -486.5 ms for a 500 ms shift once)."""
+    # the bound must not grow until anything passes: a best round trip this long is no estimate
+    assert row["clock_delay_ms"] < 200, row
     return max(5.0, row["clock_delay_ms"] / 2)
 
 
