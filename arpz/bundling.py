@@ -7,7 +7,9 @@ the bundle goes out as soon as the tick's last job returns, so a tick's first sa
 the time its siblings take to be read and written (microseconds on a robot).
 
 Outside ``collect()`` (a writer's worker sending heartbeats or resends, any other thread) every
-put goes straight to Zenoh as before, so the channel's timing is untouched. A bundle the link
+put goes straight to Zenoh as before. A reliable writer asks ``will_hold`` before its put and
+its heartbeats stop short of a held message until ``on_released``: a heartbeat that overtook the
+bundle announced seqs the reader could only NACK (issue 17). A bundle the link
 refuses (the session closed) loses only transmissions: the samples stay in the writers' histories
 and are recovered by NACK, as a lost datagram would be; the refusal is counted and logged.
 """
@@ -17,7 +19,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from arpz.protocol import bundle
 from arpz.throttled_log import ThrottledLog
@@ -59,14 +61,22 @@ class _BundledPublisher:
         self.name = key.rpartition("/")[2]
         self.parent_key = bundle.bundle_key(key) or ""
         self.inner = inner
+        #: called (on the tick's thread) once a bundle holding a message of this publisher
+        #: left or was refused: a reliable writer's heartbeats announce its seqs again
+        self.on_released: Callable[[], None] | None = None
+
+    def _fits(self, payload: bytes, attachment: bytes | None) -> bool:
+        return len(payload) + len(attachment or b"") <= self._bundler.max_bytes and (
+            attachment is None or len(attachment) <= bundle.MAX_ATTACHMENT
+        )
+
+    def will_hold(self, payload: bytes, attachment: bytes | None) -> bool:
+        """Whether ``put`` of this message on the calling thread holds it until the tick ends."""
+        return self._bundler.held() is not None and self._fits(payload, attachment)
 
     def put(self, payload: bytes, *, attachment: bytes | None = None) -> None:
         held = self._bundler.held()
-        if (
-            held is None
-            or len(payload) + len(attachment or b"") > self._bundler.max_bytes
-            or (attachment is not None and len(attachment) > bundle.MAX_ATTACHMENT)
-        ):
+        if held is None or not self._fits(payload, attachment):
             self.inner.put(payload, attachment=attachment)
             return
         held.append((self, payload, attachment))
@@ -133,6 +143,16 @@ class Bundler:
             self._send(taken)
 
     def _send(self, held: list[_Held]) -> None:
+        """Send ``held``, then tell its publishers their messages left."""
+        try:
+            self._send_bundles(held)
+        finally:
+            released = {id(item[0]): item[0] for item in held}
+            for publisher in released.values():
+                if publisher.on_released is not None:
+                    publisher.on_released()
+
+    def _send_bundles(self, held: list[_Held]) -> None:
         """Cut ``held`` (in put order) into bundles of one sibling group within ``max_bytes``."""
         group: list[_Held] = []
         size = 0

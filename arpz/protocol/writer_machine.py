@@ -203,6 +203,14 @@ class WriterMachine:
         self._batch_bytes = 0
         self._batch_opened_s = 0.0
         self._last_put_s = -math.inf
+        #: the first seq its publisher holds back (0: none), set by the driver before the put
+        #: and cleared once the message left: a robot's bundle leaves when its tick ends, and a
+        #: heartbeat the worker sent meanwhile announced seqs the reader could only NACK. On a
+        #: starved robot that came later than the reader's head start for data behind a
+        #: heartbeat, and every such NACK brought a duplicate (25 robots: 300-1 200 of each a
+        #: run, against 11-19 NACKs without bundles; issue 17). Heartbeats and SYNC announce up
+        #: to the seq before it.
+        self.held_from = 0
         self.token_key = wire.writer_token(topic, self.hex, encode_match_qos(qos))
         self.retransmitted = self.nacks = self.gaps = self.heartbeats = 0
         #: NACKed seqs not resent because their resend to that reader was still on its way
@@ -384,8 +392,11 @@ class WriterMachine:
 
     @property
     def _last_sent(self) -> int:
-        """The last seq put on the wire (written samples still in the open batch are not)."""
-        return self.last_seq - len(self.batch)
+        """The last seq put on the wire (written samples still in the open batch, or held by
+        the publisher, are not)."""
+        last = self.last_seq - len(self.batch)
+        held = self.held_from
+        return last if not held else min(last, held - 1)
 
     def retune(
         self, *, depth: int, deadline_s: float, heartbeat_period_s: float | None = None
@@ -525,7 +536,8 @@ class WriterMachine:
         self._asserted_since_hb = False
         if self._min_acked() > self.last_seq:
             flags |= wire.HB_FINAL
-        self._final_hb_at = self.last_seq if flags & wire.HB_FINAL and not self.batch else -1
+        final = flags & wire.HB_FINAL and not self.batch and not self.held_from
+        self._final_hb_at = self.last_seq if final else -1
         self._hb_count += 1
         self.heartbeats += 1
         last = self._last_sent

@@ -77,6 +77,13 @@ class Writer(Endpoint):
         self._release_held: Callable[[], None] = getattr(
             self._publisher, "release_held", lambda: None
         )
+        #: a bundling publisher's: whether it will hold this message until the tick ends (the
+        #: machine's heartbeats then stop short of it until ``_on_released``)
+        self._will_hold: Callable[[bytes, bytes | None], bool] | None = getattr(
+            self._publisher, "will_hold", None
+        )
+        if self._will_hold is not None:
+            self._publisher.on_released = self._on_released  # type: ignore[attr-defined]
         try:
             self._channel.start(self._machine.token_key)
         except Exception:
@@ -95,6 +102,8 @@ class Writer(Endpoint):
         # bound acquire/release rather than ``with``: fewer lookups on the hottest path
         self._acquire()
         try:
+            machine = self._machine
+            unsent = machine.last_seq - len(machine.batch) + 1
             try:
                 seq, ready, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
@@ -108,6 +117,14 @@ class Writer(Endpoint):
             ):
                 self._channel.wake()  # a batch opened: the worker sends it if it is not filled
             if ready is not None:
+                if (
+                    self._will_hold is not None
+                    and not self._machine.held_from
+                    and self._will_hold(ready[0], ready[1])
+                ):
+                    # every seq after the last one put is in ``ready`` or in the open batch,
+                    # which follows it: heartbeats stop short of ``ready``'s first
+                    self._machine.held_from = unsent
                 # taken before the state lock is released, so messages leave in seq order
                 self._send_lock.acquire()
         finally:
@@ -123,6 +140,14 @@ class Writer(Endpoint):
         if actions:
             self._channel.post(actions)
         return seq
+
+    def _on_released(self) -> None:
+        """The bundle holding this writer's messages left (or was refused: the samples are in
+        the history, and the next heartbeat lets the reader NACK them). Called by the thread
+        that set ``held_from`` (the tick's), possibly with the state lock held (a KEEP_ALL
+        write sending its open bundle before it waits), so a plain store, not under the lock:
+        the worker reading it sees either value, and either is safe."""
+        self._machine.held_from = 0
 
     def _send_due_batch(self, force: bool = False) -> None:
         """Publish the open batch if it is due (or ``force``); call with the lock held."""
