@@ -51,6 +51,7 @@ from arpz.perf.fleet_report import (
     write_sweep_csv,
 )
 from arpz.perf.fleet_watch import CeddpWatcher
+from arpz.protocol.qos import MAX_HEARTBEAT_BACKOFF
 
 #: the kinds of seed 001 Table 1, cycled over a robot's topics (a mixed, realistic fleet)
 TOPIC_KINDS = ("lidar", "imu", "ultrasonic", "dht11", "flame", "pir", "light")
@@ -80,6 +81,9 @@ class FleetOptions:
     robot_nice: int = 10
     #: a tick's sensor messages as one Zenoh message (the robots' default; False: one per topic)
     bundles: bool = True
+    #: with bundles (and so piggybacked heartbeats): the longest a calm stream's heartbeat
+    #: period grows, in periods (``QosProfile.heartbeat_backoff``; 1 = fixed)
+    heartbeat_backoff: int = 8
 
 
 def check_options(o: FleetOptions) -> None:
@@ -104,6 +108,10 @@ def check_options(o: FleetOptions) -> None:
         raise FleetArgumentError(f"--robot-nice must be 0..19, got {o.robot_nice}")
     if o.heartbeat_ms is not None and o.heartbeat_ms <= 0:
         raise FleetArgumentError(f"--heartbeat-ms must be > 0, got {o.heartbeat_ms:g}")
+    if not 1 <= o.heartbeat_backoff <= MAX_HEARTBEAT_BACKOFF:
+        raise FleetArgumentError(
+            f"--heartbeat-backoff must be 1..{MAX_HEARTBEAT_BACKOFF}, got {o.heartbeat_backoff}"
+        )
     if o.depth < 1:
         raise FleetArgumentError(f"--depth must be >= 1, got {o.depth}")
     if o.zenoh_config is not None and not Path(o.zenoh_config).is_file():
@@ -148,6 +156,7 @@ def sensor_qos(o: FleetOptions) -> dict[str, Any]:
         qos["heartbeat_period_s"] = o.heartbeat_ms / 1000
     if o.bundles:  # the measured configuration of issue 17: bundles and piggybacked heartbeats
         qos["piggyback_heartbeats"] = True
+        qos["heartbeat_backoff"] = o.heartbeat_backoff
     return qos
 
 
@@ -510,6 +519,12 @@ def add_fleet_parser(sub: Any) -> None:
         "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"
     )
     f.add_argument(
+        "--heartbeat-backoff",
+        type=int,
+        default=8,
+        help="a calm stream's heartbeat period grows up to this many periods (8; 1 = fixed)",
+    )
+    f.add_argument(
         "--no-bundles",
         action="store_true",
         help="robots send one Zenoh message per topic, not one bundle per tick (the A/B)",
@@ -549,6 +564,7 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         robot_nice=args.robot_nice,
         heartbeat_ms=args.heartbeat_ms,
         bundles=not args.no_bundles,
+        heartbeat_backoff=args.heartbeat_backoff,
     )
     check_options(options)
     return options

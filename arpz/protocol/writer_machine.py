@@ -178,6 +178,9 @@ class WriterMachine:
         self._incompatible: set[bytes] = set()
         self._hb_count = 0
         self._next_hb_s = now
+        #: the heartbeat period in force: ``heartbeat_period_s``, grown while a streaming
+        #: topic's readers answer every request (``QosProfile.heartbeat_backoff``)
+        self._hb_interval_s = qos.heartbeat_period_s
         #: ``last_seq`` when a FINAL heartbeat (every reliable reader acknowledged everything)
         #: last went out; -1 after anything else. See ``_heartbeat_due``.
         self._final_hb_at = -1
@@ -424,6 +427,7 @@ class WriterMachine:
         while not self._keep_all and len(self.history) > self._capacity:
             self._overwrite_front(actions)
         now = self._mono()
+        self._hb_interval_s = heartbeat
         self._next_hb_s = min(self._next_hb_s, now + heartbeat)
         self._deadline = DeadlineTimer(deadline_s, now)
         self._timed = deadline_s > 0 or self._manual
@@ -639,6 +643,7 @@ class WriterMachine:
                 continue
             self.nacks += hi - lo + 1
             self._last_nack_s = now
+            self._heartbeat_now_lossy(now)
             if lo < self.first:
                 lost_ranges.append((lo, min(hi, self.first - 1)))
                 lo = self.first
@@ -677,12 +682,20 @@ class WriterMachine:
         if self.qos.lifespan_s > 0:
             self._expire(self.clock.wall_ns())
         if now >= self._next_hb_s:
-            self._next_hb_s = now + self.qos.heartbeat_period_s
+            # calm: nothing to announce, or the data carried the heartbeat (every reader
+            # answered): the period grows (heartbeat_backoff), and the driver wakes less often
+            calm = True
             if self._heartbeat_due(now):
                 if self._ack_requested_since_hb and self._data_carries_heartbeat(now):
                     self.heartbeats_piggybacked += 1
                 else:
+                    calm = False
                     actions.append(self._heartbeat(now, 0))
+            base = self.qos.heartbeat_period_s
+            self._hb_interval_s = (
+                min(2 * self._hb_interval_s, self.qos.heartbeat_backoff * base) if calm else base
+            )
+            self._next_hb_s = now + self._hb_interval_s
             self._ack_requested_since_hb = False
             self._ack_on_next_write = True
         for p in self.proxies.values():
@@ -695,6 +708,13 @@ class WriterMachine:
             self.liveliness_lost += 1
             actions.append(Notify("liveliness", LivelinessLostStatus(self.liveliness_lost, 1)))
         return actions
+
+    def _heartbeat_now_lossy(self, now: float) -> None:
+        """A reader NACKed: the link loses, and a grown heartbeat period is back to its base."""
+        base = self.qos.heartbeat_period_s
+        if self._hb_interval_s > base:
+            self._hb_interval_s = base
+            self._next_hb_s = min(self._next_hb_s, now + base)
 
     def _data_carries_heartbeat(self, now: float) -> bool:
         """A DATA that asked for an acknowledgement since the timer last fired, and that every

@@ -33,6 +33,8 @@ from arpz.perf.fleet_watch import ceddp_of
         ({"depth": 0}, "--depth must be >= 1"),
         ({"robot_nice": 20}, "--robot-nice must be 0..19"),
         ({"heartbeat_ms": 0.0}, "--heartbeat-ms must be > 0"),
+        ({"heartbeat_backoff": 0}, "--heartbeat-backoff must be 1..64"),
+        ({"heartbeat_backoff": 65}, "--heartbeat-backoff must be 1..64"),
         ({"zenoh_config": "/nonexistent.json5"}, "no such file"),
     ],
 )
@@ -93,6 +95,7 @@ def test_the_plan_is_configs_the_ceddp_and_the_robots_accept(tmp_path: Path) -> 
         assert len(robot.sensors) == 9 and not robot.local_cache.enabled
         assert robot.connect == [endpoints[where[robot.robot_id][0]]]
         assert robot.sensor_qos.depth == 7
+        assert robot.sensor_qos.piggyback_heartbeats and robot.sensor_qos.heartbeat_backoff == 8
     ceddp = from_dict(ceddps[0], CeddpConfig, source="t")
     assert ceddp.sensor_qos == robots[0].sensor_qos
     assert plan["nice"] == 10

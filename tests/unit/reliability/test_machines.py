@@ -5,6 +5,7 @@ from __future__ import annotations
 import random
 from typing import Any
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -438,12 +439,13 @@ def test_the_reader_measures_each_writers_round_trip_from_its_resends() -> None:
     assert 0.009 <= rtt <= 0.05, rtt
 
 
-def _streaming(reader_qos: QosProfile) -> tuple[LossyBus, Node, Node]:
+def _streaming(reader_qos: QosProfile, backoff: int = 1) -> tuple[LossyBus, Node, Node]:
     qos = QosProfile(
         history=HistoryPolicy.KEEP_ALL,
         max_samples=1000,
         heartbeat_period_s=0.1,
         piggyback_heartbeats=True,
+        heartbeat_backoff=backoff,
     )
     bus, _ = world(1, Link(delay_s=0.001))
     writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock))
@@ -516,6 +518,75 @@ def test_a_link_that_loses_keeps_every_heartbeat() -> None:
     publish(bus, writer, 200, 0.01)
     assert w.nacks > 0
     assert w.heartbeats - before >= 17, "a lossy link lost its heartbeats to the piggyback"
+
+
+def test_a_calm_stream_lengthens_its_heartbeat_period_up_to_the_backoff() -> None:
+    """While the reader answers every request, each period doubles (up to 8 x 0.1 s here): the
+    reader sends a fraction of the ACKNACKs, the history is still acknowledged as it goes, and a
+    lost last sample is recovered within two grown periods."""
+    acks = {}
+    for backoff in (1, 8):
+        bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1), backoff)
+        r = reader.machine
+        w = writer.machine
+        assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
+        before = r.acks
+        publish(bus, writer, 400, 0.01)  # 4 s at 100 Hz
+        acks[backoff] = r.acks - before
+        assert w.heartbeats <= 3 and w.acknowledged_through() >= 300, backoff
+        bus.link = Link(loss=1.0, delay_s=0.001)
+        bus.write(writer, b"last")
+        bus.link = Link(delay_s=0.001)
+        lost_at = bus.clock.now_s
+        while len(reader.delivered) < 401:
+            bus.step()
+            assert bus.clock.now_s - lost_at < 2 * 0.8 + 0.1, "the lost last sample waited"
+    # fixed: one request a period (about 40); grown: 0.1 + 0.2 + 0.4, then one each 0.8 s
+    assert acks[1] >= 35, acks
+    assert acks[8] <= acks[1] / 3, acks
+
+
+def test_a_quiet_writer_lets_its_heartbeat_timer_grow() -> None:
+    """A writer with nothing to announce (everything acknowledged) wakes its driver at the grown
+    period, not ten times a second: a robot keeps about ten writers, mostly quiet at low rates."""
+    for backoff, longest in ((1, 0.1), (8, 0.8)):
+        bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1), backoff)
+        w = writer.machine
+        assert isinstance(w, WriterMachine)
+        publish(bus, writer, 3, 0.01)
+        gaps = []
+        for _ in range(300):  # 3 s, nothing written
+            bus.run_for(0.01)
+            gaps.append(w.next_heartbeat_s - bus.clock.now_s)
+        assert max(gaps) == pytest.approx(longest, abs=0.011), backoff
+        assert len(reader.delivered) == 3
+
+
+def test_a_nack_brings_a_grown_heartbeat_period_back() -> None:
+    """A link that starts losing after a calm stream gets its heartbeats at the base period at
+    once, as a fixed period's would (test_a_link_that_loses_keeps_every_heartbeat)."""
+    bus, writer, _ = _streaming(QosProfile(heartbeat_period_s=0.1), backoff=8)
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    publish(bus, writer, 300, 0.01)  # calm: the period grew to 0.8 s
+    i = 0
+    while w.next_heartbeat_s - bus.clock.now_s < 0.7:  # the grown timer just fired
+        bus.write(writer, b"%d" % i)
+        bus.run_for(0.01)
+        i += 1
+    bus.link = Link(loss=1.0, delay_s=0.001)  # one sample lost: the next one reveals the gap
+    bus.write(writer, b"lost")
+    bus.link = Link(delay_s=0.001)
+    while w.nacks == 0:
+        bus.write(writer, b"%d" % i)
+        bus.run_for(0.001)
+        i += 1
+        assert i < 1000, "the gap was never NACKed"
+    assert w.next_heartbeat_s - bus.clock.now_s <= 0.1 + 1e-6, "the grown period held on"
+    bus.link = Link(loss=0.2, delay_s=0.001)
+    before = w.heartbeats
+    publish(bus, writer, 200, 0.01)
+    assert w.heartbeats - before >= 15, "a lossy link kept the calm stream's long period"
 
 
 def test_a_tick_polls_every_writers_timers_once_a_period_not_at_every_tick() -> None:
