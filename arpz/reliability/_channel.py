@@ -116,7 +116,10 @@ def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, flo
         lasting: tuple[float, ...] = (qos.deadline_s, qos.lease_duration_s, qos.lifespan_s)
     else:
         fine = min(0.05, max(0.001, min(qos.nack_delay_s or qos.nack_period_s, qos.nack_period_s)))
-        periods = [qos.heartbeat_period_s, qos.reorder_timeout_s / 4, 0.05]
+        # Idle, nothing is pending (``ReaderMachine.busy`` is false, and whichever thread runs
+        # the machine wakes the worker the moment it is not): only the requested deadline and
+        # lease need polling. A robot keeps four readers; each woke 20 times a second.
+        periods = [MAX_IDLE_S]
         lasting = (qos.deadline_s, qos.lease_duration_s)
     periods += [value / 10 for value in lasting if value > 0]
     if qos.batching:  # an open batch must go out within about its delay

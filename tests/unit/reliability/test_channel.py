@@ -357,6 +357,44 @@ def test_an_idle_writer_wakes_for_its_heartbeat_not_every_50_ms() -> None:
         b.close()
 
 
+def test_an_idle_reader_sleeps_until_something_is_pending() -> None:
+    """A robot keeps four readers (commands, configuration, QoS, Hello): idle, each woke 20
+    times a second, and 50 idle robots (8 topics at 1 Hz) saturated two cores. It now wakes
+    about once a second, or at a tenth of a requested deadline; a gap still gets its NACK at
+    once (test_a_gap_seen_by_the_delivery_thread_wakes_the_idle_control_thread_to_nack_it)."""
+    assert tick_intervals_s(ReaderMachine("t/a", QosProfile(), new_guid(), FakeClock()))[1] == 1.0
+    timed = QosProfile(deadline_s=0.2)
+    assert tick_intervals_s(ReaderMachine("t/a", timed, new_guid(), FakeClock()))[1] == (
+        pytest.approx(0.02)
+    )
+    bus = MemoryBus()
+    a, b = MemoryTransport(bus), MemoryTransport(bus)
+    got: list[bytes] = []
+    reader = Reader(b, "t/quiet", QosProfile(), on_data=lambda payload, _info: got.append(payload))
+    writer = Writer(a, "t/quiet", QosProfile(heartbeat_period_s=0.05))
+    machine = reader._channel.machine
+    ticks: list[float] = []
+    tick = machine.tick
+
+    def counting(backlog: int = 0) -> list[Any]:
+        ticks.append(time.monotonic())
+        return tick(backlog)
+
+    try:
+        wait_until(lambda: writer.matched_count == 1, what="match")
+        writer.write(b"x")
+        wait_until(lambda: got == [b"x"], what="delivery")
+        with reader._channel.lock:
+            machine.tick = counting  # type: ignore[method-assign]
+        time.sleep(1.0)  # deliberately: the wakes of an idle second
+        assert len(ticks) <= 3, ticks  # 20 with the 50 ms cap
+    finally:
+        writer.close()
+        reader.close()
+        a.close()
+        b.close()
+
+
 def test_a_retuned_deadline_shortens_an_idle_writer_s_sleep() -> None:
     """An idle writer sleeps until its heartbeat (1 s here); a QoS assignment that gives it a
     deadline must make it wake often enough to notice a missed one (a tenth of the deadline)."""
