@@ -1,4 +1,5 @@
 import threading
+import time
 
 import pytest
 
@@ -84,6 +85,19 @@ def test_zenoh_errors_come_out_of_the_seam_as_transport_errors() -> None:
             assert type(caught.value.__cause__).__module__.startswith("zenoh"), caught.value
 
 
+def wait_until_served(robot: ZenohTransport, key: str) -> None:
+    """A queryable's declaration reaches the client through the router some time after
+    ``serve`` returns; a request before that has nobody to answer it (a red CI, stop 32)."""
+    answered: list[bytes] = []
+    deadline = time.monotonic() + 10.0
+    while not answered:
+        assert time.monotonic() < deadline, f"nobody serves {key} after 10 s"
+        robot.request(key, b"?", answered.append, timeout_s=0.5)
+        asked = time.monotonic()
+        while not answered and time.monotonic() - asked < 0.6:
+            time.sleep(0.02)
+
+
 def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.MonkeyPatch) -> None:
     """zenoh-python starts a Python thread per request for a callable reply handler, and ``get``
     waits until it holds the GIL (benchmarks/request_cost.py); arpz's replies run on Zenoh's
@@ -97,6 +111,7 @@ def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.M
 
     with router() as (server, endpoint), client(endpoint) as robot:
         server.serve("clock/q", lambda payload: payload + b"!")
+        wait_until_served(robot, "clock/q")
         replies: list[bytes] = []
         monkeypatch.setattr(threading.Thread, "start", counting_start)
         for i in range(10):
@@ -115,6 +130,7 @@ def test_a_reply_handler_that_raises_is_logged_and_later_requests_still_get_repl
 
     with router() as (server, endpoint), client(endpoint) as robot:
         server.serve("clock/q", lambda payload: payload)
+        wait_until_served(robot, "clock/q")
         robot.request("clock/q", b"1", broken, timeout_s=5.0)
         wait_until(lambda: "reply handler for clock/q raised" in caplog.text, what="the log")
         replies: list[bytes] = []
