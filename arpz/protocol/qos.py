@@ -104,8 +104,8 @@ class QosProfile(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_field
     piggyback_heartbeats: bool = False
     #: while a writer is calm (nothing to announce, or, with ``piggyback_heartbeats``, every
     #: reader answered the period's acknowledgement request), its heartbeat period doubles, up
-    #: to this multiple of ``heartbeat_period_s``; a heartbeat with something to announce, a
-    #: NACK or a retune brings it back at once (Cyclone DDS's adaptive heartbeat). A streaming
+    #: to this multiple of ``heartbeat_period_s``; a NACK or a retune brings it back at once,
+    #: an unanswered request holds it (Cyclone DDS's adaptive heartbeat). A streaming
     #: topic costs one ACKNACK from each reader a period (a CEDDP of 200 topics answered 2 000 a
     #: second), a quiet one a wake-up of its driver. What it costs: a lost last sample waits up
     #: to the grown period for its heartbeat. 1 = a fixed period

@@ -691,10 +691,15 @@ class WriterMachine:
                 else:
                     calm = False
                     actions.append(self._heartbeat(now, 0))
-            base = self.qos.heartbeat_period_s
-            self._hb_interval_s = (
-                min(2 * self._hb_interval_s, self.qos.heartbeat_backoff * base) if calm else base
-            )
+            if calm:
+                self._hb_interval_s = min(
+                    2 * self._hb_interval_s,
+                    self.qos.heartbeat_backoff * self.qos.heartbeat_period_s,
+                )
+            # else the period holds: an unanswered request is a late reader as often as a lost
+            # sample, and the heartbeat now sent makes a reader that misses something NACK,
+            # which brings the base period back (``_heartbeat_now_lossy``). Falling back on
+            # every late answer fed a CEDDP that was behind more heartbeats and ACKNACKs.
             self._next_hb_s = now + self._hb_interval_s
             self._ack_requested_since_hb = False
             self._ack_on_next_write = True

@@ -562,6 +562,27 @@ def test_a_quiet_writer_lets_its_heartbeat_timer_grow() -> None:
         assert len(reader.delivered) == 3
 
 
+def test_a_late_reader_keeps_a_grown_period_and_its_nack_ends_it() -> None:
+    """A request unanswered is a reader behind as often as a lost sample: the grown period
+    holds, and the heartbeats it sends make a reader that misses something NACK, which brings
+    the base period back. Falling back on every late answer fed a CEDDP behind 50 robots more
+    heartbeats and ACKNACKs (820-1 119 samples/s against 2 880-4 139 holding; issue 17)."""
+    bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1), backoff=8)
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    publish(bus, writer, 300, 0.01)  # calm: the period grew to 0.8 s
+    bus.link = Link(loss=1.0, delay_s=0.001)  # the reader hears nothing and answers nothing
+    before = w.heartbeats
+    publish(bus, writer, 300, 0.01)  # 3 s: 2-4 heartbeats at 0.8 s, about 25 at 0.1 s
+    assert 1 <= w.heartbeats - before <= 4, "the grown period fell back without a NACK"
+    bus.link = Link(delay_s=0.001)
+    while w.nacks == 0:  # the next heartbeat reveals the 300 samples: the reader NACKs them
+        bus.step()
+    assert w.next_heartbeat_s - bus.clock.now_s <= 0.1 + 1e-6
+    bus.run_for(1.0)
+    assert len(reader.delivered) == 600
+
+
 def test_a_nack_brings_a_grown_heartbeat_period_back() -> None:
     """A link that starts losing after a calm stream gets its heartbeats at the base period at
     once, as a fixed period's would (test_a_link_that_loses_keeps_every_heartbeat)."""
