@@ -178,8 +178,8 @@ class WriterMachine:
         self._incompatible: set[bytes] = set()
         self._hb_count = 0
         self._next_hb_s = now
-        #: the heartbeat period in force: ``heartbeat_period_s``, grown while a streaming
-        #: topic's readers answer every request (``QosProfile.heartbeat_backoff``)
+        #: the heartbeat period in force: ``heartbeat_period_s``, grown while the writer is
+        #: calm (``QosProfile.heartbeat_backoff``; ``tick``)
         self._hb_interval_s = qos.heartbeat_period_s
         #: ``last_seq`` when a FINAL heartbeat (every reliable reader acknowledged everything)
         #: last went out; -1 after anything else. See ``_heartbeat_due``.

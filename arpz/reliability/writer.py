@@ -102,8 +102,9 @@ class Writer(Endpoint):
         # bound acquire/release rather than ``with``: fewer lookups on the hottest path
         self._acquire()
         try:
-            machine = self._machine
-            unsent = machine.last_seq - len(machine.batch) + 1
+            machine, will_hold = self._machine, self._will_hold
+            # the first seq not yet put: what ``ready`` starts with, if the publisher holds it
+            unsent = machine.last_seq - len(machine.batch) + 1 if will_hold is not None else 0
             try:
                 seq, ready, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
@@ -118,13 +119,13 @@ class Writer(Endpoint):
                 self._channel.wake()  # a batch opened: the worker sends it if it is not filled
             if ready is not None:
                 if (
-                    self._will_hold is not None
-                    and not self._machine.held_from
-                    and self._will_hold(ready[0], ready[1])
+                    will_hold is not None
+                    and not machine.held_from
+                    and will_hold(ready[0], ready[1])
                 ):
                     # every seq after the last one put is in ``ready`` or in the open batch,
                     # which follows it: heartbeats stop short of ``ready``'s first
-                    self._machine.held_from = unsent
+                    machine.held_from = unsent
                 # taken before the state lock is released, so messages leave in seq order
                 self._send_lock.acquire()
         finally:
