@@ -56,7 +56,12 @@ def test_keep_all_delivers_everything_in_order_over_a_lossy_link(loss_pct: int) 
         stats = reader.stats()
         assert stats.lost == 0 and stats.retransmitted > n * loss_pct / 100 * 0.4
         report = link.netem.stop()
-    assert report is not None and report["up"]["dropped_loss"] > n * loss_pct / 100 * 0.5
+    # the emulator dropped about loss_pct of the datagrams that crossed it (Zenoh packs
+    # several messages into one datagram on a busy link: 623 for 1 500 samples once, so the
+    # drops are measured against what crossed, not against the samples)
+    assert report is not None
+    crossed = report["up"]["received"]
+    assert crossed > 300 and report["up"]["dropped_loss"] > crossed * loss_pct / 100 * 0.5
 
 
 def test_keep_last_depth_1_at_a_high_rate_loses_and_reports_every_loss_exactly() -> None:
