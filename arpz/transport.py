@@ -80,7 +80,9 @@ class Transport(Protocol):
         self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
     ) -> None:
         """Send a request to whoever serves ``key`` and return at once; each reply that comes
-        within ``timeout_s`` is handed to ``on_reply`` (none: nobody served it in time).
+        within ``timeout_s`` is handed to ``on_reply`` (none: nobody served it in time, or the
+        request was dropped on a congested link: requests never block, so callers that need an
+        answer ask again, as the clock sync does every period).
         ``on_reply`` may run on the transport's network thread: it must be quick and never
         block (decode, count, take a short lock)."""
         ...

@@ -115,9 +115,10 @@ def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.M
         replies: list[bytes] = []
         monkeypatch.setattr(threading.Thread, "start", counting_start)
         for i in range(10):
-            # 10 replies took more than 10 s in a CI whose other worker overloaded a CEDDP
-            robot.request("clock/q", str(i).encode(), replies.append, timeout_s=20.0)
-        wait_until(lambda: len(replies) >= 10, timeout_s=25.0, what="10 replies")
+            # one at a time: a request is express and DROP (a lost clock exchange costs
+            # nothing), and ten sent back to back on a loaded host lost some in 3 of 6 CIs
+            robot.request("clock/q", str(i).encode(), replies.append, timeout_s=5.0)
+            wait_until(lambda i=i: len(replies) == i + 1, what=f"reply {i}")
         monkeypatch.setattr(threading.Thread, "start", original_start)
     assert sorted(replies) == sorted(f"{i}!".encode() for i in range(10))
     assert started == [], started
