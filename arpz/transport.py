@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Protocol, runtime_checkable
 
 from arpz.errors import ArpzError
 
@@ -38,6 +38,25 @@ class Publisher(Protocol):
     @property
     def matching(self) -> bool:
         """Some subscriber (anywhere in the router mesh) matches this key right now."""
+        ...
+
+
+@runtime_checkable
+class HoldingPublisher(Publisher, Protocol):
+    """A publisher that may hold a message back until the calling thread's tick ends (a
+    robot's bundle, ``arpz.bundling``). A reliable writer must not announce a held seq in a
+    heartbeat, or the reader NACKs data that is merely late: it asks ``will_hold`` before the
+    put, and the publisher calls ``on_released`` once the bundle left (or was refused)."""
+
+    on_released: Callable[[], None] | None
+
+    def will_hold(self, payload: bytes, attachment: bytes | None) -> bool:
+        """Whether ``put`` of this message on the calling thread holds it until the tick ends."""
+        ...
+
+    def release_held(self) -> None:
+        """Send what the calling thread holds now (a writer about to wait for
+        acknowledgements of messages that may be among it)."""
         ...
 
 

@@ -8,6 +8,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 from arpz.launch import free_port  # re-exported: the tests import it from here
+from arpz.protocol import wire
 from arpz.transport import SessionSettings
 from arpz.zenoh_transport import ZenohTransport
 
@@ -22,16 +23,38 @@ def wait_until(
     timeout_s: float = 10.0,
     what: str = "condition",
     interval_s: float = 0.02,
-) -> None:
-    """Poll ``predicate`` until true; after ``timeout_s`` fail naming ``what``."""
+    raise_on_timeout: bool = True,
+) -> bool:
+    """Poll ``predicate`` until true; after ``timeout_s`` fail naming ``what``, or, with
+    ``raise_on_timeout=False``, return False (a caller that retries, such as a request that
+    may have gone before anyone answered)."""
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if predicate():
-            return
+            return True
         time.sleep(interval_s)
     if predicate():
-        return
-    raise AssertionError(f"timed out after {timeout_s:.1f} s waiting for {what}")
+        return True
+    if raise_on_timeout:
+        raise AssertionError(f"timed out after {timeout_s:.1f} s waiting for {what}")
+    return False
+
+
+class HeldHeartbeats:
+    """A transport callback for a writer's heartbeats that notes, for each, the seq a bundle
+    held when it arrived (``holding``, set by the test around its hold; 0 outside one)."""
+
+    def __init__(self) -> None:
+        self.holding = 0
+        self.seen: list[tuple[int, int]] = []  # (seq held then, last seq announced)
+
+    def __call__(self, _key: str, payload: bytes, _attachment: bytes | None) -> None:
+        heartbeat = wire.decode_heartbeat(payload)
+        assert heartbeat is not None, payload
+        self.seen.append((self.holding, heartbeat.last))
+
+    def during_holds(self) -> list[tuple[int, int]]:
+        return [(held, last) for held, last in self.seen if held]
 
 
 @contextmanager

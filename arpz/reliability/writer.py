@@ -15,7 +15,7 @@ from arpz.protocol.qos import QosProfile
 from arpz.protocol.timers import Clock, SystemClock
 from arpz.protocol.writer_machine import HistoryFullError, WriterMachine, WriterStats
 from arpz.reliability._channel import Channel, Endpoint
-from arpz.transport import Transport
+from arpz.transport import HoldingPublisher, Transport
 
 _W = TypeVar("_W")
 
@@ -72,18 +72,15 @@ class Writer(Endpoint):
         self._send_lock = threading.Lock()
         self._machine_write = self._machine.write
         self._put = self._publisher.put
-        #: a bundling publisher's (arpz.bundling): what this thread holds, sent before a
-        #: KEEP_ALL write waits for acknowledgements of samples that may be among it
-        self._release_held: Callable[[], None] = getattr(
-            self._publisher, "release_held", lambda: None
+        #: a bundling publisher (arpz.bundling) holds a message until the tick ends: the
+        #: machine's heartbeats stop short of it until ``_on_released``, and what this thread
+        #: holds is sent before a KEEP_ALL write waits for acknowledgements of it
+        publisher = self._publisher
+        self._holding: HoldingPublisher | None = (
+            publisher if isinstance(publisher, HoldingPublisher) else None
         )
-        #: a bundling publisher's: whether it will hold this message until the tick ends (the
-        #: machine's heartbeats then stop short of it until ``_on_released``)
-        self._will_hold: Callable[[bytes, bytes | None], bool] | None = getattr(
-            self._publisher, "will_hold", None
-        )
-        if self._will_hold is not None:
-            self._publisher.on_released = self._on_released  # type: ignore[attr-defined]
+        if self._holding is not None:
+            self._holding.on_released = self._on_released
         try:
             self._channel.start(self._machine.token_key)
         except Exception:
@@ -102,14 +99,15 @@ class Writer(Endpoint):
         # bound acquire/release rather than ``with``: fewer lookups on the hottest path
         self._acquire()
         try:
-            machine, will_hold = self._machine, self._will_hold
+            machine, holding = self._machine, self._holding
             # the first seq not yet put: what ``ready`` starts with, if the publisher holds it
-            unsent = machine.last_seq - len(machine.batch) + 1 if will_hold is not None else 0
+            unsent = machine.last_seq - len(machine.batch) + 1 if holding is not None else 0
             try:
                 seq, ready, actions = self._machine_write(payload, stamp_ns)
             except HistoryFullError:
                 self._send_due_batch(force=True)  # readers cannot acknowledge what is unsent
-                self._release_held()
+                if holding is not None:
+                    holding.release_held()
                 seq, ready, actions = self._wait_for_room(
                     lambda: self._machine_write(payload, stamp_ns)
                 )
@@ -119,9 +117,9 @@ class Writer(Endpoint):
                 self._channel.wake()  # a batch opened: the worker sends it if it is not filled
             if ready is not None:
                 if (
-                    will_hold is not None
+                    holding is not None
                     and not machine.held_from
-                    and will_hold(ready[0], ready[1])
+                    and holding.will_hold(ready[0], ready[1])
                 ):
                     # every seq after the last one put is in ``ready`` or in the open batch,
                     # which follows it: heartbeats stop short of ``ready``'s first

@@ -1,5 +1,4 @@
 import threading
-import time
 
 import pytest
 
@@ -89,13 +88,12 @@ def wait_until_served(robot: ZenohTransport, key: str) -> None:
     """A queryable's declaration reaches the client through the router some time after
     ``serve`` returns; a request before that has nobody to answer it (a red CI, stop 32)."""
     answered: list[bytes] = []
-    deadline = time.monotonic() + 10.0
-    while not answered:
-        assert time.monotonic() < deadline, f"nobody serves {key} after 10 s"
+
+    def asked_and_answered() -> bool:
         robot.request(key, b"?", answered.append, timeout_s=0.5)
-        asked = time.monotonic()
-        while not answered and time.monotonic() - asked < 0.6:
-            time.sleep(0.02)
+        return wait_until(lambda: bool(answered), timeout_s=0.6, raise_on_timeout=False)
+
+    wait_until(asked_and_answered, timeout_s=10.0, what=f"a reply from {key}'s queryable")
 
 
 def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -13,6 +13,7 @@ from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.protocol import bundle, wire
 from arpz.protocol.qos import HistoryPolicy, QosProfile
 from arpz.reliability import Reader, Writer
+from tests.support import HeldHeartbeats
 
 ROBOT = "arpz/f/robot/r1/sensor"
 QOS = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1, max_blocking_time_s=2.0)
@@ -177,25 +178,19 @@ def test_heartbeats_never_announce_what_the_open_bundle_holds() -> None:
     bundler = Bundler(MemoryTransport(bus), max_bytes=1280)
     reader = Reader(MemoryTransport(bus), f"{ROBOT}/*", qos, on_data=lambda _p, _i: None)
     writer = Writer(bundler, f"{ROBOT}/imu", qos, block=False)
-    holding = [0]  # the seq the open bundle holds, 0 outside a hold
-    seen: list[tuple[int, int]] = []  # (seq held then, last seq a heartbeat announced)
+    heartbeats = HeldHeartbeats()
 
-    def on_heartbeat(_key: str, payload: bytes, _attachment: bytes | None) -> None:
-        heartbeat = wire.decode_heartbeat(payload)
-        assert heartbeat is not None
-        seen.append((holding[0], heartbeat.last))
-
-    watcher = MemoryTransport(bus).subscribe(wire.heartbeat_key(f"{ROBOT}/imu", "*"), on_heartbeat)
+    watcher = MemoryTransport(bus).subscribe(wire.heartbeat_key(f"{ROBOT}/imu", "*"), heartbeats)
     try:
         assert wait_until(lambda: writer.matched_count == 1 and reader.stats().matched == 1)
         for seq in range(1, 6):
             with bundler.collect():
-                holding[0] = writer.write(str(seq).encode())
+                heartbeats.holding = writer.write(str(seq).encode())
                 time.sleep(0.04)  # the worker's heartbeat timer fires several times meanwhile
-                holding[0] = 0
+                heartbeats.holding = 0
         assert wait_until(lambda: reader.stats().delivered == 5)
-        during = [(held, last) for held, last in seen if held]
-        assert len(during) >= 5, seen  # heartbeats did go out while bundles were held
+        during = heartbeats.during_holds()
+        assert len(during) >= 5, heartbeats.seen  # heartbeats did go out while bundles were held
         assert all(last < held for held, last in during), during
         assert (reader.stats().nacks, reader.stats().duplicates) == (0, 0)
         assert writer.stats().retransmitted == 0
