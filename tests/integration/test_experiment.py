@@ -70,7 +70,12 @@ def test_quick_preset(tmp_path: Path) -> None:
         assert (out / row["rrd"]).stat().st_size > 0
         # the CEDDP's staleness and the reliable downlink made it into the row
         p50, p99, top = (float(row[f"staleness_ms_{q}"]) for q in ("p50", "p99", "max"))
-        assert 0 < p50 <= top and p99 <= top, row
+        # on the CEDDP's clock, each robot's estimated offset taken out: on one host the true
+        # offset is 0, so the estimate is its own error, and a value read just before it was
+        # sent can come out below 0 by about that much (p50 -0.65 ms beside a spinner, stop 33;
+        # the row has the final estimates, the run used earlier ones too: 1 ms more)
+        offset_error = float(row["clock_offset_ms_max"] or 0) + 1.0
+        assert -offset_error < p50 <= top and p99 <= top, row
         assert int(row["hello_hops_written"]) > 0, row  # the relay's and the origin's hops
         assert row["downlink_reconciled"] == "yes", row["downlink_unreconciled"]
         assert int(row["incompatible_qos"]) == 0 and int(row["samples_refused"]) == 0, row
