@@ -35,6 +35,7 @@ ROBOT_METRICS: dict[str, str] = {
     "watchdog_stops": "command watchdog safe stops (cumulative)",
     "refused": "samples refused: INCOMPATIBLE_QOS (cumulative)",
     "ingest_load": "CEDDP ingest load (share of time not waiting for samples)",
+    "ingest_backlog_ms": "CEDDP ingest backlog (ms the oldest waiting sample waited)",
     "capacity_hz": "CEDDP measured capacity (samples per busy second)",
     "budget_hz": "fleet rate budget of the overload governor (samples/s)",
     "clock_offset_ms": "clock offset to the CEDDP (ms, CEDDP - robot; latencies corrected by it)",

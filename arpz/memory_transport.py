@@ -11,6 +11,7 @@ from __future__ import annotations
 import queue
 import re
 import threading
+import time
 from collections.abc import Callable
 
 from arpz.protocol import bundle
@@ -97,26 +98,36 @@ class _Publisher:
 
 class _PullSubscriber:
     def __init__(self, capacity: int) -> None:
-        self.queue: queue.Queue[Received] = queue.Queue(maxsize=capacity)
+        self.queue: queue.Queue[tuple[int, Received]] = queue.Queue(maxsize=capacity)
         self.handle: _Handle | None = None
         self.closed = False
+        #: when the message last taken was pushed (time.monotonic_ns; 0: none yet)
+        self._taken_pushed_ns = 0
 
     def push(self, key: str, payload: bytes, attachment: bytes | None) -> None:
-        self.queue.put((key, payload, attachment))  # blocks when full: backpressure
+        # blocks when full: backpressure
+        self.queue.put((time.monotonic_ns(), (key, payload, attachment)))
 
     def try_recv(self) -> Received | None:
         try:
-            return self.queue.get_nowait()
+            self._taken_pushed_ns, item = self.queue.get_nowait()
         except queue.Empty:
             return None
+        return item
 
     def recv(self) -> Received:
         while True:
             try:
-                return self.queue.get(timeout=0.02)
+                self._taken_pushed_ns, item = self.queue.get(timeout=0.02)
+                return item
             except queue.Empty:
                 if self.closed:  # as Zenoh's FIFO: raise once undeclared and drained
                     raise TransportError("pull subscriber undeclared") from None
+
+    def waited_ns(self) -> int | None:
+        if not self._taken_pushed_ns:
+            return None
+        return time.monotonic_ns() - self._taken_pushed_ns
 
     def undeclare(self) -> None:
         self.closed = True

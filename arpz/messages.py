@@ -258,6 +258,10 @@ class CeddpStats(msgspec.Struct, frozen=True):
     processed: int = 0
     #: share of the interval the sensor path's thread worked (did not wait for samples), 0..1
     load: float = 0.0
+    #: the longest a sample waited in the CEDDP over the interval, from the router's receipt
+    #: to the sensor path taking it, ms: its ingest backlog in time (None: not measured, the
+    #: raw path or an older CEDDP)
+    ingest_backlog_ms: float | None = None
     #: pooled p99 latency (robot stamp to ingest) of the interval, ms; None: nothing arrived
     latency_ms_p99: float | None = None
     #: measured capacity (samples per busy second) and the fleet's budget in force (samples/s;

@@ -217,6 +217,8 @@ class _ZenohPullSubscriber(_Declared):
         self._keep = keep
         #: a bundle's entries not yet received (one receiving thread, so no lock)
         self._pending: collections.deque[Received] = collections.deque()
+        #: the Zenoh sample last taken from the FIFO: its timestamp, read only when asked
+        self._last: zenoh.Sample | None = None
 
     def _received(self, sample: zenoh.Sample) -> Received | None:
         """The sample, or the first of a bundle's entries (the rest wait in ``_pending``); None
@@ -245,6 +247,7 @@ class _ZenohPullSubscriber(_Declared):
                 raise TransportError(f"receive: {zenoh_message(exc)}") from exc
             if sample is None:
                 return None
+            self._last = sample
             item = self._received(sample)
             if item is not None:
                 return item
@@ -257,6 +260,17 @@ class _ZenohPullSubscriber(_Declared):
         item = self._next(self._recv)
         assert item is not None  # a blocking receive returns a sample or raises
         return item
+
+    def waited_ns(self) -> int | None:
+        """From the timestamp a router gives every sample it receives (Zenoh's default for
+        routers): exact where this session is the router that timestamped it (a CEDDP), else
+        off by the router's clock offset. None: no sample yet, or it carries no timestamp."""
+        sample = self._last
+        stamp = sample.timestamp if sample is not None else None
+        if stamp is None:
+            return None
+        # uhlc's NTP64 counts from the Unix epoch
+        return max(0, time.time_ns() - stamp.get_time_as_ntp64().as_nanos())
 
 
 class ZenohTransport:

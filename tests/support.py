@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -55,6 +56,31 @@ class HeldHeartbeats:
 
     def during_holds(self) -> list[tuple[int, int]]:
         return [(held, last) for held, last in self.seen if held]
+
+
+class SlowFirstDelivery:
+    """An ``on_data`` that is busy for ``busy_s`` on the sample ``first`` (the delivery thread
+    then cannot take what arrives meanwhile: it waits in the transport's queue)."""
+
+    def __init__(self, first: bytes = b"first", busy_s: float = 0.3) -> None:
+        self.first = first
+        self.busy_s = busy_s
+        self.started = threading.Event()
+        self.done: list[bytes] = []
+
+    def __call__(self, payload: bytes, _info: object) -> None:
+        if payload == self.first:
+            self.started.set()
+            time.sleep(self.busy_s)  # deliberately: the delivery thread is busy
+        self.done.append(payload)
+
+    def queue_behind(self, write: Callable[[bytes], object], more: int = 5) -> None:
+        """Write ``first``, then ``more`` samples while it is being delivered; wait for all."""
+        write(self.first)
+        assert self.started.wait(5.0), "the first sample was never delivered"
+        for i in range(more):
+            write(str(i).encode())
+        wait_until(lambda: len(self.done) == more + 1, what=f"all {more + 1} delivered")
 
 
 @contextmanager

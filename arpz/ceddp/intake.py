@@ -131,6 +131,16 @@ class SensorIntake:
             return self.reader.delivery_idle_s
         return self._raw_wait.waited_s
 
+    def take_backlog_ms(self) -> float | None:
+        """The longest a sample waited between the router's receipt and the sensor path taking
+        it, since the previous call, ms (the metrics interval); None on the raw path, which
+        does not measure it."""
+        return self.reader.take_backlog_ms() if self.reader is not None else None
+
+    def worst_backlog_ms(self) -> float | None:
+        """The longest such wait since start, ms (None on the raw path)."""
+        return self.reader.worst_backlog_ms if self.reader is not None else None
+
     def refused(self) -> dict[str, int]:
         """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
         if self.reader is not None:

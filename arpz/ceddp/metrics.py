@@ -51,6 +51,7 @@ class MetricsTicker:
         refused: Callable[[], dict[str, dict[str, int]]],
         persist_partial: Callable[[], None],
         sensor_path: Callable[[], tuple[int, float]] = lambda: (0, 0.0),
+        backlog_ms: Callable[[], float | None] = lambda: None,
         on_budget: Callable[[BudgetChange], None] = lambda change: None,
         clock: ClockWatch | None = None,
         identity: Identity | None = None,
@@ -65,6 +66,8 @@ class MetricsTicker:
         self._persist_partial = persist_partial
         #: (samples ingested so far, seconds the sensor path waited for samples so far)
         self._sensor_path = sensor_path
+        #: the longest a sample waited before the sensor path took it, since the last call
+        self._backlog_ms = backlog_ms
         self._on_budget = on_budget
         #: robots' clock offsets (frames: clock_offset_ms, clock_delay_ms; CeddpStats)
         self.clock = clock
@@ -187,6 +190,9 @@ class MetricsTicker:
         ceddp_row = robots.setdefault("ceddp", {})
         ceddp_row["cpu_percent"] = cpu_percent
         ceddp_row["ingest_load"] = load.load
+        backlog_ms = self._backlog_ms()
+        if backlog_ms is not None:
+            ceddp_row["ingest_backlog_ms"] = backlog_ms
         if self.governor.capacity_hz is not None:
             ceddp_row["capacity_hz"] = self.governor.capacity_hz
         if self.governor.budget_hz is not None:
@@ -206,6 +212,7 @@ class MetricsTicker:
                     topics=rates,
                     processed=load.processed,
                     load=round(load.load, 4),
+                    ingest_backlog_ms=None if backlog_ms is None else round(backlog_ms, 3),
                     latency_ms_p99=load.latency_ms_p99,
                     capacity_hz=governor.capacity_hz,
                     budget_hz=governor.budget_hz,

@@ -157,6 +157,7 @@ class CeddpServer:
             refused=self._refused_by_robot,
             persist_partial=lambda: self._persist({**self.summary(), "complete": False}),
             sensor_path=lambda: (self.intake.processed, self.intake.idle_s()),
+            backlog_ms=self.intake.take_backlog_ms,
             on_budget=self.control.on_budget,
             clock=self.clock,
             identity=identity_of(config),
@@ -424,6 +425,8 @@ class CeddpServer:
                 "processed": self.intake.processed,
                 "path": "reliable channel" if self.config.channel else "raw",
                 "channel_lost": self.intake.channel_lost,
+                # the longest a sample waited before the sensor path took it (None: raw path)
+                "backlog_ms_max": self.intake.worst_backlog_ms(),
                 "channel": reader_stats,
                 "frames": frames_stats,
                 "unknown_keys": self.ingest.counters.unknown_keys,

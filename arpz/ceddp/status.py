@@ -118,6 +118,9 @@ class CeddpStatus(msgspec.Struct, frozen=True, kw_only=True):
     cpu_percent: float | None
     #: share of the last interval the sensor path worked, 0..1
     ingest_load: float | None
+    #: the longest a sample waited before the sensor path took it, over the last interval, ms
+    #: (None: the raw path, or no interval yet)
+    ingest_backlog_ms: float | None = None
     capacity_hz: float | None
     budget_hz: float | None
     processed: int
@@ -273,6 +276,7 @@ class StatusReader:
             ceddp=CeddpStatus(
                 cpu_percent=ceddp_row.get("cpu_percent"),
                 ingest_load=ceddp_row.get("ingest_load"),
+                ingest_backlog_ms=ceddp_row.get("ingest_backlog_ms"),
                 capacity_hz=ceddp_row.get("capacity_hz"),
                 budget_hz=ceddp_row.get("budget_hz"),
                 processed=self._processed(),

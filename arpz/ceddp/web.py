@@ -197,6 +197,11 @@ def _ceddp_metrics(status: FleetStatus) -> Iterable[Metric]:
             ceddp.ingest_load,
         ),
         (
+            "arpz_ceddp_ingest_backlog_seconds",
+            "Longest a sample waited before the sensor path took it, last interval",
+            None if ceddp.ingest_backlog_ms is None else ceddp.ingest_backlog_ms / 1000,
+        ),
+        (
             "arpz_ceddp_capacity_hz",
             "Measured ingest capacity, samples per busy second",
             ceddp.capacity_hz,
@@ -417,6 +422,7 @@ function render(s) {
     card("samples ingested", num(c.processed)),
     card("CEDDP CPU %", num(c.cpu_percent, 1)),
     card("ingest load", pct(c.ingest_load)),
+    card("ingest backlog (ms)", num(c.ingest_backlog_ms, 1)),
     card("budget (samples/s)", num(c.budget_hz)),
     card("channel NACKs", c.channel ? num(c.channel.nacks) : dash),
     card("channel lost", c.channel ? num(c.channel.lost) : dash),

@@ -34,9 +34,8 @@ MIN_DELIVERED_RATIO = 0.99
 #: what the CEDDP does not publish (yet): reported as unavailable, with the reason
 MISSING = {
     "ingest_backlog": (
-        "neither CeddpStats nor summary.json carries the ingest queue depth (the sensor "
-        "Reader's delivery FIFO, or the raw FIFO); the reader's queue_dropped count and the "
-        "sensor path's busy share (CeddpStats.load, where published) stand in"
+        "this CEDDP published no CeddpStats.ingest_backlog_ms (its raw path, or arpz before "
+        "stop 33); the sensor path's busy share (ingest_load_max) stands in"
     ),
     "dashboard_dropped": (
         "this CEDDP published no CeddpStats.dashboard_dropped (arpz before the overload "
@@ -47,7 +46,9 @@ MISSING = {
 
 def unavailable(ceddps: Sequence[CeddpFigures]) -> dict[str, str]:
     """The figures this run could not report, each with what is missing."""
-    out = {k: v for k, v in MISSING.items() if k != "dashboard_dropped"}
+    out = {}
+    if any(c.ingest_backlog_ms_max is None for c in ceddps):
+        out["ingest_backlog"] = MISSING["ingest_backlog"]
     if any(c.dashboard_dropped is None for c in ceddps):
         out["dashboard_dropped"] = MISSING["dashboard_dropped"]
     return out
@@ -117,7 +118,10 @@ class CeddpFigures:
     ingest_load_max: float | None = None
     dashboard_dropped: int | None = None
     capacity_hz: float | None = None
-    ingest_backlog: int | None = None
+    #: the longest a sample waited in the CEDDP before its sensor path took it, ms: its
+    #: ingest backlog in time (the highest CeddpStats interval of the window; else the
+    #: summary's since start)
+    ingest_backlog_ms_max: float | None = None
     latency_ms_max: float | None = None
     #: the sensor reader's NACKs and the samples it received twice (a resend of what had come):
     #: on a link that loses nothing, every NACK asked for what was only queued
@@ -272,7 +276,17 @@ def ceddp_figures(
         ingest_load_max=own.get("load_max"),
         dashboard_dropped=own.get("dashboard_dropped"),
         capacity_hz=own.get("capacity_hz"),
+        ingest_backlog_ms_max=_first_known(
+            own.get("backlog_ms_max"), (summary.get("ingest") or {}).get("backlog_ms_max")
+        ),
     )
+
+
+def _first_known(*values: Any) -> float | None:
+    for value in values:
+        if isinstance(value, (int, float)):
+            return float(value)
+    return None
 
 
 def per_sample_us(cores: float | None, window_s: float, samples: int) -> float | None:
@@ -481,7 +495,8 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
             f"RSS {rss}, ingest queue dropped "
             f"{_fmt(c.ingest_queue_dropped, 'd')}, NACKs {_fmt(c.ingest_nacks, 'd')}, "
             f"duplicates {_fmt(c.ingest_duplicates, 'd')}, sensor path busy (max) "
-            f"{_fmt(c.ingest_load_max)}, dashboard frames dropped "
+            f"{_fmt(c.ingest_load_max)}, ingest backlog (max) "
+            f"{_fmt(c.ingest_backlog_ms_max)} ms, dashboard frames dropped "
             f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
             f"{_fmt(c.cpu_us_per_sample, '.0f')} us"
         )
@@ -506,7 +521,9 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"{_host_cores()} cores"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
-    lines.append("unavailable: " + "; ".join(f"{k}: {v}" for k, v in unavailable(ceddps).items()))
+    missing = unavailable(ceddps)
+    if missing:
+        lines.append("unavailable: " + "; ".join(f"{k}: {v}" for k, v in missing.items()))
     if p.reconciled:
         lines.append(f"reconciled: sent == delivered + lost for all {p.robots} robots")
     else:

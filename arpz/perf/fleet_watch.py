@@ -35,6 +35,9 @@ class SelfReport:
     cpu_percent_max: float | None = None
     #: its measured capacity (samples per busy second), the last seen
     capacity_hz: float | None = None
+    #: the longest a sample waited in it before its sensor path took it (its ingest backlog
+    #: in time), ms, the highest interval seen
+    backlog_ms_max: float | None = None
 
 
 def ceddp_of(topics: list[Any]) -> int | None:
@@ -78,6 +81,7 @@ class CeddpWatcher:
         load = getattr(stats, "load", None)
         dropped = getattr(stats, "dashboard_dropped", None)
         capacity = getattr(stats, "capacity_hz", None)
+        backlog = getattr(stats, "ingest_backlog_ms", None)
         with self._lock:
             r = self.reports[index]
             r.reports += 1
@@ -87,6 +91,8 @@ class CeddpWatcher:
                 r.dashboard_dropped = dropped
             if isinstance(capacity, float):
                 r.capacity_hz = capacity
+            if isinstance(backlog, (int, float)):
+                r.backlog_ms_max = max(r.backlog_ms_max or 0.0, float(backlog))
             cpu = float(stats.cpu_percent)
             r.cpu_percent_max = cpu if r.cpu_percent_max is None else max(r.cpu_percent_max, cpu)
 

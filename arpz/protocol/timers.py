@@ -125,3 +125,28 @@ class WaitMeter:
         since = self._since
         done = self._done_s
         return done + (time.perf_counter() - since if since else 0.0)
+
+
+class BacklogMeter:
+    """The longest a message waited in the receive queue before the receiving thread took it,
+    since the last ``take_max_ns``: a receiver's backlog in time (a queue's depth is its
+    transport's to know, and Zenoh's FIFO does not say). The receiving thread observes the
+    first message of each pull that found the queue non-empty (the oldest waiting); one other
+    thread takes the maximum (a stats interval). No lock: an observation that races the take
+    may land in either interval."""
+
+    def __init__(self) -> None:
+        self._max_ns = 0
+        #: the longest wait since the meter started, for a run's summary
+        self.worst_ns = 0
+
+    def observe(self, waited_ns: int) -> None:
+        if waited_ns > self._max_ns:
+            self._max_ns = waited_ns
+            if waited_ns > self.worst_ns:
+                self.worst_ns = waited_ns
+
+    def take_max_ns(self) -> int:
+        """The longest wait observed since the previous take (0: none), and start anew."""
+        worst, self._max_ns = self._max_ns, 0
+        return worst

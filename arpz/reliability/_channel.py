@@ -29,7 +29,7 @@ import msgspec
 from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.protocol.events import DataInfo
 from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import WaitMeter
+from arpz.protocol.timers import BacklogMeter, WaitMeter
 from arpz.protocol.writer_machine import WriterMachine
 from arpz.transport import Handle, PullSubscriber, Transport, TransportError
 
@@ -178,6 +178,9 @@ class Channel:
         #: how long the delivery thread waited for data (blocked in ``recv``): the rest of its
         #: wall time it was working, or waiting for the CPU or the GIL (a server's load)
         self.delivery_wait = WaitMeter()
+        #: how long the oldest message of each pull had waited in the transport's queue (the
+        #: reader's backlog in time; arpz.transport.PullSubscriber.waited_ns)
+        self.delivery_backlog = BacklogMeter()
         self._delivery: threading.Thread | None = None
         if self._pulls:
             self._delivery = threading.Thread(target=self._run_delivery, name=name, daemon=True)
@@ -260,8 +263,8 @@ class Channel:
         them under one lock acquisition, then deliver in turn."""
         pull, handler = self._pull, self._pull_handler
         assert pull is not None and handler is not None
-        recv, try_recv = pull.recv, pull.try_recv
-        wait = self.delivery_wait
+        recv, try_recv, waited_ns = pull.recv, pull.try_recv, pull.waited_ns
+        wait, backlog = self.delivery_wait, self.delivery_backlog
         reader = self.machine if isinstance(self.machine, ReaderMachine) else None
         clock = self.machine.clock.monotonic_s
         while True:
@@ -283,6 +286,10 @@ class Channel:
                     wait.stop()
                     if reader is not None:  # more may be queued behind it
                         reader.drained_s = clock()
+                else:  # it queued while we worked: how long is our backlog, in time
+                    waited = waited_ns()
+                    if waited is not None:
+                        backlog.observe(waited)
                 items = [first]
             except TransportError:  # undeclared by close() and drained, or the session went away
                 wait.stop()

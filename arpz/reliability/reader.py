@@ -72,6 +72,17 @@ class Reader(Endpoint):
         one minus its growth over an interval's length is how busy the reader kept it."""
         return self._channel.delivery_wait.waited_s
 
+    def take_backlog_ms(self) -> float:
+        """The longest a sample waited in the transport's queue before the delivery thread took
+        it, since the previous call, ms (0: none waited, or inline delivery): the reader's
+        backlog in time. Across a router the wait counts from the router's receipt."""
+        return self._channel.delivery_backlog.take_max_ns() / 1e6
+
+    @property
+    def worst_backlog_ms(self) -> float:
+        """The longest such wait since the reader started, ms."""
+        return self._channel.delivery_backlog.worst_ns / 1e6
+
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""
         with self._channel.lock:

@@ -79,6 +79,9 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(tmp_pa
     assert 0.0 < process["cpu_cores"] < 2.0
     assert 30 < process["rss_peak_mb"] < 2000
     assert process["rss_mb"] <= process["rss_peak_mb"]
+    # the CEDDP's ingest backlog in time, from its own reports or its summary (ms)
+    assert 0.0 <= ceddp["ingest_backlog_ms_max"] < 10_000, ceddp
+    assert "ingest_backlog" not in doc["unavailable"], doc["unavailable"]
     with out_csv.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert sorted(r["robot"] for r in rows) == sorted(robots)

@@ -9,7 +9,7 @@ import sys
 import textwrap
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import msgspec
@@ -30,7 +30,7 @@ from arpz.reliability import (
     Writer,
     WriterEventCallbacks,
 )
-from tests.support import client, router, wait_until
+from tests.support import SlowFirstDelivery, client, router, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -375,20 +375,29 @@ def _wakeups(thread: threading.Thread) -> int:
     return int(status.split("voluntary_ctxt_switches:")[1].split()[0])
 
 
+@contextmanager
+def _across_a_router(
+    key: str, qos: QosProfile, on_data: Callable[[bytes, DataInfo], None]
+) -> Iterator[tuple[Reader, Writer]]:
+    """A Reader and a Writer on two client sessions of a real router, matched."""
+    with (
+        router() as (_, endpoint),
+        client(endpoint) as robot,
+        client(endpoint) as server,
+        Reader(server, key, qos, on_data) as reader,
+        Writer(robot, key, qos) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        yield reader, writer
+
+
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/task")
 def test_an_idle_reader_s_worker_wakes_about_once_a_second_through_a_router() -> None:
     """A robot keeps four readers (commands, configuration, QoS, Hello) that are idle most of
     the time; when each woke 20 times a second, 50 idle robots saturated two cores (issue 17).
     Counted by the OS, not by a hook: the reader's timer thread, across a real router, once
     the writer's one sample is delivered and acknowledged."""
-    with (
-        router() as (_, endpoint),
-        client(endpoint) as robot,
-        client(endpoint) as server,
-        Reader(robot, "cmd/quiet", QosProfile(), on_data=lambda _p, _i: None) as reader,
-        Writer(server, "cmd/quiet", QosProfile()) as writer,
-    ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+    with _across_a_router("cmd/quiet", QosProfile(), lambda _p, _i: None) as (reader, writer):
         writer.write(b"x")
         wait_until(lambda: reader.stats().delivered == 1, what="delivery")
         wait_until(lambda: writer.acknowledged_through() == 1, what="acknowledged")
@@ -399,3 +408,14 @@ def test_an_idle_reader_s_worker_wakes_about_once_a_second_through_a_router() ->
         wakes = _wakeups(worker) - before
     # about 2 (one a second, and a GIL handoff may add one each); 40 with a 50 ms sleep
     assert wakes <= 8, wakes
+
+
+def test_a_reader_s_backlog_counts_from_the_router_s_receipt() -> None:
+    """Zenoh's FIFO does not say how deep it is; the router's timestamp on every sample says
+    how long the oldest waiting one has waited (the CEDDP's CeddpStats.ingest_backlog_ms).
+    The reader on a client session, the writer on another, a real router between them."""
+    slow = SlowFirstDelivery(busy_s=0.3)
+    with _across_a_router("t/backlog", QOS_RELIABLE_ALL, slow) as (reader, writer):
+        slow.queue_behind(writer.write)
+        waited = reader.take_backlog_ms()
+    assert 200 <= waited < 5000, waited

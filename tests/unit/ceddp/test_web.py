@@ -71,7 +71,10 @@ def reader(frame: MetricsFrame | None = None) -> StatusReader:
 FRAME = MetricsFrame(
     123,
     {("r1", "lidar"): {"rate_hz": 9.5, "latency_ms_p50": 2.0, "latency_ms_p99": 8.0}},
-    {"r1": {"clock_offset_ms": -1.5}, "ceddp": {"cpu_percent": 40.0, "ingest_load": 0.25}},
+    {
+        "r1": {"clock_offset_ms": -1.5},
+        "ceddp": {"cpu_percent": 40.0, "ingest_load": 0.25, "ingest_backlog_ms": 7.5},
+    },
 )
 
 
@@ -89,6 +92,7 @@ def test_the_status_reads_counters_now_and_figures_of_the_last_interval() -> Non
     assert r2.topics[0].latency_ms_p99 is None  # no interval figure for it in the frame
     assert r1.rate_hz is None  # a rate needs an earlier read
     assert status.ceddp.cpu_percent == 40.0 and status.ceddp.processed == 11
+    assert status.ceddp.ingest_backlog_ms == 7.5
     assert status.metrics_stamp_ns == 123
 
 
@@ -160,6 +164,7 @@ def test_metrics_parse_and_match_the_status(web: StatusWeb) -> None:
     up = {s.labels["robot"]: s.value for s in families["arpz_robot_up"].samples}
     assert up == {"r1": 1.0, "r2": 0.0}
     assert families["arpz_ceddp_cpu_ratio"].samples[0].value == 0.4
+    assert families["arpz_ceddp_ingest_backlog_seconds"].samples[0].value == 0.0075
     assert families["arpz_live_view_dropped"].samples[0].value == 3.0
     assert "process_cpu_seconds" in families
     for name in families:  # Prometheus conventions: one prefix, counters end in _total

@@ -205,6 +205,18 @@ def test_unavailable_names_dashboard_drops_only_when_a_ceddp_did_not_publish_the
     assert "dashboard_dropped" in unavailable([published, silent])
 
 
+def test_the_ingest_backlog_comes_from_the_ceddp_s_reports_else_its_summary() -> None:
+    rows = _rows(1)
+    reported = ceddp_figures(0, _summary({}), rows, None, 1.0, {"backlog_ms_max": 12.5})
+    assert reported.ingest_backlog_ms_max == 12.5
+    assert "ingest_backlog" not in unavailable([reported])
+    summary = {**_summary({}), "ingest": {"backlog_ms_max": 3}}
+    assert ceddp_figures(0, summary, rows, None, 1.0, None).ingest_backlog_ms_max == 3.0
+    silent = ceddp_figures(0, _summary({}), rows, None, 1.0, None)
+    assert silent.ingest_backlog_ms_max is None
+    assert "ingest_backlog" in unavailable([reported, silent])
+
+
 def test_per_sample_cpu() -> None:
     assert per_sample_us(0.5, 10.0, 5000) == 1000.0
     assert per_sample_us(None, 10.0, 5000) is None

@@ -31,7 +31,7 @@ from arpz.reliability import (
 )
 from arpz.reliability._channel import _Turns, tick_intervals_s
 from arpz.transport import TransportError
-from tests.support import wait_until
+from tests.support import SlowFirstDelivery, wait_until
 
 
 def test_samples_flow_in_order_and_callbacks_run_on_the_worker_thread() -> None:
@@ -248,6 +248,9 @@ class _BrokenPull:
 
     def recv(self) -> tuple[str, bytes, bytes | None]:
         raise TransportError("session closed under the reader")
+
+    def waited_ns(self) -> None:
+        return None
 
     def undeclare(self) -> None:
         pass
@@ -479,3 +482,16 @@ def test_on_data_run_takes_whole_in_order_runs_instead_of_on_data() -> None:
 def test_a_reader_without_a_callback_is_refused() -> None:
     with pytest.raises(ValueError, match="on_data or on_data_run"):
         Reader(MemoryTransport(MemoryBus()), "f/robot/*/sensor/*", QOS_RELIABLE_ALL, None)
+
+
+def test_a_reader_s_backlog_is_how_long_its_oldest_waiting_sample_waited() -> None:
+    """What the CEDDP reports as its ingest backlog (CeddpStats.ingest_backlog_ms): samples
+    written while on_data is busy wait in the transport's queue; the next pull measures the
+    oldest. The interval's maximum resets when taken; the run's worst stays."""
+    slow = SlowFirstDelivery(busy_s=0.3)
+    with _pair("t/x", "t/x", QOS_RELIABLE_ALL, slow) as (reader, writer):
+        slow.queue_behind(writer.write)
+        waited = reader.take_backlog_ms()
+        assert 200 <= waited < 5000, waited  # written about 0.3 s before the pull took them
+        assert reader.take_backlog_ms() == 0.0  # nothing waited since
+        assert reader.worst_backlog_ms == waited
