@@ -48,3 +48,22 @@ def test_deferred_percentiles_equal_the_ones_computed_under_the_lock() -> None:
     assert isinstance(row["topics"]["pir"]["staleness_ms_p50"], Deferred)
     assert resolve(row) == robot_summary(ingest, "r1", report)
     assert resolve(row)["latency_ms_p99"] == pytest.approx(1.2, abs=0.05)
+
+
+def test_a_robot_s_latency_pools_its_topics_and_is_the_same_deferred() -> None:
+    """The robot's p50 and p99 are of every sensor topic's samples together (hello aside),
+    pooled after the ingest lock is released when deferred."""
+    ingest = Ingest("f", Planner(), CacheControl(enabled=False))
+    writer = writer_id("r1", "inc1")
+    latencies_ms = {"pir": 1.0, "light": 9.0}  # every sample of a topic: the same latency
+    for topic, latency_ms in latencies_ms.items():
+        key = f"arpz/f/robot/r1/sensor/{topic}"
+        for seq in range(1, 101):
+            sample = Sample(writer, seq, seq * 1_000_000, seq)  # type: ignore[arg-type]
+            ingest.handle_sensor(key, encode(sample), seq * 1_000_000 + int(latency_ms * 1e6))
+    report = RobotRecord().as_report()
+    deferred = resolve(robot_summary(ingest, "r1", report, defer=True))
+    assert deferred == robot_summary(ingest, "r1", report)
+    assert deferred["latency_ms_p99"] == pytest.approx(9.0)  # the slower topic's
+    assert deferred["latency_ms_p50"] == pytest.approx(5.0)  # between the two halves
+    assert deferred["topics"]["pir"]["latency_ms_p99"] == pytest.approx(1.0)
