@@ -4,13 +4,15 @@ against the floor, a plain Zenoh put of the same tick's bundle, in one run.
 
 This is the load generator's cost in ``python -m arpz.perf fleet`` (issue 17): there the robots
 spend about twice the CEDDP's CPU a sample, so on one 2-core host they, not the server, end the
-scaling curve. A router process and an arpz reader process (``python -m arpz.perf sub``: a fleet
-reader on ``.../sensor/*``, so acknowledgements flow back as the CEDDP's do) run on loopback;
-this process builds one robot's sensors exactly as ``RobotAgent`` does (``build_sensors`` behind
-a ``Bundler``, the fleet's sensor QoS: KEEP_ALL, piggybacked heartbeats, heartbeat backoff 8,
-local cache off) and runs ticks back to back, reading its main thread's CPU time
-(``time.thread_time``): the work of ``sense`` for every topic and of the bundle's put, not the
-channel's other threads. The floor puts the bytes of one recorded bundle each tick.
+scaling curve. A router process and a reader process (``READER`` below: an arpz ``Reader`` on
+``.../sensor/*`` as the CEDDP's, so acknowledgements flow back; ``python -m arpz.perf sub``
+stopped acknowledging this writer after a few dozen samples and was not used) run on loopback;
+this process builds one robot's sensors as ``RobotAgent`` does (``build_sensors`` behind a
+``Bundler`` sized by ``frame_fragment_bytes``, the fleet's robot config: KEEP_ALL, piggybacked
+heartbeats, heartbeat backoff 8, local cache off) and runs ticks at ``--tick-hz`` (1 000 a
+second; the fleet's rate is 100), reading its main thread's CPU time (``time.thread_time``):
+the work of ``sense`` for every topic and of the bundle's put, not the channel's other threads.
+The floor puts the bytes of one recorded bundle each tick.
 
     python benchmarks/robot_tick_cost.py [--ticks 5000] [--topics 8] [--rounds 3]
 """
@@ -30,6 +32,7 @@ sys.path.insert(0, str(ROOT))
 
 from arpz.bundling import Bundler  # noqa: E402
 from arpz.config import RobotConfig, from_dict  # noqa: E402
+from arpz.endpoints import frame_fragment_bytes  # noqa: E402
 from arpz.perf.fleet import FleetOptions, robot_config  # noqa: E402
 from arpz.perf.harness import child, free_port, perf_router  # noqa: E402
 from arpz.protocol import bundle  # noqa: E402
@@ -89,7 +92,8 @@ def robot_sensors(
 ) -> tuple[Bundler, list[SensorChannel]]:
     options = FleetOptions(robots=1, topics=topics, rate_hz=RATE_HZ)
     config = from_dict(robot_config(options, ROBOT, endpoint, 1), RobotConfig, source="bench")
-    bundler = Bundler(transport, max_bytes=config.frame_fragment_bytes or 1280)  # type: ignore[arg-type]
+    max_bytes = config.frame_fragment_bytes or frame_fragment_bytes(config.connect)
+    bundler = Bundler(transport, max_bytes=max_bytes)  # type: ignore[arg-type]
     sensors = build_sensors(config, bundler, None, base)
     for sensor in sensors:
         sensor.wall_ns = time.time_ns

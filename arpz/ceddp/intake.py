@@ -134,7 +134,7 @@ class SensorIntake:
     def take_backlog_ms(self) -> float | None:
         """The longest a sample waited between the router's receipt and the sensor path taking
         it, since the previous call, ms (the metrics interval); None on the raw path, which
-        does not measure it."""
+        does not measure it, or when the samples carried no router timestamp."""
         return self.reader.take_backlog_ms() if self.reader is not None else None
 
     def worst_backlog_ms(self) -> float | None:

@@ -34,8 +34,9 @@ MIN_DELIVERED_RATIO = 0.99
 #: what the CEDDP does not publish (yet): reported as unavailable, with the reason
 MISSING = {
     "ingest_backlog": (
-        "this CEDDP published no CeddpStats.ingest_backlog_ms (its raw path, or arpz before "
-        "stop 33); the sensor path's busy share (ingest_load_max) stands in"
+        "this CEDDP published no CeddpStats.ingest_backlog_ms (its raw path, an older arpz, "
+        "or samples without a router timestamp); the sensor path's busy share "
+        "(ingest_load_max) stands in"
     ),
     "dashboard_dropped": (
         "this CEDDP published no CeddpStats.dashboard_dropped (arpz before the overload "
@@ -254,6 +255,10 @@ def ceddp_figures(
     dropped = _count(channel.get("queue_dropped"))
     delivered = sum(r.delivered for r in mine)
     own = self_report or {}
+    # the worst interval the CEDDP reported in the window; else its summary's since start
+    backlog = _num(own, "backlog_ms_max")
+    if backlog is None:
+        backlog = _num(summary.get("ingest") or {}, "backlog_ms_max")
     return CeddpFigures(
         index=index,
         partition=str(summary.get("partition", "?")),
@@ -276,17 +281,8 @@ def ceddp_figures(
         ingest_load_max=own.get("load_max"),
         dashboard_dropped=own.get("dashboard_dropped"),
         capacity_hz=own.get("capacity_hz"),
-        ingest_backlog_ms_max=_first_known(
-            own.get("backlog_ms_max"), (summary.get("ingest") or {}).get("backlog_ms_max")
-        ),
+        ingest_backlog_ms_max=backlog,
     )
-
-
-def _first_known(*values: Any) -> float | None:
-    for value in values:
-        if isinstance(value, (int, float)):
-            return float(value)
-    return None
 
 
 def per_sample_us(cores: float | None, window_s: float, samples: int) -> float | None:

@@ -133,20 +133,36 @@ class BacklogMeter:
     transport's to know, and Zenoh's FIFO does not say). The receiving thread observes the
     first message of each pull that found the queue non-empty (the oldest waiting); one other
     thread takes the maximum (a stats interval). No lock: an observation that races the take
-    may land in either interval."""
+    may land in either interval.
+
+    A message whose wait the transport cannot tell (``None``: a Zenoh sample without a
+    timestamp, when the router's timestamping is turned off) makes the figure unknown, not 0:
+    "no backlog" must not be reported for a queue nobody could measure."""
 
     def __init__(self) -> None:
         self._max_ns = 0
+        self._unknown = False
         #: the longest wait since the meter started, for a run's summary
         self.worst_ns = 0
+        #: whether any queued message's wait could not be told since the meter started
+        self.ever_unknown = False
 
-    def observe(self, waited_ns: int) -> None:
-        if waited_ns > self._max_ns:
+    def observe(self, waited_ns: int | None) -> None:
+        if waited_ns is None:
+            self._unknown = self.ever_unknown = True
+        elif waited_ns > self._max_ns:
             self._max_ns = waited_ns
             if waited_ns > self.worst_ns:
                 self.worst_ns = waited_ns
 
-    def take_max_ns(self) -> int:
-        """The longest wait observed since the previous take (0: none), and start anew."""
-        worst, self._max_ns = self._max_ns, 0
-        return worst
+    def take_max_ns(self) -> int | None:
+        """The longest wait observed since the previous take (0: nothing queued; None: only
+        waits that could not be told), and start anew."""
+        worst, unknown = self._max_ns, self._unknown
+        self._max_ns, self._unknown = 0, False
+        return None if unknown and not worst else worst
+
+    @property
+    def worst_known_ns(self) -> int | None:
+        """``worst_ns``, or None if no wait could be told but some went unmeasured."""
+        return None if self.ever_unknown and not self.worst_ns else self.worst_ns

@@ -287,9 +287,7 @@ class Channel:
                     if reader is not None:  # more may be queued behind it
                         reader.drained_s = clock()
                 else:  # it queued while we worked: how long is our backlog, in time
-                    waited = waited_ns()
-                    if waited is not None:
-                        backlog.observe(waited)
+                    backlog.observe(waited_ns())
                 items = [first]
             except TransportError:  # undeclared by close() and drained, or the session went away
                 wait.stop()

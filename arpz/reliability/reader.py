@@ -72,16 +72,19 @@ class Reader(Endpoint):
         one minus its growth over an interval's length is how busy the reader kept it."""
         return self._channel.delivery_wait.waited_s
 
-    def take_backlog_ms(self) -> float:
+    def take_backlog_ms(self) -> float | None:
         """The longest a sample waited in the transport's queue before the delivery thread took
-        it, since the previous call, ms (0: none waited, or inline delivery): the reader's
-        backlog in time. Across a router the wait counts from the router's receipt."""
-        return self._channel.delivery_backlog.take_max_ns() / 1e6
+        it, since the previous call, ms (0: none waited, or inline delivery; None: samples
+        waited but the transport could not tell how long): the reader's backlog in time.
+        Across a router the wait counts from the router's receipt."""
+        taken = self._channel.delivery_backlog.take_max_ns()
+        return None if taken is None else taken / 1e6
 
     @property
-    def worst_backlog_ms(self) -> float:
-        """The longest such wait since the reader started, ms."""
-        return self._channel.delivery_backlog.worst_ns / 1e6
+    def worst_backlog_ms(self) -> float | None:
+        """The longest such wait since the reader started, ms (None as above)."""
+        worst = self._channel.delivery_backlog.worst_known_ns
+        return None if worst is None else worst / 1e6
 
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""

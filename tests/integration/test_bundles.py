@@ -124,6 +124,7 @@ def test_heartbeats_through_a_router_never_announce_what_the_open_bundle_holds()
             during = heartbeats.during_holds()
             assert len(during) >= 5, heartbeats.seen  # heartbeats crossed during the holds
             assert all(last < held for held, last in during), during
+            assert heartbeats.undecodable == 0
             assert (reader.stats().nacks, reader.stats().duplicates) == (0, 0), reader.stats()
             assert writer.stats().retransmitted == 0, writer.stats()
         finally:

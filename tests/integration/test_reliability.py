@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import msgspec
 import pytest
@@ -377,11 +378,15 @@ def _wakeups(thread: threading.Thread) -> int:
 
 @contextmanager
 def _across_a_router(
-    key: str, qos: QosProfile, on_data: Callable[[bytes, DataInfo], None]
+    key: str,
+    qos: QosProfile,
+    on_data: Callable[[bytes, DataInfo], None],
+    router_config: str | None = None,
 ) -> Iterator[tuple[Reader, Writer]]:
-    """A Reader and a Writer on two client sessions of a real router, matched."""
+    """A Reader and a Writer on two client sessions of a real router (``router_config``: its
+    Zenoh JSON5 file), matched."""
     with (
-        router() as (_, endpoint),
+        router(config_file=router_config) as (_, endpoint),
         client(endpoint) as robot,
         client(endpoint) as server,
         Reader(server, key, qos, on_data) as reader,
@@ -419,3 +424,15 @@ def test_a_reader_s_backlog_counts_from_the_router_s_receipt() -> None:
         slow.queue_behind(writer.write)
         waited = reader.take_backlog_ms()
     assert 200 <= waited < 5000, waited
+
+
+def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
+    """With the router's timestamping turned off its samples carry no timestamp: the reader
+    cannot tell how long they queued, and says so (None) rather than "no backlog"."""
+    config = tmp_path / "no_timestamps.json5"
+    config.write_text("{ timestamping: { enabled: { router: false } } }\n")
+    slow = SlowFirstDelivery(busy_s=0.3)
+    with _across_a_router("t/untimed", QOS_RELIABLE_ALL, slow, str(config)) as (reader, writer):
+        slow.queue_behind(writer.write)
+        assert reader.take_backlog_ms() is None
+        assert reader.worst_backlog_ms is None

@@ -209,6 +209,10 @@ def test_the_ingest_backlog_comes_from_the_ceddp_s_reports_else_its_summary() ->
     rows = _rows(1)
     reported = ceddp_figures(0, _summary({}), rows, None, 1.0, {"backlog_ms_max": 12.5})
     assert reported.ingest_backlog_ms_max == 12.5
+    idle = {**_summary({}), "ingest": {"backlog_ms_max": 40.0}}  # the window's 0 wins
+    assert (
+        ceddp_figures(0, idle, rows, None, 1.0, {"backlog_ms_max": 0.0}).ingest_backlog_ms_max == 0
+    )
     assert "ingest_backlog" not in unavailable([reported])
     summary = {**_summary({}), "ingest": {"backlog_ms_max": 3}}
     assert ceddp_figures(0, summary, rows, None, 1.0, None).ingest_backlog_ms_max == 3.0

@@ -192,6 +192,7 @@ def test_heartbeats_never_announce_what_the_open_bundle_holds() -> None:
         during = heartbeats.during_holds()
         assert len(during) >= 5, heartbeats.seen  # heartbeats did go out while bundles were held
         assert all(last < held for held, last in during), during
+        assert heartbeats.undecodable == 0
         assert (reader.stats().nacks, reader.stats().duplicates) == (0, 0)
         assert writer.stats().retransmitted == 0
         assert wait_until(lambda: writer.acknowledged_through() == 5)

@@ -1,4 +1,4 @@
-"""WaitMeter: the wait of a thread, counted while it lasts and only while it lasts."""
+"""WaitMeter and BacklogMeter: how long a thread waited, and how long its queue kept messages."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from arpz.protocol.timers import WaitMeter
+from arpz.protocol.timers import BacklogMeter, WaitMeter
 
 
 def test_a_wait_counts_while_it_lasts_and_work_does_not() -> None:
@@ -25,3 +25,21 @@ def test_a_wait_counts_while_it_lasts_and_work_does_not() -> None:
     time.sleep(0.05)
     meter.stop()
     assert meter.waited_s == pytest.approx(done + 0.05, abs=0.04)
+
+
+def test_the_backlog_is_the_longest_wait_of_an_interval_and_unknown_is_not_zero() -> None:
+    meter = BacklogMeter()
+    assert meter.take_max_ns() == 0  # nothing queued: no backlog
+    meter.observe(3_000_000)
+    meter.observe(1_000_000)
+    assert meter.take_max_ns() == 3_000_000
+    assert meter.take_max_ns() == 0  # a take starts the next interval
+    meter.observe(None)  # queued, but the transport could not tell for how long
+    assert meter.take_max_ns() is None
+    assert meter.worst_known_ns == 3_000_000  # the worst that could be told still stands
+    meter.observe(None)
+    meter.observe(2_000_000)
+    assert meter.take_max_ns() == 2_000_000  # some waits known: their longest
+    fresh = BacklogMeter()
+    fresh.observe(None)
+    assert fresh.worst_known_ns is None
