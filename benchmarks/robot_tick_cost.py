@@ -5,8 +5,8 @@ against the floor, a plain Zenoh put of the same tick's bundle, in one run.
 This is the load generator's cost in ``python -m arpz.perf fleet`` (issue 17): there the robots
 spend about twice the CEDDP's CPU a sample, so on one 2-core host they, not the server, end the
 scaling curve. A router process and a reader process (``READER`` below: an arpz ``Reader`` on
-``.../sensor/*`` as the CEDDP's, so acknowledgements flow back; ``python -m arpz.perf sub``
-stopped acknowledging this writer after a few dozen samples and was not used) run on loopback;
+``.../sensor/*`` as the CEDDP's, so acknowledgements flow back and nothing of the reader's own
+cost is in this process) run on loopback;
 this process builds one robot's sensors as ``RobotAgent`` does (``build_sensors`` behind a
 ``Bundler`` sized by ``frame_fragment_bytes``, the fleet's robot config: KEEP_ALL, piggybacked
 heartbeats, heartbeat backoff 8, local cache off) and runs ticks at ``--tick-hz`` (1 000 a

@@ -321,6 +321,12 @@ def _report(
             latency_us = np.frombuffer(rec.latency_ns, dtype=np.int64) / 1000.0
         with open(args.latency_out, "wb") as fh:  # a file object: np.save adds no ".npy"
             np.save(fh, latency_us)
+    if report.foreign:
+        print(
+            f"arpz.perf: {report.foreign} payloads on {args.key} were not arpz.perf samples "
+            "(published by something other than `python -m arpz.perf pub`?); not counted",
+            file=sys.stderr,
+        )
     result: dict[str, Any] = msgspec.to_builtins(report)
     return result
 
@@ -329,8 +335,7 @@ def run_sub(args: argparse.Namespace, *, key: str | None = None) -> dict[str, An
     rec = Recorder()
 
     def on_payload(payload: bytes) -> None:
-        seq, stamp = HEADER.unpack_from(payload)
-        rec.add(seq, time.time_ns() - stamp, time.monotonic())
+        rec.add_payload(payload, time.time_ns(), time.monotonic())
 
     marker = EndMarker(args)
     marker.listen()
@@ -376,8 +381,7 @@ def run_ping(args: argparse.Namespace) -> dict[str, Any]:
     rec = Recorder()
 
     def on_pong(payload: bytes) -> None:
-        seq, stamp = HEADER.unpack_from(payload)
-        rec.add(seq, time.time_ns() - stamp, time.monotonic())
+        rec.add_payload(payload, time.time_ns(), time.monotonic())
 
     sub = make_sub(args, f"{args.key}/pong", on_pong)
     pub = make_pub(args, f"{args.key}/ping")

@@ -19,6 +19,8 @@ import msgspec
 
 #: every perf payload starts with (seq, source stamp in ns), whatever the transport
 HEADER: Final = struct.Struct("!Qq")
+#: a source stamp further than this from the receiver's clock is not a perf sample's
+PLAUSIBLE_STAMP_NS: Final = 86_400 * 10**9
 
 
 def make_payload(seq: int, stamp_ns: int, size: int) -> bytes:
@@ -70,6 +72,9 @@ class Report(msgspec.Struct, frozen=True):
     late: int
     too_late: int
     duration_s: float
+    #: payloads on the key that were not perf samples (too short, or an impossible seq or
+    #: stamp): someone else publishes there, e.g. a robot's sensors; not in any figure above
+    foreign: int = 0
 
 
 def percentile(sorted_values: list[float], q: float) -> float:
@@ -88,12 +93,26 @@ class Recorder:
         self.latency_ns = array("q")
         self.arrival_s = array("d")
         self.lock = threading.Lock()
+        self.foreign = 0
 
     def add(self, seq: int, latency_ns: int, arrival_s: float) -> None:
         with self.lock:
             self.seqs.append(seq)
             self.latency_ns.append(latency_ns)
             self.arrival_s.append(arrival_s)
+
+    def add_payload(self, payload: bytes, now_ns: int, now_s: float) -> bool:
+        """Record a perf sample received at ``now_ns`` (wall) / ``now_s`` (monotonic). Anything
+        else is counted in ``foreign`` and skipped: pointed at a robot's keys, the subscriber
+        read its sensor bytes as seqs beyond int64 and raised on every sample."""
+        if len(payload) >= HEADER.size:
+            seq, stamp = HEADER.unpack_from(payload)
+            if 0 < seq < 2**63 and abs(now_ns - stamp) < PLAUSIBLE_STAMP_NS:
+                self.add(seq, now_ns - stamp, now_s)
+                return True
+        with self.lock:
+            self.foreign += 1
+        return False
 
     def __len__(self) -> int:
         return len(self.seqs)
@@ -116,6 +135,7 @@ def build_report(
         seqs = list(rec.seqs)
         lat_us = [v / 1000 for v in rec.latency_ns]
         arrival = list(rec.arrival_s)
+        foreign = rec.foreign
     seen: set[int] = set()
     duplicates = out_of_order = 0
     highest = 0
@@ -164,4 +184,5 @@ def build_report(
         late=sum(1 for v in lat_us if v > late_us),
         too_late=sum(1 for v in lat_us if v > too_late_us),
         duration_s=duration_s,
+        foreign=foreign,
     )

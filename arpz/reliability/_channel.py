@@ -18,6 +18,7 @@ from __future__ import annotations
 import logging
 import math
 import queue
+import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -31,6 +32,7 @@ from arpz.protocol.events import DataInfo
 from arpz.protocol.reader_machine import ReaderMachine
 from arpz.protocol.timers import BacklogMeter, WaitMeter
 from arpz.protocol.writer_machine import WriterMachine
+from arpz.throttled_log import ThrottledLog
 from arpz.transport import Handle, PullSubscriber, Transport, TransportError
 
 log = logging.getLogger("arpz.reliability")
@@ -161,6 +163,9 @@ class Channel:
         self.lock = threading.Condition(self.mutex)
         self.queue_dropped = 0
         self.callback_errors = 0
+        self.name = name
+        #: one traceback per cause, then a line per 10 s with the count (see ``_count_error``)
+        self._error_log = ThrottledLog(log)
         self._queue: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._handles: list[Handle] = []
         self._tokens: dict[str, Handle] = {}
@@ -226,8 +231,7 @@ class Channel:
                         actions = handler(key, payload, attachment)
                         wake = self._worker_needed()
                 except Exception:
-                    self.callback_errors += 1
-                    log.exception("reliable channel: unexpected error")
+                    self._count_error("reliable channel: unexpected error")
                     return
                 if wake:
                     self.wake()
@@ -323,8 +327,7 @@ class Channel:
                     try:
                         out.extend(handler(item[0], item[1], item[2]))
                     except Exception:
-                        self.callback_errors += 1
-                        log.exception("reliable channel delivery: unexpected error")
+                        self._count_error("reliable channel delivery: unexpected error")
                 self._pull_backlog = len(items) >= _BATCH
                 drained = reader is not None and empty_at is not None and reader.drained(empty_at)
                 if drained:  # a NACK that waited for the drain is due now, not a fine tick later
@@ -393,8 +396,7 @@ class Channel:
                         try:  # the hot path: a sample or a control message for the machine
                             todo.extend(head(item[1], item[2], item[3]))
                         except Exception:
-                            self.callback_errors += 1
-                            log.exception("reliable channel worker: unexpected error")
+                            self._count_error("reliable channel worker: unexpected error")
                     if writer is not None:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
                         next_tick = min(next_tick, _heartbeat_at(writer, time.monotonic()))
@@ -442,8 +444,7 @@ class Channel:
             result = head(a, b, c)
             return result
         except Exception:  # a bug must not kill the worker and silently stop the channel
-            self.callback_errors += 1
-            log.exception("reliable channel worker: unexpected error")
+            self._count_error("reliable channel worker: unexpected error")
             return []
 
     def perform(self, actions: list[Action]) -> None:
@@ -493,8 +494,20 @@ class Channel:
             self._call(on_run, action.info.key, (action.payload,))
 
     def _on_data_raised(self) -> None:
+        self._count_error("on_data raised; the channel goes on")
+
+    def _count_error(self, message: str) -> None:
+        """Count the exception being handled in ``callback_errors`` and log it, throttled per
+        message and exception type: its first traceback, then at most a line per 10 s with how
+        many came meanwhile. A callback that raised on every sample logged a traceback each (27
+        MB in 30 s of one robot's sensor stream); with stderr on a pipe nobody read, the
+        channel's thread then blocked writing the log and the reader stopped acknowledging."""
         self.callback_errors += 1
-        log.exception("on_data raised; the channel goes on")
+        exc = sys.exc_info()[1]
+        kind = type(exc).__name__
+        self._error_log.exception(
+            f"{message} {kind}", "%s: %s (%s: %s)", self.name, message, kind, exc
+        )
 
     def _call(self, callback: Callable[..., None] | None, *args: object) -> None:
         if callback is None:
@@ -502,8 +515,7 @@ class Channel:
         try:
             callback(*args)
         except Exception:
-            self.callback_errors += 1
-            log.exception("user callback raised; the channel goes on")
+            self._count_error("user callback raised; the channel goes on")
 
     def _token(self, change: TokenChange) -> None:
         if change.declare and change.key not in self._tokens and not self._closed:

@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from arpz.perf.harness import child, free_port, perf_router, pingpong, pubsub
+from arpz.perf.report import make_payload
+from arpz.protocol.qos import HistoryPolicy, QosProfile
+from arpz.reliability import Writer
+from tests.support import client, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -123,3 +129,67 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
         )
         assert bad.returncode == 2, bad.stderr
         assert option in bad.stderr and "No such file" in bad.stderr
+
+
+RAISING_READER = """
+import sys, threading
+from arpz.protocol.qos import QosProfile, HistoryPolicy
+from arpz.reliability import Reader
+from arpz.transport import SessionSettings
+from arpz.zenoh_transport import ZenohTransport
+
+def on_data(payload, info):
+    raise ValueError("a callback that fails on every sample")
+
+transport = ZenohTransport.open(SessionSettings(mode="client", connect=[sys.argv[1]]))
+reader = Reader(transport, "perf/raising", QosProfile(history=HistoryPolicy.KEEP_ALL), on_data)
+print("ready", file=sys.stderr, flush=True)
+threading.Event().wait()  # until the test terminates it
+"""
+
+
+def _keep_all_writer(endpoint: str, key: str) -> Iterator[Writer]:
+    with (
+        client(endpoint) as transport,
+        Writer(transport, key, QosProfile(history=HistoryPolicy.KEEP_ALL)) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1, what="the reader matched")
+        yield writer
+
+
+def test_a_reader_whose_callback_raises_on_every_sample_keeps_acknowledging() -> None:
+    """Its stderr is a pipe nobody reads (as a benchmark's child): a traceback per sample
+    filled the pipe after a few dozen samples, the channel's thread blocked on the write and
+    the KEEP_ALL writer's history filled (found with ``benchmarks/robot_tick_cost.py``)."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with (
+        perf_router(endpoint),
+        child([sys.executable, "-c", RAISING_READER, endpoint], ready="ready"),
+        contextlib.contextmanager(_keep_all_writer)(endpoint, "perf/raising") as writer,
+    ):
+        for n in range(3000):
+            writer.write(b"sample %d" % n)
+        assert writer.wait_for_acknowledgments(30.0), writer.stats()
+
+
+def test_sub_counts_what_is_not_a_perf_sample_apart_and_keeps_receiving() -> None:
+    """Pointed at a robot's sensor keys, ``sub`` read sensor bytes as seqs beyond int64 and
+    raised on every sample: now they are ``foreign``, and perf samples beside them count."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    argv = [sys.executable, "-m", "arpz.perf", "sub", "--connect", endpoint]
+    argv += ["--key", "perf/mixed", "--duration", "6"]
+    with (
+        perf_router(endpoint),
+        child(argv, ready="ready") as sub,
+        contextlib.contextmanager(_keep_all_writer)(endpoint, "perf/mixed") as writer,
+    ):
+        for n in range(1, 1001):
+            writer.write(b"\xff" * 40)  # a seq of 2**64 - 1
+            writer.write(b"short")
+            writer.write(make_payload(n, time.time_ns(), 24))
+        assert writer.wait_for_acknowledgments(30.0), writer.stats()
+        out, err = sub.communicate(timeout=30)
+    report = json.loads(out.splitlines()[-1])
+    assert (report["foreign"], report["received"], report["sent"]) == (2000, 1000, 1000)
+    assert report["unaccounted"] == 0 and report["channel"]["callback_errors"] == 0
+    assert "2000 payloads on perf/mixed were not arpz.perf samples" in err

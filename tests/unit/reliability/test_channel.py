@@ -495,3 +495,28 @@ def test_a_reader_s_backlog_is_how_long_its_oldest_waiting_sample_waited() -> No
         assert 200 <= waited < 5000, waited  # written about 0.3 s before the pull took them
         assert reader.take_backlog_ms() == 0.0  # nothing waited since
         assert reader.worst_backlog_ms == waited
+
+
+def test_a_callback_that_raises_on_every_sample_is_counted_each_time_and_logged_once(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A traceback per sample filled 27 MB of log in 30 s and, on a pipe nobody read, blocked
+    the channel's thread (issue 17): each failure is counted, the log gets the first traceback
+    and then at most a line per 10 s per cause, and the reader goes on acknowledging."""
+
+    def on_data(payload: bytes, info: DataInfo) -> None:
+        raise ValueError(f"not a sample I know: {payload!r}")
+
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL)
+    with (
+        caplog.at_level(logging.ERROR, logger="arpz.reliability"),
+        _pair("t/bad", "t/bad", qos, on_data) as (reader, writer),
+    ):
+        for n in range(500):
+            writer.write(b"x%d" % n)
+        assert writer.wait_for_acknowledgments(10.0)
+        wait_until(lambda: reader.stats().callback_errors == 500, what="500 errors counted")
+        records = [r for r in caplog.records if "on_data raised" in r.getMessage()]
+        assert 1 <= len(records) <= 2, [r.getMessage() for r in records]
+        assert records[0].exc_info is not None and "ValueError" in records[0].getMessage()
+        assert all(r.exc_info is None for r in records[1:])  # one traceback

@@ -51,3 +51,19 @@ def test_payload_carries_seq_and_stamp_and_has_the_asked_size() -> None:
     payload = make_payload(7, 123, 1024)
     assert len(payload) == 1024 and HEADER.unpack_from(payload) == (7, 123)
     assert len(make_payload(1, 1, 4)) == HEADER.size
+
+
+def test_a_payload_that_is_not_a_perf_sample_is_counted_apart() -> None:
+    rec = Recorder()
+    now = 1_700_000_000 * 10**9
+    assert rec.add_payload(make_payload(7, now - 2_000, 24), now, 1.0)
+    assert not rec.add_payload(b"\xff" * 40, now, 1.1)  # a seq beyond int64
+    assert not rec.add_payload(b"short", now, 1.2)
+    assert not rec.add_payload(make_payload(0, now, 24), now, 1.3)  # perf seqs start at 1
+    assert not rec.add_payload(make_payload(8, 5, 24), now, 1.4)  # stamped in 1970
+    report = build_report(
+        rec, transport="arpz", key="k", size=24, rate_hz=0, sent=None, lost=0,
+        retransmissions=0, nacks=0, duration_s=1.0,
+    )  # fmt: skip
+    assert (report.received, report.foreign, report.sent) == (1, 4, 7)
+    assert report.latency_us is not None and report.latency_us.min == 2.0
