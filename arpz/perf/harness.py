@@ -7,14 +7,15 @@ router or a subscriber behind.
 from __future__ import annotations
 
 import json
-import select
+import os
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
-from typing import Any
+from typing import IO, Any
 
 from arpz.launch import free_port  # re-exported: benchmarks and tests import it from here
 
@@ -23,23 +24,39 @@ def _perf(*args: str) -> list[str]:
     return [sys.executable, "-m", "arpz.perf", *args]
 
 
+class Child(subprocess.Popen[str]):
+    """A child process whose stderr goes to a temporary file, not a pipe: a pipe that nobody
+    reads after "ready" fills at 64 KiB and then blocks whichever thread of the child logs next
+    (a reliable reader logging a traceback per sample stopped acknowledging that way)."""
+
+    def __init__(self, argv: Sequence[str]) -> None:
+        # closed by ``child`` when the process has ended
+        self.stderr_file: IO[str] = tempfile.TemporaryFile("w+", encoding="utf-8")  # noqa: SIM115
+        super().__init__(list(argv), stdout=subprocess.PIPE, stderr=self.stderr_file, text=True)
+
+    def stderr_text(self) -> str:
+        """Everything the child has written to stderr so far."""
+        # pread: the child shares this file's offset, which a read or a seek here would move
+        fd, chunks, at = self.stderr_file.fileno(), [], 0
+        while chunk := os.pread(fd, 1 << 16, at):
+            chunks.append(chunk)
+            at += len(chunk)
+        return b"".join(chunks).decode("utf-8", errors="replace")
+
+
 @contextmanager
 def child(
     argv: Sequence[str], ready: str | None = None, timeout_s: float = 20.0
-) -> Iterator[subprocess.Popen[str]]:
-    """Start a process; if ``ready`` is given, wait for that text on its stderr."""
-    proc = subprocess.Popen(list(argv), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+) -> Iterator[Child]:
+    """Start a process; if ``ready`` is given, wait (polling) for that text on its stderr."""
+    proc = Child(argv)
     try:
         if ready is not None:
-            assert proc.stderr is not None
             end = time.monotonic() + timeout_s
-            seen = ""
-            while ready not in seen:
-                left = end - time.monotonic()
-                if left <= 0 or proc.poll() is not None:
-                    raise RuntimeError(f"{' '.join(argv)} not ready: {seen}")
-                if select.select([proc.stderr], [], [], left)[0]:
-                    seen += proc.stderr.readline()
+            while ready not in (seen := proc.stderr_text()):
+                if time.monotonic() > end or proc.poll() is not None:
+                    raise RuntimeError(f"{' '.join(argv)} not ready: {seen[-2000:]}")
+                time.sleep(0.01)
         yield proc
     finally:
         if proc.poll() is None:
@@ -49,22 +66,22 @@ def child(
             except subprocess.TimeoutExpired:
                 proc.kill()
                 proc.wait()
-        for stream in (proc.stdout, proc.stderr):
-            if stream is not None:
-                stream.close()
+        if proc.stdout is not None:
+            proc.stdout.close()
+        proc.stderr_file.close()
 
 
-def last_json(proc: subprocess.Popen[str], timeout_s: float) -> dict[str, Any]:
+def last_json(proc: Child, timeout_s: float) -> dict[str, Any]:
     """Wait for the process and return the last JSON line it printed."""
     try:
-        out, err = proc.communicate(timeout=timeout_s)
+        out, _ = proc.communicate(timeout=timeout_s)
     except subprocess.TimeoutExpired:
         proc.kill()
-        out, err = proc.communicate()
-        raise RuntimeError(f"timed out; stderr: {err[-2000:]}") from None
+        proc.communicate()
+        raise RuntimeError(f"timed out; stderr: {proc.stderr_text()[-2000:]}") from None
     lines = [line for line in out.splitlines() if line.startswith("{")]
     if proc.returncode != 0 or not lines:
-        raise RuntimeError(f"exit {proc.returncode}; stderr: {err[-2000:]}")
+        raise RuntimeError(f"exit {proc.returncode}; stderr: {proc.stderr_text()[-2000:]}")
     result: dict[str, Any] = json.loads(lines[-1])
     return result
 

@@ -188,7 +188,8 @@ def test_sub_counts_what_is_not_a_perf_sample_apart_and_keeps_receiving() -> Non
             writer.write(b"short")
             writer.write(make_payload(n, time.time_ns(), 24))
         assert writer.wait_for_acknowledgments(30.0), writer.stats()
-        out, err = sub.communicate(timeout=30)
+        out, _ = sub.communicate(timeout=30)
+        err = sub.stderr_text()
     report = json.loads(out.splitlines()[-1])
     assert (report["foreign"], report["received"], report["sent"]) == (2000, 1000, 1000)
     assert report["unaccounted"] == 0 and report["channel"]["callback_errors"] == 0
