@@ -58,6 +58,10 @@ TOPIC_KINDS = ("lidar", "imu", "ultrasonic", "dht11", "flame", "pir", "light")
 FLEET = "perf"
 
 
+#: how a worker process runs its robots' periodic jobs (``--robot-threads``)
+ROBOT_THREADS = ("shared", "own")
+
+
 class FleetArgumentError(ArpzError, ValueError):
     """A fleet option that cannot work; the message says which and why (exit code 2)."""
 
@@ -84,6 +88,9 @@ class FleetOptions:
     #: with bundles (and so piggybacked heartbeats): the longest a calm stream's heartbeat
     #: period grows, in periods (``QosProfile.heartbeat_backoff``; 1 = fixed)
     heartbeat_backoff: int = 8
+    #: "shared": one thread of each worker runs all its robots' periodic jobs; "own": a
+    #: thread per robot, as ``RobotAgent.run`` (see ``arpz.perf.fleet_worker``)
+    robot_threads: str = "shared"
 
 
 def check_options(o: FleetOptions) -> None:
@@ -103,6 +110,10 @@ def check_options(o: FleetOptions) -> None:
     if o.ceddps > o.robots:
         raise FleetArgumentError(
             f"--ceddps {o.ceddps} > --robots {o.robots}: a CEDDP would serve nobody"
+        )
+    if o.robot_threads not in ROBOT_THREADS:
+        raise FleetArgumentError(
+            f"--robot-threads must be one of {', '.join(ROBOT_THREADS)}, got {o.robot_threads!r}"
         )
     if not 0 <= o.robot_nice <= 19:
         raise FleetArgumentError(f"--robot-nice must be 0..19, got {o.robot_nice}")
@@ -211,6 +222,7 @@ def worker_plan(
         "workers": workers,
         "go_file": str(workdir / "go"),
         "nice": o.robot_nice,
+        "robot_threads": o.robot_threads,
         "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
     }
     return plan, where
@@ -516,6 +528,13 @@ def add_fleet_parser(sub: Any) -> None:
         help="niceness of the robot processes (10): the CEDDP is served first",
     )
     f.add_argument(
+        "--robot-threads",
+        choices=ROBOT_THREADS,
+        default="shared",
+        help="shared (default): one thread of each worker process runs all its robots' "
+        "sensing ticks; own: a thread per robot, whose GIL convoy halved what 50 robots sent",
+    )
+    f.add_argument(
         "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"
     )
     f.add_argument(
@@ -565,6 +584,7 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         heartbeat_ms=args.heartbeat_ms,
         bundles=not args.no_bundles,
         heartbeat_backoff=args.heartbeat_backoff,
+        robot_threads=args.robot_threads,
     )
     check_options(options)
     return options

@@ -1,5 +1,6 @@
 """One process of the fleet load test: several real ``RobotAgent``s, each with its own Zenoh
-client session, as separate robots would have.
+client session, as separate robots would have; their periodic jobs run on one thread of the
+process (``run_together``), or on a thread each with ``--robot-threads own``.
 
 ``python -m arpz.perf fleet-worker --plan PLAN.json --worker I`` (started by ``arpz.perf.fleet``,
 not by hand). The worker opens every session and starts every agent (presence, announcement,
@@ -62,6 +63,32 @@ def _parallel(jobs: dict[str, Any], what: str) -> list[str]:
     return errors
 
 
+def run_together(agents: dict[str, RobotAgent], stop: threading.Event, errors: list[str]) -> None:
+    """Run the periodic jobs (sensing ticks, reports, probes) of all ``agents`` (name -> agent)
+    on this one thread until ``stop``, each robot's at its own times as its ``run`` would. A
+    robot whose job raises is reported in ``errors`` and left out; the others go on.
+
+    Why not a thread per robot (``--robot-threads own``): on real hardware each robot has its
+    own CPU, but a worker packs a dozen robots into one process and one GIL, and a dozen
+    sensing threads waking 100 times a second each queued for the GIL behind one another and
+    the channels' threads. With 50 robots x 8 topics x 100 Hz in 4 processes the robots then
+    sent half the offered 40 000 samples/s at 1.4 cores; from one thread a worker they sent
+    0.96 of it at 1.0-1.2 cores (issue 17; benchmarks/RESULTS.md). Every job is still the real
+    agent's: its sensors, local cache, channel writers, bundles and session."""
+    running = dict(agents)
+    while running and not stop.is_set():
+        wait_s = float("inf")
+        for name, agent in list(running.items()):
+            try:
+                wait_s = min(wait_s, agent.run_due())
+            except Exception as exc:
+                log.exception("robot %s stopped: a periodic job raised", name)
+                errors.append(f"{name}: run failed: {exc!r}")
+                del running[name]
+        if wait_s > 0:
+            stop.wait(min(wait_s, 0.05))
+
+
 def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, Any]:
     plan = json.loads(plan_path.read_text(encoding="utf-8"))
     configs = [
@@ -88,10 +115,16 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         while not go_file.exists() and not stop.is_set():
             time.sleep(0.01)
         started = time.monotonic()
-        threads = [
-            threading.Thread(target=agent.run, args=(stop,), name=f"robot-{name}", daemon=True)
-            for name, agent in agents.items()
-        ]
+        if plan.get("robot_threads", "shared") == "shared":
+            together = (agents, stop, errors)
+            threads = [
+                threading.Thread(target=run_together, args=together, name="robots", daemon=True)
+            ]
+        else:
+            threads = [
+                threading.Thread(target=agent.run, args=(stop,), name=f"robot-{name}", daemon=True)
+                for name, agent in agents.items()
+            ]
         for thread in threads:
             thread.start()
         # the scheduler re-aligns the jobs that fell behind while waiting for the go file and

@@ -267,6 +267,16 @@ class RobotAgent:
         tick = self.bundler.collect if self.bundler is not None else None
         self.scheduler.run(stop, self._now_s, end_s=end_s, on_late=self._count_late, tick=tick)
 
+    def run_due(self) -> float:
+        """Run the periodic jobs due now, as ``run`` does, without waiting; seconds until the
+        next is due. For a load generator that drives several robots from one thread (the
+        configured duration is then the caller's to keep)."""
+        if not self._started:
+            raise RuntimeError("RobotAgent.run_due before start()")
+        tick = self.bundler.collect if self.bundler is not None else None
+        now_s = self._now_s()
+        return self.scheduler.run_due(now_s, on_late=self._count_late, tick=tick) - now_s
+
     def shutdown(self) -> None:
         """Wait (bounded) for Hellos in flight, report final stats, stop the actuator."""
         if self.config.hello.enabled:

@@ -49,7 +49,7 @@ class Scheduler:
         assignment, picked up at its next run, so any thread may do it): names are for logs only
         and need not be unique (a sensor may be called "stats")."""
         job = Job(first_s, len(self._jobs), period_s, run, name, in_tick)
-        self._jobs.append(job)
+        heapq.heappush(self._jobs, job)
         return job
 
     def run(
@@ -71,33 +71,49 @@ class Scheduler:
             now_s = clock()
             if now_s >= end_s:
                 break
-            if not jobs:
-                stop.wait(min(end_s - now_s, 0.05))
-                continue
-            if jobs[0].due_s > now_s:
-                stop.wait(min(jobs[0].due_s - now_s, 0.05))
-                continue
-            if tick is None:  # one job at a time, each at its own reading of the clock
-                job = jobs[0]
-                job.run(now_s)
-                self._reschedule(job, now_s, on_late)
-                heapq.heapreplace(jobs, job)
-                continue
-            due: list[Job] = []
-            while jobs and jobs[0].due_s <= now_s:
-                due.append(heapq.heappop(jobs))
-            # the tick's jobs first (a stable sort keeps their order), all in one context
-            due.sort(key=lambda job: not job.in_tick)
-            ticking = [job for job in due if job.in_tick]
-            if ticking:
-                with tick():
-                    for job in ticking:
-                        job.run(now_s)
-            for job in due[len(ticking) :]:
-                job.run(now_s)
-            for job in due:
-                self._reschedule(job, now_s, on_late)
-                heapq.heappush(jobs, job)
+            if jobs and jobs[0].due_s <= now_s:
+                self.run_due(now_s, on_late=on_late, tick=tick)
+            else:
+                next_s = jobs[0].due_s if jobs else float("inf")
+                stop.wait(min(next_s - now_s, end_s - now_s, 0.05))
+
+    def run_due(
+        self,
+        now_s: float,
+        *,
+        on_late: Callable[[Job, int], None] | None = None,
+        tick: Callable[[], AbstractContextManager[object]] | None = None,
+    ) -> float:
+        """Run the jobs due at ``now_s`` (as ``run`` does, without waiting); the time the next
+        one is due (inf with no jobs). For a caller that drives several schedulers from one
+        thread (``python -m arpz.perf fleet``'s robots of one process)."""
+        jobs = self._jobs
+        if not jobs:
+            return float("inf")
+        if jobs[0].due_s > now_s:
+            return jobs[0].due_s
+        if tick is None:  # one job at a time, each at its own reading of the clock
+            job = jobs[0]
+            job.run(now_s)
+            self._reschedule(job, now_s, on_late)
+            heapq.heapreplace(jobs, job)
+            return jobs[0].due_s
+        due: list[Job] = []
+        while jobs and jobs[0].due_s <= now_s:
+            due.append(heapq.heappop(jobs))
+        # the tick's jobs first (a stable sort keeps their order), all in one context
+        due.sort(key=lambda job: not job.in_tick)
+        ticking = [job for job in due if job.in_tick]
+        if ticking:
+            with tick():
+                for job in ticking:
+                    job.run(now_s)
+        for job in due[len(ticking) :]:
+            job.run(now_s)
+        for job in due:
+            self._reschedule(job, now_s, on_late)
+            heapq.heappush(jobs, job)
+        return jobs[0].due_s
 
     @staticmethod
     def _reschedule(job: Job, now_s: float, on_late: Callable[[Job, int], None] | None) -> None:

@@ -30,7 +30,11 @@ def _gone(pid: int) -> bool:
         return True
 
 
-def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(tmp_path: Path) -> None:
+@pytest.mark.parametrize("robot_threads", ["shared", "own"])
+def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
+    tmp_path: Path, robot_threads: str
+) -> None:
+    """Either way a worker runs its robots (one thread for all, the default; a thread each)."""
     out_json, out_csv = tmp_path / "fleet.json", tmp_path / "fleet.csv"
     run = subprocess.run(
         [
@@ -48,6 +52,8 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(tmp_pa
             "20",
             "--duration",
             "4",
+            "--robot-threads",
+            robot_threads,
             "--workdir",
             str(tmp_path / "work"),
             "--json",

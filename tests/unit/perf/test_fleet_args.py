@@ -32,6 +32,7 @@ from arpz.perf.fleet_watch import ceddp_of
         ({"ceddps": 3, "robots": 2}, "--ceddps 3 > --robots 2"),
         ({"depth": 0}, "--depth must be >= 1"),
         ({"robot_nice": 20}, "--robot-nice must be 0..19"),
+        ({"robot_threads": "many"}, "--robot-threads must be one of shared, own"),
         ({"heartbeat_ms": 0.0}, "--heartbeat-ms must be > 0"),
         ({"heartbeat_backoff": 0}, "--heartbeat-backoff must be 1..64"),
         ({"heartbeat_backoff": 65}, "--heartbeat-backoff must be 1..64"),

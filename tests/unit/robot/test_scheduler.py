@@ -7,6 +7,8 @@ import contextlib
 import threading
 from collections.abc import Iterator
 
+import pytest
+
 from arpz.robot.scheduler import Job, Scheduler
 
 
@@ -96,3 +98,17 @@ def test_jobs_due_at_one_instant_share_one_tick() -> None:
     expected = [{"imu", "gps", "pir"}, {"imu", "gps"}] * 5
     assert [set(t) for t in ticks] == expected[: len(ticks)] and len(ticks) >= 9, ticks
     assert len(report_inside) >= 4 and not any(report_inside)
+
+
+def test_run_due_runs_what_is_due_and_says_when_the_next_is() -> None:
+    """Several schedulers driven from one thread (the fleet's robots of one process): each runs
+    only its own due jobs, at its own times, and says when it wants the thread again."""
+    a, b = Scheduler(), Scheduler()
+    runs: list[tuple[str, float]] = []
+    a.every(0.01, lambda now: runs.append(("a", now)), "a")
+    b.every(0.025, lambda now: runs.append(("b", now)), "b", first_s=0.005)
+    assert a.run_due(0.0) == 0.01 and runs == [("a", 0.0)]
+    assert b.run_due(0.0) == 0.005 and runs == [("a", 0.0)]  # not due yet: nothing ran
+    assert b.run_due(0.005) == pytest.approx(0.03) and runs[-1] == ("b", 0.005)
+    assert a.run_due(0.012) == pytest.approx(0.02) and runs[-1] == ("a", 0.012)
+    assert Scheduler().run_due(1.0) == float("inf")
