@@ -125,6 +125,12 @@ class Distribution:
             # a copy: the metrics thread may fold the next window in place meanwhile
             return self._reservoir.copy()
 
+    def folded(self) -> np.ndarray:
+        """A copy of the reservoir as folded so far (no window drained: that is the caller's,
+        under the lock that guards ``add``, with ``drain_window`` and ``fold_window``)."""
+        with self._lock:
+            return self._reservoir.copy()
+
     def quantile(self, q: float) -> float | None:
         with self._lock:
             self._fold(self._drain())

@@ -20,7 +20,7 @@ from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
 from arpz.messages import RobotStats, writer_id
-from arpz.percentiles import percentiles
+from arpz.percentiles import Distribution, percentiles
 
 #: per-robot totals: the sum of these over the robot's sensor topics (not the Hello probe)
 TOTALS = (
@@ -93,36 +93,63 @@ def incarnation_summary(
     return rows
 
 
-class Deferred:
-    """One percentile of values copied under the ingest lock, computed when ``resolve`` reads it,
-    after the lock is released. Computed under it, a robot's summary held every robot's samples
-    back about 10 ms (percentiles of 20 000-value reservoirs), once per robot every
-    ``summary_period_s``: the p99 latency of a 10-robot fleet at 100 Hz was 20-23 ms with the
-    periodic summary and 3.4 ms without it (issue 17)."""
+class Samples:
+    """A topic's latency or staleness values for the summary, taken in two steps: under the
+    ingest lock only its window is drained (a list swap); folding the window into the whole-run
+    reservoir and copying it come when ``values`` is first called, after the lock is released.
 
-    def __init__(
-        self, values: list[np.ndarray], qs: tuple[float, ...], q: float, shared: list[Any]
-    ):
-        self._values, self._qs, self._q, self._shared = values, qs, q, shared
+    Folded and copied under the lock (16 reservoirs of 20 000 values a robot), each robot's turn
+    held the sensor path back while the summary thread also waited for the GIL: with 50 robots
+    at 40 000 samples/s the periodic summary took 60-210 ms of wall time for 21-42 ms of CPU,
+    and a fleet's p99 latency was 35-49 ms with it every 5 s against 15 ms without (issue 17)."""
+
+    def __init__(self, distribution: Distribution) -> None:
+        self._distribution = distribution
+        self._window: list[float] | None = distribution.drain_window()
+        self._values: np.ndarray | None = None
+        #: the largest value so far, the window's included (a few hundred values at most)
+        self.max = distribution.max
+        if self._window:
+            top = max(self._window)
+            self.max = top if self.max is None else max(self.max, top)
+
+    def values(self) -> np.ndarray:
+        if self._values is None:
+            if self._window is not None:
+                self._distribution.fold_window(self._window)
+                self._window = None
+            self._values = self._distribution.folded()
+        return self._values
+
+
+class Deferred:
+    """One percentile of a topic's (or a robot's topics' pooled) ``Samples``, computed when
+    ``resolve`` reads it, after the ingest lock is released. Computed under it, a robot's
+    summary held every robot's samples back about 10 ms (percentiles of 20 000-value
+    reservoirs), once per robot every ``summary_period_s``: the p99 latency of a 10-robot fleet
+    at 100 Hz was 20-23 ms with the periodic summary and 3.4 ms without it (issue 17)."""
+
+    def __init__(self, sources: list[Samples], qs: tuple[float, ...], q: float, shared: list[Any]):
+        self._sources, self._qs, self._q, self._shared = sources, qs, q, shared
 
     def value(self) -> float | None:
         if not self._shared:  # the figures of the arrays pooled, in one pass, when first read
-            pooled = self._values[0] if len(self._values) == 1 else np.concatenate(self._values)
+            arrays = [source.values() for source in self._sources]
+            pooled = arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
             self._shared.extend(percentiles(pooled, self._qs))
         result: float | None = self._shared[self._qs.index(self._q)]
         return result
 
 
-def _figures(arrays: list[np.ndarray], qs: tuple[float, ...], defer: bool) -> list[Any]:
-    """Percentiles of the arrays pooled; with ``defer``, pooled and computed at ``resolve``,
-    outside the ingest lock (a robot's 8 topics pooled were 2 x 160 000 values copied and
-    concatenated under it; the summary of 50 robots then cost 20-61 ms of CPU, 15-43 since)."""
-    if not arrays:
+def _figures(sources: list[Samples], qs: tuple[float, ...], defer: bool) -> list[Any]:
+    """Percentiles of the sources' values pooled; with ``defer``, taken, pooled and computed at
+    ``resolve``, outside the ingest lock."""
+    if not sources:
         return [None] * len(qs)
     if not defer:
-        return percentiles(np.concatenate(arrays), qs)
+        return percentiles(np.concatenate([source.values() for source in sources]), qs)
     shared: list[Any] = []
-    return [Deferred(arrays, qs, q, shared) for q in qs]
+    return [Deferred(sources, qs, q, shared) for q in qs]
 
 
 def resolve(row: Any) -> Any:
@@ -142,7 +169,7 @@ def topic_summary(
     stats: RobotStats | None,
     *,
     defer: bool = False,
-    samples: tuple[np.ndarray, np.ndarray] | None = None,
+    samples: tuple[Samples, Samples] | None = None,
 ) -> dict[str, Any]:
     """Call with ``ingest.lock`` held; ``defer``: percentiles as ``Deferred`` (see ``resolve``);
     ``samples``: the topic's latency and staleness samples, when the caller already took them."""
@@ -161,7 +188,7 @@ def topic_summary(
             # by seqs the robot never wrote (its counters are the truth for one incarnation)
             excess = max(lost - max(counters.sent - m.received, 0), 0)
             lost -= excess
-    latency, staleness = samples or (m.latency_ms.values(), m.staleness_ms.values())
+    latency, staleness = samples or (Samples(m.latency_ms), Samples(m.staleness_ms))
     latency_p50, latency_p99 = _figures([latency], (50, 99), defer)
     staleness_p50, staleness_p99 = _figures([staleness], (50, 99), defer)
     return {
@@ -191,10 +218,10 @@ def topic_summary(
         "decode_errors": m.decode_errors,
         "latency_ms_p50": latency_p50,
         "latency_ms_p99": latency_p99,
-        "latency_ms_max": m.latency_ms.max,
+        "latency_ms_max": latency.max,
         "staleness_ms_p50": staleness_p50,
         "staleness_ms_p99": staleness_p99,
-        "staleness_ms_max": m.staleness_ms.max,
+        "staleness_ms_max": staleness.max,
         "cache_forgets": counters.cache_forgets if counters else 0,
     }
 
@@ -248,14 +275,14 @@ def robot_summary(
     """Call with ``ingest.lock`` held; ``defer``: percentiles as ``Deferred`` (see ``resolve``)."""
     stats = report.stats
     mine = sorted((t, m) for (r, t), m in ingest.topics.items() if r == robot)
-    # each topic's samples copied once, for its own figures and the robot's pooled ones
-    samples = {t: (m.latency_ms.values(), m.staleness_ms.values()) for t, m in mine}
+    # each topic's samples taken once, for its own figures and the robot's pooled ones
+    samples = {t: (Samples(m.latency_ms), Samples(m.staleness_ms)) for t, m in mine}
     topics = {
         topic: topic_summary(ingest, m, stats, defer=defer, samples=samples[topic])
         for topic, m in mine
     }
     sensors = [row for topic, row in topics.items() if topic != "hello"]
-    latencies = [m.latency_ms for topic, m in mine if topic != "hello"]
+    latencies = [samples[t][0] for t, _ in mine if t != "hello"]
     latency_p50, latency_p99 = _figures(
         [samples[t][0] for t, _ in mine if t != "hello"], (50, 99), defer
     )

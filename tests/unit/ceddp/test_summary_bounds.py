@@ -67,3 +67,22 @@ def test_a_robot_s_latency_pools_its_topics_and_is_the_same_deferred() -> None:
     assert deferred["latency_ms_p99"] == pytest.approx(9.0)  # the slower topic's
     assert deferred["latency_ms_p50"] == pytest.approx(5.0)  # between the two halves
     assert deferred["topics"]["pir"]["latency_ms_p99"] == pytest.approx(1.0)
+
+
+def test_under_the_lock_a_robot_s_row_only_drains_its_windows() -> None:
+    """Folding the windows into the reservoirs and copying them waits for ``resolve``, after
+    the ingest lock is released; the row's maxima already count the window's values."""
+    ingest = Ingest("f", Planner(), CacheControl(enabled=False))
+    writer = writer_id("r1", "inc1")
+    for seq in range(1, 51):
+        sample = Sample(writer, seq, seq * 1_000_000, seq)  # type: ignore[arg-type]
+        ingest.handle_sensor(KEY, encode(sample), seq * 1_000_000 + seq * 10_000)
+    m = ingest.topics[("r1", "pir")]
+    assert m.latency_ms.count == 0 and m.latency_ms.total == 50  # all in the window
+    stale = m.staleness_ms.total
+    row = robot_summary(ingest, "r1", RobotRecord().as_report(), defer=True)
+    assert m.latency_ms.count == 0 and m.latency_ms.total == 0  # drained, not folded
+    assert row["latency_ms_max"] == pytest.approx(0.5)  # seq 50: 500 us late
+    resolved = resolve(row)
+    assert m.latency_ms.count == 50 and m.staleness_ms.count == stale > 0  # folded at resolve
+    assert resolved["topics"]["pir"]["latency_ms_p50"] == pytest.approx(0.255)
