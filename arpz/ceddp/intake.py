@@ -141,6 +141,12 @@ class SensorIntake:
         """The longest such wait since start, ms (None on the raw path)."""
         return self.reader.worst_backlog_ms if self.reader is not None else None
 
+    def backlog_ms_quantiles(self, *qs: float) -> list[float | None]:
+        """Percentiles of those waits since start, ms (None on the raw path, or none timed)."""
+        if self.reader is None:
+            return [None] * len(qs)
+        return self.reader.backlog_ms_quantiles(*qs)
+
     def refused(self) -> dict[str, int]:
         """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
         if self.reader is not None:

@@ -427,6 +427,15 @@ class CeddpServer:
                 "channel_lost": self.intake.channel_lost,
                 # the longest a sample waited before the sensor path took it (None: raw path)
                 "backlog_ms_max": self.intake.worst_backlog_ms(),
+                # the same wait's p50 and p99 over the pulls that found samples waiting: a p99
+                # latency far above them is spent before the CEDDP (robots, link)
+                **dict(
+                    zip(
+                        ("backlog_ms_p50", "backlog_ms_p99"),
+                        self.intake.backlog_ms_quantiles(50, 99),
+                        strict=True,
+                    )
+                ),
                 "channel": reader_stats,
                 "frames": frames_stats,
                 "unknown_keys": self.ingest.counters.unknown_keys,

@@ -123,6 +123,9 @@ class CeddpFigures:
     #: ingest backlog in time (the highest CeddpStats interval of the window; else the
     #: summary's since start)
     ingest_backlog_ms_max: float | None = None
+    #: the 99th percentile of that wait over the run's pulls that found samples waiting (the
+    #: summary's): far below the robots' p99 latency, the latency was spent before the CEDDP
+    ingest_backlog_ms_p99: float | None = None
     latency_ms_max: float | None = None
     #: the sensor reader's NACKs and the samples it received twice (a resend of what had come):
     #: on a link that loses nothing, every NACK asked for what was only queued
@@ -282,6 +285,7 @@ def ceddp_figures(
         dashboard_dropped=own.get("dashboard_dropped"),
         capacity_hz=own.get("capacity_hz"),
         ingest_backlog_ms_max=backlog,
+        ingest_backlog_ms_p99=_num(summary.get("ingest") or {}, "backlog_ms_p99"),
     )
 
 
@@ -492,7 +496,8 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
             f"{_fmt(c.ingest_queue_dropped, 'd')}, NACKs {_fmt(c.ingest_nacks, 'd')}, "
             f"duplicates {_fmt(c.ingest_duplicates, 'd')}, sensor path busy (max) "
             f"{_fmt(c.ingest_load_max)}, ingest backlog (max) "
-            f"{_fmt(c.ingest_backlog_ms_max)} ms, dashboard frames dropped "
+            f"{_fmt(c.ingest_backlog_ms_max)} ms (p99 {_fmt(c.ingest_backlog_ms_p99)} ms), "
+            "dashboard frames dropped "
             f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
             f"{_fmt(c.cpu_us_per_sample, '.0f')} us"
         )

@@ -9,6 +9,8 @@ from __future__ import annotations
 import time
 from typing import Protocol
 
+from arpz.percentiles import Distribution
+
 
 class Clock(Protocol):
     def monotonic_s(self) -> float: ...
@@ -146,20 +148,27 @@ class BacklogMeter:
         self.worst_ns = 0
         #: whether any queued message's wait could not be told since the meter started
         self.ever_unknown = False
+        #: every observed wait, ms (a bounded whole-run sample; folded at each take): whether
+        #: a p99 latency is spent in this queue or before it, where the maximum cannot say
+        self.waits_ms = Distribution()
 
     def observe(self, waited_ns: int | None) -> None:
         if waited_ns is None:
             self._unknown = self.ever_unknown = True
-        elif waited_ns > self._max_ns:
+            return
+        self.waits_ms.add(waited_ns / 1e6)
+        if waited_ns > self._max_ns:
             self._max_ns = waited_ns
             if waited_ns > self.worst_ns:
                 self.worst_ns = waited_ns
 
     def take_max_ns(self) -> int | None:
         """The longest wait observed since the previous take (0: nothing queued; None: only
-        waits that could not be told), and start anew."""
+        waits that could not be told), and start anew. Folds the observed waits into
+        ``waits_ms``'s whole-run sample (an observation racing the fold may be left out of it)."""
         worst, unknown = self._max_ns, self._unknown
         self._max_ns, self._unknown = 0, False
+        self.waits_ms.take_window()
         return None if unknown and not worst else worst
 
     @property

@@ -86,6 +86,12 @@ class Reader(Endpoint):
         worst = self._channel.delivery_backlog.worst_known_ns
         return None if worst is None else worst / 1e6
 
+    def backlog_ms_quantiles(self, *qs: float) -> list[float | None]:
+        """Percentiles of every wait the delivery thread observed since it started, ms: the
+        oldest waiting sample's wait at each pull that found the queue non-empty (None: no
+        such pull, or none the transport could time)."""
+        return self._channel.delivery_backlog.waits_ms.quantiles(*qs)
+
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""
         with self._channel.lock:

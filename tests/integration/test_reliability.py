@@ -423,7 +423,9 @@ def test_a_reader_s_backlog_counts_from_the_router_s_receipt() -> None:
     with _across_a_router("t/backlog", QOS_RELIABLE_ALL, slow) as (reader, writer):
         slow.queue_behind(writer.write)
         waited = reader.take_backlog_ms()
+        (p99,) = reader.backlog_ms_quantiles(99)  # every pull's wait, taken into the sample
     assert 200 <= waited < 5000, waited
+    assert p99 is not None and 0 < p99 <= waited
 
 
 def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
@@ -436,3 +438,4 @@ def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
         slow.queue_behind(writer.write)
         assert reader.take_backlog_ms() is None
         assert reader.worst_backlog_ms is None
+        assert reader.backlog_ms_quantiles(50, 99) == [None, None]

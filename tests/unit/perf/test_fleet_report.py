@@ -214,10 +214,11 @@ def test_the_ingest_backlog_comes_from_the_ceddp_s_reports_else_its_summary() ->
         ceddp_figures(0, idle, rows, None, 1.0, {"backlog_ms_max": 0.0}).ingest_backlog_ms_max == 0
     )
     assert "ingest_backlog" not in unavailable([reported])
-    summary = {**_summary({}), "ingest": {"backlog_ms_max": 3}}
-    assert ceddp_figures(0, summary, rows, None, 1.0, None).ingest_backlog_ms_max == 3.0
+    summary = {**_summary({}), "ingest": {"backlog_ms_max": 3, "backlog_ms_p99": 1.5}}
+    from_summary = ceddp_figures(0, summary, rows, None, 1.0, None)
+    assert (from_summary.ingest_backlog_ms_max, from_summary.ingest_backlog_ms_p99) == (3.0, 1.5)
     silent = ceddp_figures(0, _summary({}), rows, None, 1.0, None)
-    assert silent.ingest_backlog_ms_max is None
+    assert silent.ingest_backlog_ms_max is None and silent.ingest_backlog_ms_p99 is None
     assert "ingest_backlog" in unavailable([reported, silent])
 
 

@@ -43,3 +43,18 @@ def test_the_backlog_is_the_longest_wait_of_an_interval_and_unknown_is_not_zero(
     fresh = BacklogMeter()
     fresh.observe(None)
     assert fresh.worst_known_ns is None
+
+
+def test_every_timed_wait_enters_the_run_s_percentiles_at_the_next_take() -> None:
+    meter = BacklogMeter()
+    assert meter.waits_ms.quantiles(50, 99) == [None, None]
+    for ms in range(1, 101):  # 1..100 ms
+        meter.observe(ms * 1_000_000)
+    meter.observe(None)  # untimed: in no percentile
+    assert meter.take_max_ns() == 100_000_000
+    p50, p99 = meter.waits_ms.quantiles(50, 99)
+    assert p50 == pytest.approx(50.5) and p99 == pytest.approx(99.01)
+    meter.observe(500_000_000)
+    meter.take_max_ns()
+    assert meter.waits_ms.quantiles(100) == [pytest.approx(500.0)]
+    assert meter.waits_ms.total == 101
