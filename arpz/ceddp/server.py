@@ -428,7 +428,7 @@ class CeddpServer:
                 # the longest a sample waited before the sensor path took it (None: raw path)
                 "backlog_ms_max": self.intake.worst_backlog_ms(),
                 # the same wait's p50 and p99 over the pulls that found samples waiting: a p99
-                # latency far above them is spent before the CEDDP (robots, link)
+                # latency far above them is spent before the router took the sample in
                 **dict(
                     zip(
                         ("backlog_ms_p50", "backlog_ms_p99"),

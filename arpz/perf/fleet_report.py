@@ -124,7 +124,8 @@ class CeddpFigures:
     #: summary's since start)
     ingest_backlog_ms_max: float | None = None
     #: the 99th percentile of that wait over the run's pulls that found samples waiting (the
-    #: summary's): far below the robots' p99 latency, the latency was spent before the CEDDP
+    #: summary's): far below the robots' p99 latency, the latency was spent before the router
+    #: took the sample in (the robots, the link, the router's receive threads)
     ingest_backlog_ms_p99: float | None = None
     latency_ms_max: float | None = None
     #: the sensor reader's NACKs and the samples it received twice (a resend of what had come):
