@@ -98,10 +98,11 @@ class Samples:
     ingest lock only its window is drained (a list swap); folding the window into the whole-run
     reservoir and copying it come when ``values`` is first called, after the lock is released.
 
-    Folded and copied under the lock (16 reservoirs of 20 000 values a robot), each robot's turn
-    held the sensor path back while the summary thread also waited for the GIL: with 50 robots
-    at 40 000 samples/s the periodic summary took 60-210 ms of wall time for 21-42 ms of CPU,
-    and a fleet's p99 latency was 35-49 ms with it every 5 s against 15 ms without (issue 17)."""
+    Why: with 50 robots at 38 000 samples/s the periodic summary took 60-210 ms of wall time
+    for 21-42 ms of CPU, and the fleet's p99 latency was 35-49 ms with it every 5 s against
+    15 ms without (issue 17). Taking only the windows under the lock cut a robot's hold from
+    0.6 to 0.2 ms (``python benchmarks/summary_stall.py --robots 50``); what that did to the
+    fleet's p99 was within the host's noise."""
 
     def __init__(self, distribution: Distribution) -> None:
         self._distribution = distribution

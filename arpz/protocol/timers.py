@@ -6,6 +6,7 @@ and get the same result on every run; the timers take the current time as an arg
 
 from __future__ import annotations
 
+import threading
 import time
 from typing import Protocol
 
@@ -129,13 +130,18 @@ class WaitMeter:
         return done + (time.perf_counter() - since if since else 0.0)
 
 
+#: observed waits a ``BacklogMeter`` keeps unfolded at most (a fold of this many: about 0.1 ms)
+_FOLD_EVERY = 4096
+
+
 class BacklogMeter:
     """The longest a message waited in the receive queue before the receiving thread took it,
     since the last ``take_max_ns``: a receiver's backlog in time (a queue's depth is its
     transport's to know, and Zenoh's FIFO does not say). The receiving thread observes the
     first message of each pull that found the queue non-empty (the oldest waiting); one other
-    thread takes the maximum (a stats interval). No lock: an observation that races the take
-    may land in either interval.
+    thread takes the maximum (a stats interval). No lock for the maximum: an observation that
+    races the take may land in either interval. Every timed wait also enters a bounded
+    whole-run sample (``quantiles_ms``), under a lock of its own.
 
     A message whose wait the transport cannot tell (``None``: a Zenoh sample without a
     timestamp, when the router's timestamping is turned off) makes the figure unknown, not 0:
@@ -148,15 +154,24 @@ class BacklogMeter:
         self.worst_ns = 0
         #: whether any queued message's wait could not be told since the meter started
         self.ever_unknown = False
-        #: every observed wait, ms (a bounded whole-run sample; folded at each take): whether
-        #: a p99 latency is spent in this queue or before it, where the maximum cannot say
-        self.waits_ms = Distribution()
+        #: every observed wait, ms, in a bounded whole-run sample: whether a p99 latency is
+        #: spent in this queue or before it, which the maximum cannot say. Folded every
+        #: ``_FOLD_EVERY`` observations by the observing thread, so that a receiver whose
+        #: maximum nobody takes (a robot's reader) keeps a bounded window too
+        self._waits_ms = Distribution()
+        self._unfolded = 0
+        self._waits_lock = threading.Lock()
 
     def observe(self, waited_ns: int | None) -> None:
         if waited_ns is None:
             self._unknown = self.ever_unknown = True
             return
-        self.waits_ms.add(waited_ns / 1e6)
+        with self._waits_lock:
+            self._waits_ms.add(waited_ns / 1e6)
+            self._unfolded += 1
+            if self._unfolded >= _FOLD_EVERY:
+                self._waits_ms.take_window()
+                self._unfolded = 0
         if waited_ns > self._max_ns:
             self._max_ns = waited_ns
             if waited_ns > self.worst_ns:
@@ -164,12 +179,16 @@ class BacklogMeter:
 
     def take_max_ns(self) -> int | None:
         """The longest wait observed since the previous take (0: nothing queued; None: only
-        waits that could not be told), and start anew. Folds the observed waits into
-        ``waits_ms``'s whole-run sample (an observation racing the fold may be left out of it)."""
+        waits that could not be told), and start anew."""
         worst, unknown = self._max_ns, self._unknown
         self._max_ns, self._unknown = 0, False
-        self.waits_ms.take_window()
         return None if unknown and not worst else worst
+
+    def quantiles_ms(self, *qs: float) -> list[float | None]:
+        """Percentiles of every timed wait since the meter started, ms (None: none timed)."""
+        with self._waits_lock:
+            self._unfolded = 0
+            return self._waits_ms.quantiles(*qs)
 
     @property
     def worst_known_ns(self) -> int | None:

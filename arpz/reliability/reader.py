@@ -90,7 +90,7 @@ class Reader(Endpoint):
         """Percentiles of every wait the delivery thread observed since it started, ms: the
         oldest waiting sample's wait at each pull that found the queue non-empty (None: no
         such pull, or none the transport could time)."""
-        return self._channel.delivery_backlog.waits_ms.quantiles(*qs)
+        return self._channel.delivery_backlog.quantiles_ms(*qs)
 
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""

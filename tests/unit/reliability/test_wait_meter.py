@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from arpz.protocol.timers import BacklogMeter, WaitMeter
+from arpz.protocol.timers import _FOLD_EVERY, BacklogMeter, WaitMeter
 
 
 def test_a_wait_counts_while_it_lasts_and_work_does_not() -> None:
@@ -45,16 +45,25 @@ def test_the_backlog_is_the_longest_wait_of_an_interval_and_unknown_is_not_zero(
     assert fresh.worst_known_ns is None
 
 
-def test_every_timed_wait_enters_the_run_s_percentiles_at_the_next_take() -> None:
+def test_every_timed_wait_enters_the_run_s_percentiles() -> None:
     meter = BacklogMeter()
-    assert meter.waits_ms.quantiles(50, 99) == [None, None]
+    assert meter.quantiles_ms(50, 99) == [None, None]
     for ms in range(1, 101):  # 1..100 ms
         meter.observe(ms * 1_000_000)
     meter.observe(None)  # untimed: in no percentile
-    assert meter.take_max_ns() == 100_000_000
-    p50, p99 = meter.waits_ms.quantiles(50, 99)
+    p50, p99 = meter.quantiles_ms(50, 99)
     assert p50 == pytest.approx(50.5) and p99 == pytest.approx(99.01)
+    assert meter.take_max_ns() == 100_000_000
     meter.observe(500_000_000)
-    meter.take_max_ns()
-    assert meter.waits_ms.quantiles(100) == [pytest.approx(500.0)]
-    assert meter.waits_ms.total == 101
+    assert meter.quantiles_ms(100) == [pytest.approx(500.0)]
+
+
+def test_a_meter_whose_maximum_nobody_takes_keeps_its_window_bounded() -> None:
+    """A robot's readers observe their backlog but nothing takes it: the waits are folded
+    into the bounded sample as they come, not kept in a list that grows for the whole run."""
+    meter = BacklogMeter()
+    for _ in range(3 * _FOLD_EVERY + 5):
+        meter.observe(1_000_000)
+    waits = meter._waits_ms
+    assert waits.total - waits.count == 5  # unfolded: the remainder only
+    assert waits.count == 3 * _FOLD_EVERY
