@@ -158,7 +158,7 @@ class BacklogMeter:
         #: spent in this queue or before it, which the maximum cannot say. Folded every
         #: ``_FOLD_EVERY`` observations by the observing thread, so that a receiver whose
         #: maximum nobody takes (a robot's reader) keeps a bounded window too
-        self._waits_ms = Distribution()
+        self._waits_ms: Distribution | None = None  # made at the first timed wait
         self._unfolded = 0
         self._waits_lock = threading.Lock()
 
@@ -167,6 +167,8 @@ class BacklogMeter:
             self._unknown = self.ever_unknown = True
             return
         with self._waits_lock:
+            if self._waits_ms is None:  # a writer's meter, or an inline reader's, never gets here
+                self._waits_ms = Distribution()
             self._waits_ms.add(waited_ns / 1e6)
             self._unfolded += 1
             if self._unfolded >= _FOLD_EVERY:
@@ -187,6 +189,8 @@ class BacklogMeter:
     def quantiles_ms(self, *qs: float) -> list[float | None]:
         """Percentiles of every timed wait since the meter started, ms (None: none timed)."""
         with self._waits_lock:
+            if self._waits_ms is None:
+                return [None] * len(qs)
             self._unfolded = 0
             return self._waits_ms.quantiles(*qs)
 

@@ -65,5 +65,5 @@ def test_a_meter_whose_maximum_nobody_takes_keeps_its_window_bounded() -> None:
     for _ in range(3 * _FOLD_EVERY + 5):
         meter.observe(1_000_000)
     waits = meter._waits_ms
-    assert waits.total - waits.count == 5  # unfolded: the remainder only
+    assert waits is not None and waits.total - waits.count == 5  # unfolded: the remainder only
     assert waits.count == 3 * _FOLD_EVERY
