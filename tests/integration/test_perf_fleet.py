@@ -87,9 +87,10 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
     assert process["rss_mb"] <= process["rss_peak_mb"]
     # the CEDDP's ingest backlog in time, from its own reports or its summary (ms)
     assert 0.0 <= ceddp["ingest_backlog_ms_max"] < 10_000, ceddp
-    # its p99 over the run's pulls (summary.json), never above the worst single wait
+    # its p99 over the whole run's pulls (summary.json; the max above is the load window's,
+    # rounded to the microsecond in the CEDDP's reports: the two are not bounded by each other)
     p99 = ceddp["ingest_backlog_ms_p99"]
-    assert p99 is None or 0.0 <= p99 <= ceddp["ingest_backlog_ms_max"] + 1e-6, ceddp
+    assert p99 is None or 0.0 <= p99 < 10_000, ceddp
     assert "ingest_backlog" not in doc["unavailable"], doc["unavailable"]
     with out_csv.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
