@@ -94,11 +94,12 @@ def test_quick_preset(tmp_path: Path) -> None:
     def lost_share(row: dict[str, str], what: str, of: str) -> float:
         return int(row[what]) / max(1, int(row[of]))
 
-    assert lost_share(clean, "samples_lost", "samples_sent") * 5 < lost_share(
+    # In a fast window depth 1 loses nothing on the clean link either (samples: CI of 7882689,
+    # 0 and 0; Hellos: CI of 667cc48), and there is then nothing for depth to save: the deep
+    # history must never lose more than a fifth (samples) or a half (Hellos) of depth 1's share.
+    assert lost_share(clean, "samples_lost", "samples_sent") * 5 <= lost_share(
         shallow, "samples_lost", "samples_sent"
     ), (clean, shallow)
-    # Hellos (about 60 a cell): in a fast window depth 1 lost none of them either (CI of
-    # 667cc48: 0 and 0), and there is then nothing for depth to save; it must never lose more
     assert lost_share(clean, "hello_lost", "hello_sent") * 2 <= lost_share(
         shallow, "hello_lost", "hello_sent"
     ), (clean, shallow)
