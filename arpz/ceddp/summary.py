@@ -14,13 +14,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import msgspec
-import numpy as np
 
 from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
 from arpz.messages import RobotStats, writer_id
-from arpz.percentiles import Distribution, percentiles
+from arpz.percentiles import Distribution, LogHistogram
 
 #: per-robot totals: the sum of these over the robot's sensor topics (not the Hello probe)
 TOTALS = (
@@ -94,52 +93,57 @@ def incarnation_summary(
 
 
 class Samples:
-    """A topic's latency or staleness values for the summary, taken in two steps: under the
+    """A topic's latency or staleness figures for the summary, taken in two steps: under the
     ingest lock only its window is drained (a list swap); folding the window into the whole-run
-    reservoir and copying it come when ``values`` is first called, after the lock is released.
+    histogram and copying it come when ``histogram`` is first called, after the lock is
+    released.
 
     Why: with 50 robots at 38 000 samples/s the periodic summary took 60-210 ms of wall time
     for 21-42 ms of CPU, and the fleet's p99 latency was 35-49 ms with it every 5 s against
     15 ms without (issue 17). Taking only the windows under the lock cut a robot's hold from
-    0.6 to 0.2 ms (``python benchmarks/summary_stall.py --robots 50``); what that did to the
-    fleet's p99 was within the host's noise."""
+    0.6 to 0.2 ms (``python benchmarks/summary_stall.py --robots 50``)."""
 
     def __init__(self, distribution: Distribution) -> None:
         self._distribution = distribution
         self._window: list[float] | None = distribution.drain_window()
-        self._values: np.ndarray | None = None
+        self._histogram: LogHistogram | None = None
         #: the largest value so far, the window's included (a few hundred values at most)
         self.max = distribution.max
         if self._window:
             top = max(self._window)
             self.max = top if self.max is None else max(self.max, top)
 
-    def values(self) -> np.ndarray:
-        if self._values is None:
+    def histogram(self) -> LogHistogram:
+        if self._histogram is None:
             if self._window is not None:
                 self._distribution.fold_window(self._window)
                 self._window = None
-            self._values = self._distribution.folded()
-        return self._values
+            self._histogram = self._distribution.folded()
+        return self._histogram
 
 
 class Deferred:
     """One percentile of a topic's (or a robot's topics' pooled) ``Samples``, computed when
     ``resolve`` reads it, after the ingest lock is released. Computed under it, a robot's
     summary held every robot's samples back about 10 ms (percentiles of 20 000-value
-    reservoirs), once per robot every ``summary_period_s``: the p99 latency of a 10-robot fleet
-    at 100 Hz was 20-23 ms with the periodic summary and 3.4 ms without it (issue 17)."""
+    reservoirs, before the histograms), once per robot every ``summary_period_s``: the p99
+    latency of a 10-robot fleet at 100 Hz was 20-23 ms with the periodic summary and 3.4 ms
+    without it (issue 17)."""
 
     def __init__(self, sources: list[Samples], qs: tuple[float, ...], q: float, shared: list[Any]):
         self._sources, self._qs, self._q, self._shared = sources, qs, q, shared
 
     def value(self) -> float | None:
-        if not self._shared:  # the figures of the arrays pooled, in one pass, when first read
-            arrays = [source.values() for source in self._sources]
-            pooled = arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
-            self._shared.extend(percentiles(pooled, self._qs))
+        if not self._shared:  # the figures of the histograms pooled, when first read
+            self._shared.extend(_pooled(self._sources).quantiles(self._qs))
         result: float | None = self._shared[self._qs.index(self._q)]
         return result
+
+
+def _pooled(sources: list[Samples]) -> LogHistogram:
+    if len(sources) == 1:
+        return sources[0].histogram()
+    return LogHistogram.pooled([source.histogram() for source in sources])
 
 
 def _figures(sources: list[Samples], qs: tuple[float, ...], defer: bool) -> list[Any]:
@@ -148,19 +152,24 @@ def _figures(sources: list[Samples], qs: tuple[float, ...], defer: bool) -> list
     if not sources:
         return [None] * len(qs)
     if not defer:
-        return percentiles(np.concatenate([source.values() for source in sources]), qs)
+        return _pooled(sources).quantiles(qs)
     shared: list[Any] = []
     return [Deferred(sources, qs, q, shared) for q in qs]
 
 
-def resolve(row: Any) -> Any:
-    """``row`` with every ``Deferred`` replaced by its value (call without the ingest lock)."""
-    if isinstance(row, Deferred):
-        return row.value()
-    if isinstance(row, dict):
-        return {key: resolve(value) for key, value in row.items()}
-    if isinstance(row, list):
-        return [resolve(value) for value in row]
+#: the keys of a robot's row, and of each of its topics' rows, that ``defer`` leaves Deferred
+DEFERRED_KEYS = ("latency_ms_p50", "latency_ms_p99", "staleness_ms_p50", "staleness_ms_p99")
+
+
+def resolve(row: dict[str, Any]) -> dict[str, Any]:
+    """A robot's row (``robot_summary``) with its ``Deferred`` figures, and its topics', replaced
+    by their values in place (call without the ingest lock). Only the keys in ``DEFERRED_KEYS``
+    are visited: walking every value of 400 topics' rows was a third of a 50-robot summary."""
+    for target in (row, *row.get("topics", {}).values()):
+        for key in DEFERRED_KEYS:
+            value = target.get(key)
+            if isinstance(value, Deferred):
+                target[key] = value.value()
     return row
 
 

@@ -9,7 +9,7 @@ judge the samples taken after a warm-up (imports, allocator pools, first dashboa
 
 - the robots' memory is flat and the CEDDP keeps up (its arrival rate does not sag, latency
   stays low, so no queue is growing) and every count reconciles at the end;
-- the CEDDP's memory grows no faster than its bounded latency reservoirs can explain.
+- the CEDDP's memory grows no faster than its bounded latency buffers can explain.
 """
 
 from __future__ import annotations
@@ -52,11 +52,11 @@ WARMUP_S = max(12.0, SOAK_S / 4)
 ROBOTS = ("robot1", "robot2", "robot3")
 RATE_HZ = 100.0
 TOPICS_PER_ROBOT = 6  # machine1: lidar, light, flame, dht11, imu, pir
-#: what the CEDDP may legitimately add per second: latency reservoirs filling (8 bytes a sample,
-#: up to 20 000 per topic), numpy's copies while they grow, and the channel's bounded FIFOs
-#: filling while a slow host lags. 0.1 held on this VM when it was fast; twice, when a neighbour
-#: slowed it fourfold (raw Zenoh 240 000 samples/s against 940 000), it measured 0.142 and
-#: 0.144 with the same code that passed before. A leak shows over ARPZ_SOAK_S=600 at any limit.
+#: what the CEDDP may legitimately add per second: latency windows waiting for their fold into
+#: the whole-run histograms (8 bytes a sample, up to 4 096 per topic), and the channel's bounded
+#: FIFOs filling while a slow host lags. 0.1 held on this VM when it was fast; twice, when a
+#: neighbour slowed it fourfold (raw Zenoh 240 000 samples/s against 940 000), it measured 0.142
+#: and 0.144 with the same code that passed before. A leak shows over ARPZ_SOAK_S=600 at any limit.
 CEDDP_MB_PER_S = 0.25
 ROBOT_SPREAD_MB = 8.0
 

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import pytest
+
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
 from arpz.config import CeddpClockConfig
 from arpz.messages import ClockStats, Sample, encode
+from arpz.percentiles import RELATIVE_ERROR
 
 KEY = "arpz/f/robot/r1/sensor/imu"
 SHIFT_NS = 500_000_000  # the robot's clock is 0.5 s ahead: its offset is -0.5 s
@@ -41,8 +44,13 @@ def test_latencies_after_the_estimate_are_on_the_ceddp_clock() -> None:
     clock.observe("r1", estimate(-SHIFT_NS))
     feed(ingest, range(4, 14))
     m = ingest.topics[("r1", "imu")]
-    assert sorted(m.latency_ms.values())[3:] == [2.0] * 10
-    assert min(m.latency_ms.values()) == -498.0
+    # 3 samples at -498 ms, then 10 at 2 ms: the histogram keeps the extremes exactly and
+    # reads the rest within its relative error
+    assert m.latency_ms.total == 13
+    lowest, third, fourth, highest = m.latency_ms.quantiles(0, 100 * 2 / 12, 100 * 3 / 12, 100)
+    assert lowest == -498.0 and highest == 2.0
+    assert third == pytest.approx(-498.0, rel=RELATIVE_ERROR)
+    assert fourth == pytest.approx(2.0, rel=RELATIVE_ERROR)
     section = clock.summary("r1")
     assert section["corrected"] and section["uncorrected_samples"] == 3
     assert section["offset_ms"] == -500.0 and section["over_bound"]
@@ -69,7 +77,8 @@ def test_with_correction_off_latencies_stay_on_the_robot_clock_and_say_so() -> N
     ingest, clock, events = watch(correct=False)
     clock.observe("r1", estimate(-SHIFT_NS))
     feed(ingest, range(1, 4))
-    assert ingest.topics[("r1", "imu")].latency_ms.values().tolist() == [-498.0] * 3
+    latency = ingest.topics[("r1", "imu")].latency_ms
+    assert latency.total == 3 and latency.quantiles(0, 100) == [-498.0, -498.0]
     section = clock.summary("r1")
     assert not section["corrected"] and section["uncorrected_samples"] == 3
     assert "NOT corrected" in events[0][0]
