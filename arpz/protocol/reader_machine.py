@@ -946,6 +946,9 @@ class ReaderMachine:
         if full:  # a little early: the channel's idle tick (one period after) is then a full one
             self._next_full_s = now + 0.8 * self._full_period_s
         for p in self.writers.values() if full else list(self._suspects):
+            if not full and self.writers.get((p.topic, p.guid)) is not p:
+                self._suspects.discard(p)  # unmatched since it became a suspect
+                continue
             if p.leaving_s is not None:
                 if now >= p.leaving_s and not backlog:
                     gone.append(p)
@@ -962,9 +965,12 @@ class ReaderMachine:
                 actions.append(self._acknack(p, now))
         for p in gone:
             del self.writers[(p.topic, p.guid)]
+            # after the unmatch, whose skip over what never came makes it a suspect again: a
+            # departed writer left among the suspects was deleted twice at the next fine tick
+            # (a KeyError that ended the CEDDP's channel thread under overload: issue 17)
+            self._unmatch(p, now, actions)
             self._suspects.discard(p)
             self._drain_waiters.pop(p, None)
-            self._unmatch(p, now, actions)
         return actions
 
     def _poll_timers(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:

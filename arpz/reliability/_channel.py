@@ -416,7 +416,11 @@ class Channel:
                         self._call(self.before_tick)
                     # samples still in the delivery thread's FIFO may be the missing ones
                     backlog = q.qsize() + (_BATCH if self._pull_backlog else 0)
-                    actions = self.machine.tick(backlog)
+                    try:
+                        actions = self.machine.tick(backlog)
+                    except Exception:  # a bug must not end the worker: counted, logged
+                        self._count_error("reliable channel timer: unexpected error")
+                        actions = []
                     next_tick = now + (self._fine_s if self.machine.busy() else self._idle_s)
                     if writer is not None:
                         next_tick = min(next_tick, _heartbeat_at(writer, now))

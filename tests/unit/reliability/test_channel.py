@@ -520,3 +520,33 @@ def test_a_callback_that_raises_on_every_sample_is_counted_each_time_and_logged_
         assert 1 <= len(records) <= 2, [r.getMessage() for r in records]
         assert records[0].exc_info is not None and "ValueError" in records[0].getMessage()
         assert all(r.exc_info is None for r in records[1:])  # one traceback
+
+
+@pytest.mark.callback_errors_expected
+def test_a_timer_that_raises_is_counted_and_the_channel_goes_on() -> None:
+    """A bug in the machine's timers (issue 17: a KeyError in a reader's tick under overload)
+    ended the channel's thread: that reader never acknowledged or delivered again, silently.
+    Now it is counted in ``callback_errors``, logged, and the next tick runs as usual."""
+    got: list[bytes] = []
+    with _pair("t/tick", "t/tick", QOS_RELIABLE_ALL, lambda p, _i: got.append(p)) as (
+        reader,
+        writer,
+    ):
+        machine = reader._channel.machine
+        tick = machine.tick
+        raised: list[int] = []
+
+        def failing_once(backlog: int = 0) -> Any:
+            if not raised:
+                raised.append(1)
+                raise KeyError("on purpose")
+            return tick(backlog)
+
+        machine.tick = failing_once  # type: ignore[method-assign]
+        reader._channel.wake()
+        wait_until(lambda: reader.stats().callback_errors == 1, what="the error counted")
+        for i in range(50):
+            writer.write(b"%d" % i)
+        wait_until(lambda: len(got) == 50, what="samples after the error")
+        assert writer.wait_for_acknowledgments(2.0)  # the reader still acknowledges
+        assert reader._channel._worker.is_alive()

@@ -635,3 +635,41 @@ def test_a_tick_polls_every_writers_timers_once_a_period_not_at_every_tick() -> 
     assert 50 * periods <= len(polled) <= 50 * (periods / 0.8 + 1), len(polled)
     # and the deadline is still noticed: the writers wrote nothing for 0.5 s
     assert r.stats().deadline_missed >= 50
+
+
+def test_a_writer_that_leaves_with_a_gap_is_unmatched_once_and_its_slot_can_be_reused() -> None:
+    """A writer announces samples the reader never got, then dies: at its departure the reader
+    counts them lost (the skip makes the writer a suspect again). That stale suspect was deleted
+    a second time at the next fine tick: a KeyError that ended the CEDDP's channel thread, and
+    with it every robot's reports on that reader (a 50-robot fleet under overload, issue 17)."""
+    bus, clock = world(1, Link())
+    qos = QosProfile(depth=20)
+    guid = new_guid()
+    writer = bus.add(WriterMachine("t/a", qos, guid, clock))
+    reader = bus.add(ReaderMachine("t/a", qos, new_guid(), clock))
+    bus.run_for(0.3)
+    publish(bus, writer, 5, 0.001)
+    bus.run_for(0.1)
+    r, w = reader.machine, writer.machine
+    assert isinstance(r, ReaderMachine) and isinstance(w, WriterMachine)
+    for i in range(5):  # written, never on the link
+        _, _, actions = w.write(b"lost %d" % i)
+        bus.run(writer, actions)
+    proxy = r.writers[("t/a", guid)]
+    for _ in range(2000):  # until a heartbeat announces them
+        bus.step()
+        if proxy.highest >= 10:
+            break
+    assert proxy.highest >= 10 and proxy.expected <= 10
+    bus.remove(writer)  # before it can answer a NACK
+    bus.run_for(1.0)  # before the fix: a stale suspect (busy != busy_scan), then a KeyError
+    assert ("t/a", guid) not in r.writers and proxy not in r._suspects
+    seqs = [info.seq for _, info in reader.delivered]
+    assert len(seqs) + r.stats().lost == 10, (seqs, r.stats())
+    # the same writer comes back (a token flap after the unmatch): a new proxy, left alone
+    again = bus.add(WriterMachine("t/a", qos, guid, clock))
+    bus.run_for(0.3)
+    assert r.writers[("t/a", guid)] is not proxy
+    bus.run_for(0.5)
+    assert ("t/a", guid) in r.writers
+    bus.remove(again)
