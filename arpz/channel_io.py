@@ -16,7 +16,9 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Sequence
+from typing import Protocol
 
 from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, FragmentError
 from arpz.reliability import (
@@ -151,6 +153,10 @@ class Outlet:
         assert self.publisher is not None
         return self.publisher.matching
 
+    def wait_for_acknowledgments(self, timeout_s: float) -> bool:
+        """True once every matched reader acknowledged everything (at once without the channel)."""
+        return self.writer is None or self.writer.wait_for_acknowledgments(timeout_s)
+
     def close(self, wait_s: float = 0.5) -> bool:
         """Wait (bounded) until every matched reader acknowledged everything, then close; True if
         it did (always True without the channel)."""
@@ -235,6 +241,9 @@ class FrameOutlet:
     @property
     def matched(self) -> bool:
         return self.frames.matched_count > 0
+
+    def wait_for_acknowledgments(self, timeout_s: float) -> bool:
+        return self.frames.wait_for_acknowledgments(timeout_s)
 
     def close(self, wait_s: float = 0.5) -> bool:
         acknowledged = self.frames.wait_for_acknowledgments(wait_s)
@@ -324,3 +333,48 @@ class Inlet:
             self.reader.close()
         elif self._handle is not None:
             self._handle.undeclare()
+
+
+class Draining(Protocol):
+    """What ``drain`` needs of an outlet."""
+
+    def wait_for_acknowledgments(self, timeout_s: float) -> bool: ...
+    def acknowledged_through(self) -> int | None: ...
+
+
+def drain(
+    outlets: Sequence[Draining],
+    *,
+    stall_s: float,
+    limit_s: float,
+    poll_s: float = 0.05,
+    clock: Callable[[], float] = time.monotonic,
+) -> bool:
+    """Wait until every outlet's readers acknowledged everything it wrote; True if they did.
+
+    Gives up after ``stall_s`` without any acknowledgement advancing, or after ``limit_s`` in
+    all. Why paced, not a fixed timeout: a robot that stops while the CEDDP is behind (an
+    overload with QoS control off) had samples in flight for longer than its 2 s wait, and its
+    final report queued behind them on the same link: 20 of 50 robots' final reports never
+    arrived (issue 17, benchmarks/RESULTS.md). A CEDDP that is draining keeps acknowledging, so
+    the robot waits for it; a dead one does not, so the robot stops after ``stall_s`` as before."""
+    started = last_progress = clock()
+    pending = list(outlets)
+    seen: dict[int, int | None] = {id(o): o.acknowledged_through() for o in pending}
+    while pending:
+        now = clock()
+        if now - last_progress >= stall_s or now - started >= limit_s:
+            return False
+        still: list[Draining] = []
+        for outlet in pending:
+            if outlet.wait_for_acknowledgments(poll_s / max(len(pending), 1)):
+                last_progress = clock()
+                continue
+            through = outlet.acknowledged_through()
+            before = seen[id(outlet)]
+            if through is not None and (before is None or through > before):
+                seen[id(outlet)] = through
+                last_progress = clock()
+            still.append(outlet)
+        pending = still
+    return True

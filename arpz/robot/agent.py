@@ -20,7 +20,7 @@ import msgspec
 
 from arpz import keys
 from arpz.bundling import Bundler
-from arpz.channel_io import FrameOutlet, Outlet
+from arpz.channel_io import FrameOutlet, Outlet, drain
 from arpz.config import RobotConfig
 from arpz.endpoints import frame_fragment_bytes
 from arpz.messages import (
@@ -59,6 +59,8 @@ __all__ = ["RobotAgent", "effective_sensors"]
 
 #: how long the robot waits for the CEDDP to acknowledge its final report before closing
 _FINAL_REPORT_WAIT_S = 2.0
+#: the longest a stopping robot waits for a CEDDP that keeps acknowledging its sensor samples
+_DRAIN_LIMIT_S = 30.0
 #: the watchdog's default for a simulated body's motion commands (the mission sends at 20 Hz)
 _SIM_VELOCITY_DEADLINE_S = 0.5
 
@@ -284,8 +286,23 @@ class RobotAgent:
         self.commands.close()
         self.configuration.close()
         self.actuator.stop()
+        # what the sensors sent and the CEDDP has not acknowledged yet: waited for while the
+        # CEDDP makes progress on it (an overloaded one drains for seconds), so that it arrives
+        # instead of being counted lost, and the final report is not queued behind it
+        drained = drain(
+            [sensor.output for sensor in self.sensors],
+            stall_s=_FINAL_REPORT_WAIT_S,
+            limit_s=_DRAIN_LIMIT_S,
+        )
+        if not drained:
+            log.warning(
+                "sensor samples still unacknowledged at shutdown (no progress for %.1f s, or "
+                "%.0f s in all): closing; what never arrives, the CEDDP counts lost",
+                _FINAL_REPORT_WAIT_S,
+                _DRAIN_LIMIT_S,
+            )
         for sensor in self.sensors:
-            sensor.close()
+            sensor.close(0.0)  # waited for above
         self.hello_probe.outlet.close()
         for outlet in (self._announce_out, self._ack_out, self._telemetry_out):
             if outlet is not None:

@@ -84,9 +84,10 @@ class SensorChannel:
             cache_forgets=self.cache_forgets,
         )
 
-    def close(self) -> None:
+    def close(self, wait_s: float = 0.5) -> None:
+        """Close the driver and the channel, waiting up to ``wait_s`` for acknowledgements."""
         self.driver.close()
-        self.output.close()
+        self.output.close(wait_s)
 
 
 def build_sensors(
