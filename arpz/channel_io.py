@@ -164,7 +164,7 @@ class Outlet:
             assert self.publisher is not None
             self.publisher.undeclare()
             return True
-        acknowledged = self.writer.wait_for_acknowledgments(wait_s)
+        acknowledged = self.wait_for_acknowledgments(wait_s)
         self.writer.close()
         return acknowledged
 
@@ -246,7 +246,7 @@ class FrameOutlet:
         return self.frames.wait_for_acknowledgments(timeout_s)
 
     def close(self, wait_s: float = 0.5) -> bool:
-        acknowledged = self.frames.wait_for_acknowledgments(wait_s)
+        acknowledged = self.wait_for_acknowledgments(wait_s)
         self.frames.close()
         return acknowledged
 

@@ -50,34 +50,41 @@ class LogHistogram:
     Folding a window is a handful of numpy calls whatever its length; a percentile is a
     cumulative sum over the buckets; pooling topics is adding their counts."""
 
-    __slots__ = ("counts", "high", "low")
+    __slots__ = ("counts", "high", "low", "not_numbers")
 
     def __init__(self) -> None:
         self.counts = np.zeros(_SLOTS, dtype=np.int64)
         self.low: float | None = None
         self.high: float | None = None
+        #: NaN values offered: in no bucket and no figure, but counted, never dropped silently
+        self.not_numbers = 0
 
     @property
     def total(self) -> int:
         return int(self.counts.sum())
 
     def add_values(self, values: np.ndarray) -> None:
+        """Count ``values`` (ms). An infinity goes to the outermost bucket of its sign and is
+        the exact extreme; a NaN is counted in ``not_numbers`` only."""
+        nan = np.isnan(values)
+        if nan.any():
+            self.not_numbers += int(nan.sum())
+            values = values[~nan]
         if not len(values):
             return
         low, high = float(values.min()), float(values.max())
         self.low = low if self.low is None else min(self.low, low)
         self.high = high if self.high is None else max(self.high, high)
-        if low >= LOWEST_MS:  # latencies, nearly always: every value in a positive bucket
+        if low >= LOWEST_MS and high < HIGHEST_MS:  # latencies, nearly always
             index = ((np.log(values) - _LOG_LOWEST) * _PER_LOG).astype(np.int64)
-            np.minimum(index, BUCKETS - 1, out=index)
+            np.minimum(index, BUCKETS - 1, out=index)  # rounding at the top edge
             index += _ZERO + 1
             np.add.at(self.counts, index, 1)
             return
-        magnitude = np.abs(values)
-        with np.errstate(divide="ignore"):
-            index = np.floor((np.log(magnitude) - _LOG_LOWEST) * _PER_LOG)
-        index = np.clip(np.nan_to_num(index, nan=-1.0, neginf=-1.0), -1, BUCKETS - 1)
-        index = index.astype(np.int64)
+        with np.errstate(divide="ignore"):  # log(0) is -inf: the zero bucket
+            index = np.floor((np.log(np.abs(values)) - _LOG_LOWEST) * _PER_LOG)
+        # clipped as floats, so an infinity never reaches the integer cast
+        index = np.clip(index, -1, BUCKETS - 1).astype(np.int64)
         slots = np.where(
             index < 0, _ZERO, np.where(values > 0, _ZERO + 1 + index, _ZERO - 1 - index)
         )
@@ -86,7 +93,7 @@ class LogHistogram:
     def copy(self) -> LogHistogram:
         other = LogHistogram()
         other.counts = self.counts.copy()
-        other.low, other.high = self.low, self.high
+        other.low, other.high, other.not_numbers = self.low, self.high, self.not_numbers
         return other
 
     @staticmethod
@@ -95,6 +102,7 @@ class LogHistogram:
         pooled = LogHistogram()
         for h in histograms:
             pooled.counts += h.counts
+            pooled.not_numbers += h.not_numbers
             if h.low is not None:
                 pooled.low = h.low if pooled.low is None else min(pooled.low, h.low)
             if h.high is not None:
@@ -164,6 +172,14 @@ def percentiles(values: list[float] | np.ndarray, qs: tuple[float, ...]) -> list
     return [_linear(ordered, q) for q in qs]
 
 
+def window_max(window: list[float]) -> float | None:
+    """The largest number of ``window`` (None: none): a NaN first would make ``max`` return it."""
+    top = max(window, default=None)
+    if top is not None and top != top:
+        top = max((v for v in window if v == v), default=None)
+    return top
+
+
 #: drained windows wait in a flat array until this many values (or a read) before they are
 #: folded into the histogram: a fold costs about the same for 50 values as for 4 000, and the
 #: metrics tick drains every topic's window twice a second
@@ -210,9 +226,10 @@ class Distribution:
         return window
 
     def _fold(self, window: list[float]) -> None:
-        if window:
-            top = max(window)
+        top = window_max(window)
+        if top is not None:
             self.max = top if self.max is None else max(self.max, top)
+        if window:
             self._pending.extend(window)
         if len(self._pending) >= _FOLD_AT:
             self._flush()

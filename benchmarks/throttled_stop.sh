@@ -19,10 +19,16 @@ mkdir -p "$(dirname "$wd")"
 (cd "$dir" && PYTHONPATH=$dir python -m arpz.perf fleet --robots 50 --topics 8 --rate 100 \
     --processes 4 --duration 30 --workdir "$wd" > "$wd.log" 2>&1 &)
 for _ in $(seq 1 600); do grep -q " [89]\.[0-9]/30 s" "$wd.log" 2>/dev/null && break; sleep 0.5; done
-ceddp=$(pgrep -f "arpz.ceddp --config $wd")
+ceddp=$(pgrep -f "arpz.ceddp --config $wd" | head -1)
+if [ -z "$ceddp" ]; then
+    echo "throttled_stop: no CEDDP process for $wd (see $wd.log)" >&2
+    exit 1
+fi
 echo "throttling the CEDDP (pid $ceddp) from $(date +%T)"
 throttle() { kill -STOP "$ceddp"; sleep 0.06; kill -CONT "$ceddp"; sleep 0.04; }
-while ! grep -q "stopping the robots" "$wd.log"; do throttle; done
+trap 'kill -CONT "$ceddp" 2>/dev/null' EXIT  # never leave it stopped
+give_up=$((SECONDS + 120))
+while ! grep -q "stopping the robots" "$wd.log" && [ $SECONDS -lt $give_up ]; do throttle; done
 end=$((SECONDS + 8))
 while [ $SECONDS -lt $end ]; do throttle; done
 kill -CONT "$ceddp"

@@ -19,7 +19,7 @@ from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
 from arpz.messages import RobotStats, writer_id
-from arpz.percentiles import Distribution, LogHistogram
+from arpz.percentiles import Distribution, LogHistogram, window_max
 
 #: per-robot totals: the sum of these over the robot's sensor topics (not the Hello probe)
 TOTALS = (
@@ -101,7 +101,8 @@ class Samples:
     Why: with 50 robots at 38 000 samples/s the periodic summary took 60-210 ms of wall time
     for 21-42 ms of CPU, and the fleet's p99 latency was 35-49 ms with it every 5 s against
     15 ms without (issue 17). Taking only the windows under the lock cut a robot's hold from
-    0.6 to 0.2 ms (``python benchmarks/summary_stall.py --robots 50``)."""
+    0.6 to 0.2 ms (stop 34, benchmarks/RESULTS.md; ``python benchmarks/summary_stall.py`` prints
+    today's hold)."""
 
     def __init__(self, distribution: Distribution) -> None:
         self._distribution = distribution
@@ -109,8 +110,8 @@ class Samples:
         self._histogram: LogHistogram | None = None
         #: the largest value so far, the window's included (a few hundred values at most)
         self.max = distribution.max
-        if self._window:
-            top = max(self._window)
+        top = window_max(self._window)
+        if top is not None:
             self.max = top if self.max is None else max(self.max, top)
 
     def histogram(self) -> LogHistogram:

@@ -119,3 +119,24 @@ def test_windows_wait_in_a_bounded_buffer_and_every_read_sees_them() -> None:
     d.take_window()  # over the bound: folded at once
     assert not d._pending  # the buffer was emptied by the fold
     assert d.quantiles(100) == [2.5] and d.count == d.total
+
+
+def test_infinities_and_nans_are_counted_never_a_crash() -> None:
+    """Bad input (the ingest never makes it: its values are differences of integer clocks): an
+    infinity lands in its sign's outermost bucket and is the exact extreme, a NaN is counted
+    apart; before, an infinity cast to an integer index raised IndexError in the fold."""
+    h = LogHistogram()
+    h.add_values(np.array([1.0, 2.0, np.inf]))  # the all-positive fast path
+    h.add_values(np.array([-np.inf, 0.0, np.nan, 3.0]))  # the general path
+    assert h.total == 6 and h.not_numbers == 1
+    assert h.quantiles((0.0, 100.0)) == [-np.inf, np.inf]
+    assert h.quantiles((50.0,)) == [pytest.approx(1.5, rel=RELATIVE_ERROR)]
+    pooled = LogHistogram.pooled([h, h.copy()])
+    assert pooled.total == 12 and pooled.not_numbers == 2
+    d = Distribution()
+    for value in (float("nan"), 5.0, 7.0):  # a NaN first made ``max`` return it
+        d.add(value)
+    d.take_window()
+    assert d.max == 7.0 and d.quantiles(0, 100) == [5.0, 7.0]
+    d.add(float("inf"))
+    assert d.quantiles(100) == [float("inf")] and d.max == float("inf")
