@@ -29,6 +29,7 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
+from arpz.ceddp.pacing import Pacer
 from arpz.errors import ConfigError
 from arpz.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
 from arpz.throttled_log import ThrottledLog
@@ -165,7 +166,9 @@ class Dashboard:
                     self._log_world(item)
                     continue
                 t_s = item.stamp_ns / 1e9
+                pace = Pacer()  # a frame has a row per topic: the sensor path goes first
                 for (robot, topic), metrics in item.topics.items():
+                    pace()
                     for name, value in metrics.items():
                         self._add(f"/metrics/{name}/{_part(robot)}/{_part(topic)}", t_s, value)
                 for robot, metrics in item.robots.items():
@@ -221,7 +224,9 @@ class Dashboard:
             log.exception("Rerun logging failed: %d metric rows not logged", total)
             return
         start = 0
+        pace = Pacer()  # thousands of series at 50 robots: the sensor path goes first
         for path, length in zip(pending, lengths, strict=True):
+            pace()
             try:
                 scalar_column = _Column(_SCALARS_DESCRIPTOR, scalars.slice(start, length))
                 self._rec.send_columns(

@@ -35,6 +35,7 @@ from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.intake import SensorIntake
 from arpz.ceddp.metrics import MetricsTicker
 from arpz.ceddp.mission import MissionRunner
+from arpz.ceddp.pacing import Pacer
 from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
@@ -405,7 +406,9 @@ class CeddpServer:
         with self.ingest.lock:
             names = sorted({r for r, _ in self.ingest.topics} | set(self.control.robots))
         robots = {}
+        pace = Pacer()  # 50 robots' rows take tens of ms: the sensor path goes first
         for robot in names:
+            pace()
             # the lock per robot, not for the whole fleet: a robot's counts stay consistent
             # with each other; its percentiles are computed once the lock is released
             with self.ingest.lock:
