@@ -63,13 +63,16 @@ class LogHistogram:
     def total(self) -> int:
         return int(self.counts.sum())
 
-    def add_values(self, values: np.ndarray) -> None:
-        """Count ``values`` (ms). An infinity goes to the outermost bucket of its sign and is
-        the exact extreme; a NaN is counted in ``not_numbers`` only."""
+    def add_values(self, values: np.ndarray, weights: np.ndarray | None = None) -> None:
+        """Count ``values`` (ms), each once or ``weights`` times (integers, one per value). An
+        infinity goes to the outermost bucket of its sign and is the exact extreme; a NaN is
+        counted in ``not_numbers`` only."""
         nan = np.isnan(values)
         if nan.any():
-            self.not_numbers += int(nan.sum())
+            self.not_numbers += int(weights[nan].sum()) if weights is not None else int(nan.sum())
             values = values[~nan]
+            weights = weights[~nan] if weights is not None else None
+        times = 1 if weights is None else weights.astype(np.int64)
         if not len(values):
             return
         low, high = float(values.min()), float(values.max())
@@ -79,7 +82,7 @@ class LogHistogram:
             index = ((np.log(values) - _LOG_LOWEST) * _PER_LOG).astype(np.int64)
             np.minimum(index, BUCKETS - 1, out=index)  # rounding at the top edge
             index += _ZERO + 1
-            np.add.at(self.counts, index, 1)
+            np.add.at(self.counts, index, times)
             return
         with np.errstate(divide="ignore"):  # log(0) is -inf: the zero bucket
             index = np.floor((np.log(np.abs(values)) - _LOG_LOWEST) * _PER_LOG)
@@ -88,7 +91,7 @@ class LogHistogram:
         slots = np.where(
             index < 0, _ZERO, np.where(values > 0, _ZERO + 1 + index, _ZERO - 1 - index)
         )
-        np.add.at(self.counts, slots, 1)
+        np.add.at(self.counts, slots, times)
 
     def copy(self) -> LogHistogram:
         other = LogHistogram()

@@ -147,6 +147,19 @@ class SensorIntake:
             return [None] * len(qs)
         return self.reader.backlog_ms_quantiles(*qs)
 
+    def sojourn_ms(self) -> dict[str, float | None]:
+        """The samples' time inside the CEDDP, from the router's receipt to the end of the
+        sensor path's pass that processed them, ms: p50, p99 and max over the run (upper
+        bounds, arpz.protocol.timers.SojournMeter; None on the raw path, or none measured)."""
+        if self.reader is None:
+            return {"sojourn_ms_p50": None, "sojourn_ms_p99": None, "sojourn_ms_max": None}
+        p50, p99 = self.reader.sojourn_ms_quantiles(50, 99)
+        return {
+            "sojourn_ms_p50": p50,
+            "sojourn_ms_p99": p99,
+            "sojourn_ms_max": self.reader.worst_sojourn_ms,
+        }
+
     def refused(self) -> dict[str, int]:
         """Samples refused for the mode, per robot key (channel: plain puts; raw: headed)."""
         if self.reader is not None:

@@ -439,6 +439,9 @@ class CeddpServer:
                         strict=True,
                     )
                 ),
+                # each sample's time inside the CEDDP, router to processed (upper bounds): a
+                # p99 latency above it is spent on the robots, the link or the router's threads
+                **self.intake.sojourn_ms(),
                 "channel": reader_stats,
                 "frames": frames_stats,
                 "unknown_keys": self.ingest.counters.unknown_keys,

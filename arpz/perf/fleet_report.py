@@ -127,6 +127,11 @@ class CeddpFigures:
     #: summary's): far below the robots' p99 latency, the latency was spent before the router
     #: took the sample in (the robots, the link, the router's receive threads)
     ingest_backlog_ms_p99: float | None = None
+    #: each sample's time inside the CEDDP, from the router's receipt to the end of the sensor
+    #: path's pass that processed it, p99 and max over the run (upper bounds; the summary's
+    #: ingest.sojourn_ms_*): the CEDDP's own share of the robots' latency
+    sojourn_ms_p99: float | None = None
+    sojourn_ms_max: float | None = None
     latency_ms_max: float | None = None
     #: the sensor reader's NACKs and the samples it received twice (a resend of what had come):
     #: on a link that loses nothing, every NACK asked for what was only queued
@@ -287,6 +292,8 @@ def ceddp_figures(
         capacity_hz=own.get("capacity_hz"),
         ingest_backlog_ms_max=backlog,
         ingest_backlog_ms_p99=_num(summary.get("ingest") or {}, "backlog_ms_p99"),
+        sojourn_ms_p99=_num(summary.get("ingest") or {}, "sojourn_ms_p99"),
+        sojourn_ms_max=_num(summary.get("ingest") or {}, "sojourn_ms_max"),
     )
 
 
@@ -498,7 +505,8 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
             f"duplicates {_fmt(c.ingest_duplicates, 'd')}, sensor path busy (max) "
             f"{_fmt(c.ingest_load_max)}, ingest backlog (max) "
             f"{_fmt(c.ingest_backlog_ms_max)} ms (p99 {_fmt(c.ingest_backlog_ms_p99)} ms), "
-            "dashboard frames dropped "
+            f"time in the CEDDP p99 {_fmt(c.sojourn_ms_p99)} ms (max {_fmt(c.sojourn_ms_max)} "
+            "ms), dashboard frames dropped "
             f"{_fmt(c.dashboard_dropped, 'd')}, CPU per sample "
             f"{_fmt(c.cpu_us_per_sample, '.0f')} us"
         )

@@ -30,7 +30,7 @@ import msgspec
 from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.protocol.events import DataInfo
 from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import BacklogMeter, WaitMeter
+from arpz.protocol.timers import BacklogMeter, SojournMeter, WaitMeter
 from arpz.protocol.writer_machine import WriterMachine
 from arpz.throttled_log import ThrottledLog
 from arpz.transport import Handle, PullSubscriber, Transport, TransportError
@@ -186,6 +186,9 @@ class Channel:
         #: how long the oldest message of each pull had waited in the transport's queue (the
         #: reader's backlog in time; arpz.transport.PullSubscriber.waited_ns)
         self.delivery_backlog = BacklogMeter()
+        #: how long each delivered sample had been in this process when its pass ended (an
+        #: upper bound: the pass's oldest sample's figure; arpz.protocol.timers.SojournMeter)
+        self.delivery_sojourn = SojournMeter()
         self._delivery: threading.Thread | None = None
         if self._pulls:
             self._delivery = threading.Thread(target=self._run_delivery, name=name, daemon=True)
@@ -268,7 +271,8 @@ class Channel:
         pull, handler = self._pull, self._pull_handler
         assert pull is not None and handler is not None
         recv, try_recv, waited_ns = pull.recv, pull.try_recv, pull.waited_ns
-        wait, backlog = self.delivery_wait, self.delivery_backlog
+        wait, backlog, sojourn = self.delivery_wait, self.delivery_backlog, self.delivery_sojourn
+        since = time.perf_counter_ns
         reader = self.machine if isinstance(self.machine, ReaderMachine) else None
         clock = self.machine.clock.monotonic_s
         while True:
@@ -290,8 +294,11 @@ class Channel:
                     wait.stop()
                     if reader is not None:  # more may be queued behind it
                         reader.drained_s = clock()
+                    waited = waited_ns()
                 else:  # it queued while we worked: how long is our backlog, in time
-                    backlog.observe(waited_ns())
+                    waited = waited_ns()
+                    backlog.observe(waited)
+                taken_at = since()
                 items = [first]
             except TransportError:  # undeclared by close() and drained, or the session went away
                 wait.stop()
@@ -340,6 +347,8 @@ class Channel:
                 self._turns.run(ticket, self._perform_here, out)
             elif out:
                 self._perform_here(out)
+            # the pass's oldest sample: its wait before the pull, and the pass since
+            sojourn.observe(None if waited is None else waited + since() - taken_at, len(items))
 
     def _ticket(self, actions: list[Action]) -> int | None:
         """Lock held: a turn for a pass that delivers (a reader with a delivery thread only)."""

@@ -92,6 +92,17 @@ class Reader(Endpoint):
         such pull, or none the transport could time)."""
         return self._channel.delivery_backlog.quantiles_ms(*qs)
 
+    def sojourn_ms_quantiles(self, *qs: float) -> list[float | None]:
+        """Percentiles over every delivered sample of its time in this process, from the
+        transport's receipt to the end of its delivery pass, ms (an upper bound per sample:
+        arpz.protocol.timers.SojournMeter; None: none measured, or inline delivery)."""
+        return self._channel.delivery_sojourn.quantiles_ms(*qs)
+
+    @property
+    def worst_sojourn_ms(self) -> float | None:
+        """The longest such time since the reader started, ms (None as above)."""
+        return self._channel.delivery_sojourn.worst_ms
+
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""
         with self._channel.lock:

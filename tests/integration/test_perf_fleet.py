@@ -92,6 +92,10 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
     p99 = ceddp["ingest_backlog_ms_p99"]
     assert p99 is None or 0.0 <= p99 < 10_000, ceddp
     assert "ingest_backlog" not in doc["unavailable"], doc["unavailable"]
+    # every sample's time inside the CEDDP, router to processed (summary.json, upper bounds)
+    sojourn_p99, sojourn_max = ceddp["sojourn_ms_p99"], ceddp["sojourn_ms_max"]
+    assert sojourn_p99 is not None and sojourn_max is not None, ceddp
+    assert 0.0 < sojourn_p99 <= sojourn_max * 1.01 < 10_000, ceddp
     with out_csv.open(newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert sorted(r["robot"] for r in rows) == sorted(robots)

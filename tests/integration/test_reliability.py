@@ -428,6 +428,21 @@ def test_a_reader_s_backlog_counts_from_the_router_s_receipt() -> None:
     assert p99 is not None and 0 < p99 <= waited
 
 
+def test_a_sample_s_time_in_the_reader_counts_its_delivery_pass_too() -> None:
+    """The sojourn counts from the router's receipt to the end of the pass that delivered the
+    sample: the first sample waited for nothing but its pass took 0.3 s (a busy ``on_data``),
+    which the backlog (the wait at the pull) cannot see. Through a real router."""
+    slow = SlowFirstDelivery(busy_s=0.3)
+    with _across_a_router("t/sojourn", QOS_RELIABLE_ALL, slow) as (reader, writer):
+        slow.queue_behind(writer.write)
+        worst = reader.worst_sojourn_ms
+        p50, p99 = reader.sojourn_ms_quantiles(50, 99)
+    assert worst is not None and 300 <= worst < 5000, worst
+    # six samples: the first (its pass 0.3 s) and five that waited behind it (about 0.3 s)
+    assert p50 is not None and p99 is not None
+    assert 150 <= p50 <= p99 <= worst * 1.01, (p50, p99, worst)
+
+
 def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
     """With the router's timestamping turned off its samples carry no timestamp: the reader
     cannot tell how long they queued, and says so (None) rather than "no backlog"."""
@@ -439,3 +454,5 @@ def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
         assert reader.take_backlog_ms() is None
         assert reader.worst_backlog_ms is None
         assert reader.backlog_ms_quantiles(50, 99) == [None, None]
+        assert reader.sojourn_ms_quantiles(50, 99) == [None, None]
+        assert reader.worst_sojourn_ms is None

@@ -140,3 +140,19 @@ def test_infinities_and_nans_are_counted_never_a_crash() -> None:
     assert d.max == 7.0 and d.quantiles(0, 100) == [5.0, 7.0]
     d.add(float("inf"))
     assert d.quantiles(100) == [float("inf")] and d.max == float("inf")
+
+
+def test_weighted_values_count_as_that_many_equal_values() -> None:
+    rng = np.random.default_rng(7)
+    values = rng.lognormal(0.0, 1.0, 300)
+    weights = rng.integers(1, 40, 300)
+    weighted = LogHistogram()
+    weighted.add_values(values, weights)
+    repeated = LogHistogram()
+    repeated.add_values(np.repeat(values, weights))
+    assert weighted.total == int(weights.sum())
+    assert np.array_equal(weighted.counts, repeated.counts)
+    assert weighted.quantiles((50, 99)) == repeated.quantiles((50, 99))
+    nan = LogHistogram()
+    nan.add_values(np.array([1.0, float("nan")]), np.array([3, 5]))
+    assert (nan.total, nan.not_numbers) == (3, 5)

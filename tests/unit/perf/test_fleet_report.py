@@ -222,6 +222,15 @@ def test_the_ingest_backlog_comes_from_the_ceddp_s_reports_else_its_summary() ->
     assert "ingest_backlog" in unavailable([reported, silent])
 
 
+def test_the_time_in_the_ceddp_comes_from_its_summary() -> None:
+    rows = _rows(1)
+    ingest = {"sojourn_ms_p50": 0.8, "sojourn_ms_p99": 9.5, "sojourn_ms_max": 61.0}
+    figures = ceddp_figures(0, {**_summary({}), "ingest": ingest}, rows, None, 1.0, None)
+    assert (figures.sojourn_ms_p99, figures.sojourn_ms_max) == (9.5, 61.0)
+    silent = ceddp_figures(0, _summary({}), rows, None, 1.0, None)
+    assert silent.sojourn_ms_p99 is None and silent.sojourn_ms_max is None
+
+
 def test_per_sample_cpu() -> None:
     assert per_sample_us(0.5, 10.0, 5000) == 1000.0
     assert per_sample_us(None, 10.0, 5000) is None
