@@ -7,6 +7,7 @@ docs/qos-optimiser.md). Exit codes: 0 clean stop, 1 runtime failure, 2 bad confi
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import socket
 import sys
@@ -101,6 +102,18 @@ def connect_hint(listen: list[str]) -> str:
     return ",".join(hints)
 
 
+def freeze_start_up() -> None:
+    """Keep what start-up allocated (the modules of numpy, cvxpy, rerun and zenoh, the server's
+    own structures: about 67 000 objects at 50 robots) out of the garbage collector's full
+    passes, which walk every tracked object with the GIL held and stop the sensor path meanwhile.
+    At 50 robots x 8 topics x 100 Hz a full pass during the load took 40-55 ms of CPU (50-105 ms
+    of wall time) without, 10-12 ms (about 22 ms) with (issue 17, benchmarks/RESULTS.md, stop
+    36). Start-up objects live as long as the process: freezing them frees nothing the collector
+    would have freed."""
+    gc.collect()
+    gc.freeze()
+
+
 def serve(argv: list[str] | None) -> int:
     args = parse_args(argv)
     configure_logging(args.log_level)
@@ -147,6 +160,7 @@ def serve(argv: list[str] | None) -> int:
         except ConfigError as exc:  # a live view's port in use (docs/tools.md "Live views")
             print(f"arpz ceddp: error: bad configuration: {exc}", file=sys.stderr)
             return 2
+        freeze_start_up()
         print(
             f"arpz ceddp: ready on {','.join(config.listen)} (fleet {config.fleet!r}, "
             f"rrd {config.rrd}); robots: --connect {connect_hint(config.listen)} "
