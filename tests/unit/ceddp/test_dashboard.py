@@ -4,6 +4,7 @@ shared by all series, so an offset off by one would move values between series).
 
 from __future__ import annotations
 
+import time
 from pathlib import Path
 from typing import Any
 
@@ -12,6 +13,7 @@ from rerun.chunk import RrdReader
 
 from arpz.ceddp.dashboard import Dashboard
 from arpz.frames import TIMELINE, MetricsFrame
+from tests.support import wait_until
 
 T0_NS = 1_700_000_000_000_000_000
 
@@ -68,3 +70,17 @@ def test_a_bad_value_is_logged_and_the_dashboard_goes_on(
         "/metrics/rate_hz/robot1": [(T0_NS + 10**9, 5.0)],
         "/metrics/cpu_percent/robot1": [(T0_NS, 7.0)],
     }
+
+
+def test_the_first_flush_comes_half_a_period_after_start(tmp_path: Path) -> None:
+    """Half a period out of phase with the summary the CEDDP persists every period from its
+    start, and on time even when no frame arrives to wake the dashboard's thread."""
+    started = time.monotonic()
+    dashboard = Dashboard(tmp_path / "ceddp.rrd", flush_period_s=4.0)
+    try:
+        dashboard.submit(MetricsFrame(T0_NS, robots={"robot1": {"cpu_percent": 1.0}}))
+        wait_until(lambda: dashboard.logged_rows == 1, timeout_s=10, what="the first flush")
+        took = time.monotonic() - started
+    finally:
+        dashboard.close()
+    assert 1.5 <= took < 3.5, took  # half of 4 s, not the whole period
