@@ -213,12 +213,13 @@ class SojournMeter:
     router is this process, a CEDDP) until every sample of the pass had been handed to
     ``on_data`` and it had returned. The server's own share of a sample's latency, which an
     end-to-end percentile cannot tell from the robots' CPU and the link: at 50 robots on one
-    2-core host the CEDDP's queue wait at each pull (``BacklogMeter``) said 4-7 ms at p99
-    while the samples' time inside the CEDDP was 25-40 ms at p99 (issue 17, stop 36).
+    2-core host the CEDDP's queue wait at each pull (``BacklogMeter``) said 3-13 ms at p99
+    while the samples' time inside the CEDDP was 17-58 ms at p99 (issue 17, stop 36).
 
-    Every sample of a pass counts with the pass's oldest sample's figure: an upper bound of
-    each one's, read once per pass (a timestamp read per sample would cost the sensor path
-    about 1 us a sample). The delivery thread observes; any thread reads, under the lock."""
+    Every message of a pass (a sample, or a writer's batch of them) counts with the pass's
+    oldest one's figure: an upper bound of each one's, read once per pass (a timestamp read per
+    message would cost the sensor path about 1 us each). The delivery thread observes; any
+    thread reads, under the lock."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()

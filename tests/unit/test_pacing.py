@@ -60,22 +60,23 @@ def test_a_paced_loop_lets_a_waiting_thread_run_sooner() -> None:
             if pace is not None:
                 pace()
 
-    def worst_wait(pace: Pacer | None) -> float:
+    def typical_wait(pace: Pacer | None) -> float:
         started = threading.Event()
         worker = threading.Thread(target=busy, args=(pace, started, 0.2))
         worker.start()
         started.wait(5)
-        worst = 0.0
+        waits: list[float] = []
         while worker.is_alive():
             before = time.perf_counter()
             time.sleep(0.001)  # gives up the GIL; taking it back waits for the loop to yield
-            worst = max(worst, time.perf_counter() - before - 0.001)
+            waits.append(time.perf_counter() - before - 0.001)
         worker.join(5)
-        return worst
+        # the median: a scheduling hiccup of a loaded host moves the worst, not the typical
+        return sorted(waits)[len(waits) // 2] if waits else 0.0
 
-    unpaced = min(worst_wait(None) for _ in range(5))
-    paced = min(worst_wait(Pacer()) for _ in range(5))
+    unpaced = min(typical_wait(None) for _ in range(3))
+    paced = min(typical_wait(Pacer()) for _ in range(3))
     # unpaced, the waiter gets the GIL only when CPython's switch interval (5 ms) forces the
-    # loop out (5.2-5.4 ms here); paced, within about a yield (0.5-1.8 ms here)
+    # loop out; paced, within about a yield (0.5 ms)
     assert unpaced >= 0.8 * sys.getswitchinterval()
     assert paced < 0.6 * unpaced
