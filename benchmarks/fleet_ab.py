@@ -1,13 +1,16 @@
 """A/B of the fleet load test: another checkout against this one, runs alternating.
 
     python benchmarks/fleet_ab.py BASE [--this CHECKOUT] [--rounds 3] [-- perf fleet arguments]
+    python benchmarks/fleet_ab.py . --base-extra="--robot-phases aligned"   # an option's A/B
 
 Runs ``python -m arpz.perf fleet`` (default ``--robots 50 --topics 8 --rate 100 --processes 4
 --duration 20``) from BASE (a ``git worktree`` at the commit before a change) and from this
 checkout (or ``--this``) in turn, ``--rounds`` times each, so that both sides see the same slow
-and fast windows of a shared host; prints each run's figures and the medians of each side with their
-ratio (this / base). The CEDDP's time per sample ("time in the CEDDP", summary.json
-``ingest.sojourn_ms_*``) is printed where the checkout measures it (n/a before stop 36).
+and fast windows of a shared host (``--base-extra`` / ``--this-extra``: arguments added to
+one side only, for the A/B of an option in one checkout); prints each run's figures and the
+medians of each side with their ratio (this / base). The CEDDP's time per sample ("time in the
+CEDDP", summary.json ``ingest.sojourn_ms_*``) is printed where the checkout measures it (n/a
+before stop 36).
 """
 
 from __future__ import annotations
@@ -69,17 +72,23 @@ def main() -> int:
     ap.add_argument("base", type=Path, help="the other checkout (a git worktree)")
     ap.add_argument("--this", type=Path, default=HERE, help="the checkout under test (this one)")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--base-extra", default="", help="perf fleet arguments of the base only")
+    ap.add_argument("--this-extra", default="", help="perf fleet arguments of this side only")
     ap.add_argument("fleet_args", nargs="*", help="after --: arguments of perf fleet")
     opts = ap.parse_args()
     args = opts.fleet_args or DEFAULT
     sides = {"base": opts.base.resolve(), "this": opts.this.resolve()}
     docs: dict[str, list[dict[str, Any]]] = {"base": [], "this": []}
     out = Path(tempfile.mkdtemp(prefix="fleet-ab-"))
-    print(f"fleet_ab: perf fleet {' '.join(args)}; base {sides['base']}, this {sides['this']}")
+    print(
+        f"fleet_ab: perf fleet {' '.join(args)}; base {sides['base']} {opts.base_extra}, "
+        f"this {sides['this']} {opts.this_extra}"
+    )
     for round_ in range(1, opts.rounds + 1):
         for side, checkout in sides.items():
             started = time.monotonic()
-            doc = run(checkout, args, out / f"{side}{round_}.json")
+            extra = (opts.base_extra if side == "base" else opts.this_extra).split()
+            doc = run(checkout, args + extra, out / f"{side}{round_}.json")
             docs[side].append(doc)
             took = time.monotonic() - started
             print(f"round {round_}/{opts.rounds} ({took:.0f} s) " + show(side, doc), flush=True)

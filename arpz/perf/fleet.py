@@ -60,6 +60,8 @@ FLEET = "perf"
 
 #: how a worker process runs its robots' periodic jobs (``--robot-threads``)
 ROBOT_THREADS = ("shared", "own")
+#: when each robot's periodic jobs start after the go (``--robot-phases``)
+ROBOT_PHASES = ("spread", "aligned")
 
 
 class FleetArgumentError(ArpzError, ValueError):
@@ -91,6 +93,10 @@ class FleetOptions:
     #: "shared": one thread of each worker runs all its robots' periodic jobs; "own": a
     #: thread per robot, as ``RobotAgent.run`` (see ``arpz.perf.fleet_worker``)
     robot_threads: str = "shared"
+    #: "spread": robot i of N starts i/N of a sensing period after the go, so the fleet's
+    #: ticks are spread over the period as independent robots' are; "aligned": all at the go
+    #: (in lockstep within a worker process, an artefact of packing robots into one)
+    robot_phases: str = "spread"
 
 
 def check_options(o: FleetOptions) -> None:
@@ -114,6 +120,10 @@ def check_options(o: FleetOptions) -> None:
     if o.robot_threads not in ROBOT_THREADS:
         raise FleetArgumentError(
             f"--robot-threads must be one of {', '.join(ROBOT_THREADS)}, got {o.robot_threads!r}"
+        )
+    if o.robot_phases not in ROBOT_PHASES:
+        raise FleetArgumentError(
+            f"--robot-phases must be one of {', '.join(ROBOT_PHASES)}, got {o.robot_phases!r}"
         )
     if not 0 <= o.robot_nice <= 19:
         raise FleetArgumentError(f"--robot-nice must be 0..19, got {o.robot_nice}")
@@ -223,9 +233,21 @@ def worker_plan(
         "go_file": str(workdir / "go"),
         "nice": o.robot_nice,
         "robot_threads": o.robot_threads,
+        "phases_s": robot_phases(o, list(where)),
         "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
     }
     return plan, where
+
+
+def robot_phases(o: FleetOptions, robots: list[str]) -> dict[str, float]:
+    """Robot -> seconds after the go its periodic jobs start: spread evenly over one sensing
+    period (``--robot-phases spread``), or all 0. Robots packed into one process and released
+    by one go file otherwise tick in lockstep, and the CEDDP receives the fleet's samples in
+    bursts every period that independent robots would not send."""
+    if o.robot_phases == "aligned":
+        return {robot: 0.0 for robot in robots}
+    period_s = 1.0 / o.rate_hz
+    return {robot: period_s * i / len(robots) for i, robot in enumerate(robots)}
 
 
 # ------------------------------------------------------------------------------ /proc sampling
@@ -535,6 +557,13 @@ def add_fleet_parser(sub: Any) -> None:
         "sensing ticks; own: a thread per robot, whose GIL convoy halved what 50 robots sent",
     )
     f.add_argument(
+        "--robot-phases",
+        choices=ROBOT_PHASES,
+        default="spread",
+        help="spread (default): the robots' ticks spread evenly over a sensing period, as "
+        "independent robots' are; aligned: all robots tick in lockstep from the go",
+    )
+    f.add_argument(
         "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"
     )
     f.add_argument(
@@ -585,6 +614,7 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         bundles=not args.no_bundles,
         heartbeat_backoff=args.heartbeat_backoff,
         robot_threads=args.robot_threads,
+        robot_phases=args.robot_phases,
     )
     check_options(options)
     return options

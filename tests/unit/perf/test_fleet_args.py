@@ -16,6 +16,7 @@ from arpz.perf.fleet import (
     check_options,
     parse_sweep,
     placement,
+    robot_phases,
     worker_plan,
 )
 from arpz.perf.fleet_watch import ceddp_of
@@ -33,6 +34,7 @@ from arpz.perf.fleet_watch import ceddp_of
         ({"depth": 0}, "--depth must be >= 1"),
         ({"robot_nice": 20}, "--robot-nice must be 0..19"),
         ({"robot_threads": "many"}, "--robot-threads must be one of shared, own"),
+        ({"robot_phases": "random"}, "--robot-phases must be one of spread, aligned"),
         ({"heartbeat_ms": 0.0}, "--heartbeat-ms must be > 0"),
         ({"heartbeat_backoff": 0}, "--heartbeat-backoff must be 1..64"),
         ({"heartbeat_backoff": 65}, "--heartbeat-backoff must be 1..64"),
@@ -110,3 +112,11 @@ def test_a_self_report_is_attributed_by_its_robots() -> None:
     assert ceddp_of([Rate("c1-r004")]) == 1
     assert ceddp_of([Rate("robot1"), Rate("c0-r001")]) == 0
     assert ceddp_of([]) is None
+
+
+def test_robot_phases_spread_the_fleet_over_one_sensing_period() -> None:
+    robots = [f"r{i}" for i in range(4)]
+    spread = robot_phases(FleetOptions(robots=4, rate_hz=50.0), robots)
+    assert spread == {"r0": 0.0, "r1": 0.005, "r2": 0.01, "r3": 0.015}
+    aligned = robot_phases(FleetOptions(robots=4, robot_phases="aligned"), robots)
+    assert set(aligned.values()) == {0.0}
