@@ -115,11 +115,13 @@ def test_fleet_point_aggregates_and_flags_a_generator_limited_run() -> None:
     assert point.delivered_ratio == 0.5 and point.generator_limited
     assert point.latency_ms_p50 == pytest.approx(1.125)  # the median robot's p50
     assert point.latency_ms_p99 == 6.0
+    assert point.latency_ms_p99_median_robot == 4.5  # robots' p99 3, 4, 5 and 6 ms
     assert point.ceddp_cpu_cores == 0.5 and point.ceddp_rss_mb == 120
     assert point.reconciled and point.failures == []
     text = format_run(point, [ceddp], rows)
     assert "reconciled: sent == delivered + lost for all 4 robots" in text
     assert "GENERATOR-LIMITED" in text
+    assert "p99 (worst robot) 6.00 ms (median robot 4.50 ms)" in text
 
 
 def test_a_run_that_does_not_reconcile_prints_failed() -> None:
