@@ -175,7 +175,7 @@ class FleetPoint:
     clock_corrected: bool = False
     clock_offset_ms_max: float | None = None
     #: the median robot's p99: beside the worst robot's, whether the fleet's tail is every
-    #: robot's or a few robots' (at 50 robots one robot's 77 ms against a median of 11)
+    #: robot's or a few robots' (at 50 robots one robot's 77 ms against a median of 13)
     latency_ms_p99_median_robot: float | None = None
 
 
