@@ -93,9 +93,10 @@ class FleetOptions:
     #: "shared": one thread of each worker runs all its robots' periodic jobs; "own": a
     #: thread per robot, as ``RobotAgent.run`` (see ``arpz.perf.fleet_worker``)
     robot_threads: str = "shared"
-    #: "spread": robot i of N starts i/N of a sensing period after the go, so the fleet's
-    #: ticks are spread over the period as independent robots' are; "aligned": all at the go
-    #: (in lockstep within a worker process, an artefact of packing robots into one)
+    #: "spread": robot i of N runs each periodic job first i/N of the job's period after the
+    #: go, so the fleet's ticks, reports, probes and clock exchanges are spread over their
+    #: periods as independent robots' are; "aligned": all at the go (in lockstep within a
+    #: worker process, and every report of the fleet in the same instant every second)
     robot_phases: str = "spread"
 
 
@@ -233,21 +234,20 @@ def worker_plan(
         "go_file": str(workdir / "go"),
         "nice": o.robot_nice,
         "robot_threads": o.robot_threads,
-        "phases_s": robot_phases(o, list(where)),
+        "phases": robot_phases(o, list(where)),
         "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
     }
     return plan, where
 
 
 def robot_phases(o: FleetOptions, robots: list[str]) -> dict[str, float]:
-    """Robot -> seconds after the go its periodic jobs start: spread evenly over one sensing
-    period (``--robot-phases spread``), or all 0. Robots packed into one process and released
-    by one go file otherwise tick in lockstep, and the CEDDP receives the fleet's samples in
-    bursts every period that independent robots would not send."""
+    """Robot -> the fraction of each of its jobs' periods after the go at which the job first
+    runs (``RobotAgent.stagger_jobs``): i/N (``--robot-phases spread``), or all 0. Robots
+    packed into one process and released by one go file otherwise tick in lockstep and report
+    together every second: the CEDDP gets bursts that independent robots would not send."""
     if o.robot_phases == "aligned":
         return {robot: 0.0 for robot in robots}
-    period_s = 1.0 / o.rate_hz
-    return {robot: period_s * i / len(robots) for i, robot in enumerate(robots)}
+    return {robot: i / len(robots) for i, robot in enumerate(robots)}
 
 
 # ------------------------------------------------------------------------------ /proc sampling
@@ -560,8 +560,8 @@ def add_fleet_parser(sub: Any) -> None:
         "--robot-phases",
         choices=ROBOT_PHASES,
         default="spread",
-        help="spread (default): the robots' ticks spread evenly over a sensing period, as "
-        "independent robots' are; aligned: all robots tick in lockstep from the go",
+        help="spread (default): each robot's periodic jobs (ticks, reports, probes) start at "
+        "its own phase of their periods, as independent robots' do; aligned: all at the go",
     )
     f.add_argument(
         "--heartbeat-ms", type=float, help="sensor writers' heartbeat period (default 100)"

@@ -63,17 +63,10 @@ def _parallel(jobs: dict[str, Any], what: str) -> list[str]:
     return errors
 
 
-def run_together(
-    agents: dict[str, RobotAgent],
-    stop: threading.Event,
-    errors: list[str],
-    phases_s: dict[str, float] | None = None,
-) -> None:
+def run_together(agents: dict[str, RobotAgent], stop: threading.Event, errors: list[str]) -> None:
     """Run the periodic jobs (sensing ticks, reports, probes) of all ``agents`` (name -> agent)
-    on this one thread until ``stop``, each robot's at its own times as its ``run`` would,
-    robot ``name``'s from ``phases_s[name]`` seconds after the call (its jobs, overdue since
-    start-up, re-align to their first run). A robot whose job raises is reported in ``errors``
-    and left out; the others go on.
+    on this one thread until ``stop``, each robot's at its own times as its ``run`` would. A
+    robot whose job raises is reported in ``errors`` and left out; the others go on.
 
     Why not a thread per robot (``--robot-threads own``): on real hardware each robot has its
     own CPU, but a worker packs a dozen robots into one process and one GIL, and a dozen
@@ -83,18 +76,9 @@ def run_together(
     0.96 of it at 1.0-1.2 cores (issue 17; benchmarks/RESULTS.md). Every job is still the real
     agent's: its sensors, local cache, channel writers, bundles and session."""
     running = dict(agents)
-    started = time.monotonic()
-    begins = {name: started + phase for name, phase in (phases_s or {}).items() if phase > 0}
     while running and not stop.is_set():
         wait_s = float("inf")
         for name, agent in list(running.items()):
-            begin = begins.get(name)
-            if begin is not None:  # not started yet
-                now = time.monotonic()
-                if now < begin:
-                    wait_s = min(wait_s, begin - now)
-                    continue
-                del begins[name]
             try:
                 wait_s = min(wait_s, agent.run_due())
             except Exception as exc:
@@ -103,13 +87,6 @@ def run_together(
                 del running[name]
         if wait_s > 0:
             stop.wait(min(wait_s, 0.05))
-
-
-def _run_from(agent: RobotAgent, stop: threading.Event, phase_s: float) -> None:
-    """``agent.run`` on a thread of its own, from ``phase_s`` after the call."""
-    if phase_s > 0 and stop.wait(phase_s):
-        return
-    agent.run(stop)
 
 
 def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, Any]:
@@ -138,20 +115,19 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         while not go_file.exists() and not stop.is_set():
             time.sleep(0.01)
         started = time.monotonic()
-        phases_s: dict[str, float] = plan.get("phases_s") or {}
+        # each robot's jobs at its own phase of their periods (``--robot-phases``): released
+        # together they would run in lockstep, every report of the fleet in the same instant
+        phases: dict[str, float] = plan.get("phases") or {}
+        for name, agent in agents.items():
+            agent.stagger_jobs(phases.get(name, 0.0))
         if plan.get("robot_threads", "shared") == "shared":
-            together = (agents, stop, errors, phases_s)
+            together = (agents, stop, errors)
             threads = [
                 threading.Thread(target=run_together, args=together, name="robots", daemon=True)
             ]
         else:
             threads = [
-                threading.Thread(
-                    target=_run_from,
-                    args=(agent, stop, phases_s.get(name, 0.0)),
-                    name=f"robot-{name}",
-                    daemon=True,
-                )
+                threading.Thread(target=agent.run, args=(stop,), name=f"robot-{name}", daemon=True)
                 for name, agent in agents.items()
             ]
         for thread in threads:

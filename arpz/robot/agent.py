@@ -269,6 +269,13 @@ class RobotAgent:
         tick = self.bundler.collect if self.bundler is not None else None
         self.scheduler.run(stop, self._now_s, end_s=end_s, on_late=self._count_late, tick=tick)
 
+    def stagger_jobs(self, fraction: float) -> None:
+        """Next run each periodic job ``fraction`` (0..1) of its period from now (``Scheduler.
+        stagger``): for a load generator that releases its robots together (``python -m
+        arpz.perf fleet``), so that their sensing ticks, reports, probes and clock exchanges are
+        spread over each period as independent robots' are."""
+        self.scheduler.stagger(self._now_s(), fraction)
+
     def run_due(self) -> float:
         """Run the periodic jobs due now, as ``run`` does, without waiting; seconds until the
         next is due. For a load generator that drives several robots from one thread (the

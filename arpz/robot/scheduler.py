@@ -52,6 +52,16 @@ class Scheduler:
         heapq.heappush(self._jobs, job)
         return job
 
+    def stagger(self, now_s: float, fraction: float) -> None:
+        """Next run every job ``fraction`` (0..1) of its own period after ``now_s``: robots
+        started in the same instant (a load generator's) would otherwise tick, report, probe and
+        sync their clocks in the same instant every period, for as long as they run."""
+        if not 0.0 <= fraction < 1.0:
+            raise ValueError(f"fraction must be in [0, 1), got {fraction}")
+        for job in self._jobs:
+            job.due_s = now_s + fraction * job.period_s
+        heapq.heapify(self._jobs)
+
     def run(
         self,
         stop: threading.Event,

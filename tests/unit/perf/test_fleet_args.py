@@ -114,9 +114,9 @@ def test_a_self_report_is_attributed_by_its_robots() -> None:
     assert ceddp_of([]) is None
 
 
-def test_robot_phases_spread_the_fleet_over_one_sensing_period() -> None:
+def test_robot_phases_spread_the_fleet_over_each_job_s_period() -> None:
     robots = [f"r{i}" for i in range(4)]
-    spread = robot_phases(FleetOptions(robots=4, rate_hz=50.0), robots)
-    assert spread == {"r0": 0.0, "r1": 0.005, "r2": 0.01, "r3": 0.015}
+    spread = robot_phases(FleetOptions(robots=4), robots)
+    assert spread == {"r0": 0.0, "r1": 0.25, "r2": 0.5, "r3": 0.75}
     aligned = robot_phases(FleetOptions(robots=4, robot_phases="aligned"), robots)
     assert set(aligned.values()) == {0.0}

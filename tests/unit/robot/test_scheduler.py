@@ -112,3 +112,20 @@ def test_run_due_runs_what_is_due_and_says_when_the_next_is() -> None:
     assert b.run_due(0.005) == pytest.approx(0.03) and runs[-1] == ("b", 0.005)
     assert a.run_due(0.012) == pytest.approx(0.02) and runs[-1] == ("a", 0.012)
     assert Scheduler().run_due(1.0) == float("inf")
+
+
+def test_stagger_puts_every_job_at_its_fraction_of_its_own_period() -> None:
+    scheduler = Scheduler()
+    runs: list[tuple[str, float]] = []
+    fast = scheduler.every(0.01, lambda now: runs.append(("fast", now)), "tick")
+    slow = scheduler.every(1.0, lambda now: runs.append(("slow", now)), "stats")
+    scheduler.stagger(5.0, 0.25)
+    assert (fast.due_s, slow.due_s) == (5.0025, 5.25)
+    # nothing is due before the fast job's phase, and neither job counts as late
+    late: list[tuple[Job, int]] = []
+    assert scheduler.run_due(5.002, on_late=lambda job, n: late.append((job, n))) == 5.0025
+    assert runs == []
+    scheduler.run_due(5.0025, on_late=lambda job, n: late.append((job, n)))
+    assert runs == [("fast", 5.0025)] and late == []
+    with pytest.raises(ValueError, match="fraction"):
+        scheduler.stagger(0.0, 1.0)
