@@ -66,7 +66,15 @@ class LogHistogram:
     def add_values(self, values: np.ndarray, weights: np.ndarray | None = None) -> None:
         """Count ``values`` (ms), each once or ``weights`` times (integers, one per value). An
         infinity goes to the outermost bucket of its sign and is the exact extreme; a NaN is
-        counted in ``not_numbers`` only."""
+        counted in ``not_numbers`` only. Weights of another length than the values, or a
+        negative one (which would take counts away), raise ``ValueError``."""
+        if weights is not None and (
+            len(weights) != len(values) or (len(weights) and int(weights.min()) < 0)
+        ):
+            raise ValueError(
+                f"weights must be {len(values)} non-negative counts, got {len(weights)} "
+                f"(smallest {weights.min() if len(weights) else None})"
+            )
         nan = np.isnan(values)
         if nan.any():
             self.not_numbers += int(weights[nan].sum()) if weights is not None else int(nan.sum())

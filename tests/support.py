@@ -113,3 +113,30 @@ def client(endpoint: str) -> Iterator[ZenohTransport]:
         yield transport
     finally:
         transport.close()
+
+
+def gil_waits_ms(pace: Callable[[], None] | None, seconds: float) -> list[float]:
+    """While a pure-Python loop runs for ``seconds`` on another thread (calling ``pace`` at each
+    step, e.g. an ``arpz.ceddp.pacing.Pacer``), how long this thread waits, each time, to get
+    the GIL back after giving it up for 1 ms (ms, in order). Stands for the CEDDP's sensor path
+    (which gives the GIL up whenever it blocks for data) against its background loops."""
+    started = threading.Event()
+
+    def busy() -> None:
+        started.set()
+        end = time.perf_counter() + seconds
+        while time.perf_counter() < end:
+            sum(range(200))  # pure Python: the GIL is held between the checks
+            if pace is not None:
+                pace()
+
+    worker = threading.Thread(target=busy, daemon=True)
+    worker.start()
+    started.wait(5)
+    waits: list[float] = []
+    while worker.is_alive():
+        before = time.perf_counter()
+        time.sleep(0.001)  # gives the GIL up; taking it back waits for the loop
+        waits.append((time.perf_counter() - before - 0.001) * 1e3)
+    worker.join(5)
+    return waits

@@ -103,13 +103,14 @@ def connect_hint(listen: list[str]) -> str:
 
 
 def freeze_start_up() -> None:
-    """Keep what start-up allocated (the modules of numpy, cvxpy, rerun and zenoh, the server's
-    own structures: about 67 000 objects at 50 robots) out of the garbage collector's full
-    passes, which walk every tracked object with the GIL held and stop the sensor path meanwhile.
-    At 50 robots x 8 topics x 100 Hz a full pass during the load took 40-55 ms of CPU (50-105 ms
-    of wall time) without, 10-12 ms (about 22 ms) with (issue 17, benchmarks/RESULTS.md, stop
-    36). Start-up objects live as long as the process: freezing them frees nothing the collector
-    would have freed."""
+    """Keep what start-up allocated (the modules of numpy, rerun, zenoh and, once imported,
+    cvxpy, and the server's own structures: 67 000-121 000 objects) out of the garbage
+    collector's full passes, which walk every tracked object with the GIL held and stop the
+    sensor path meanwhile. At 50 robots x 8 topics x 100 Hz a full pass during the load took
+    40-55 ms of CPU (50-105 ms of wall time) without, 10-12 ms (about 22 ms) with (issue 17,
+    benchmarks/RESULTS.md, stop 36; ``python benchmarks/gc_freeze.py`` prints the pass over the
+    CEDDP's start-up with a stand-in for its run-time objects). Start-up objects live as long as
+    the process: freezing them frees nothing the collector would have freed."""
     gc.collect()
     gc.freeze()
 

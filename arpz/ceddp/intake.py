@@ -147,17 +147,24 @@ class SensorIntake:
             return [None] * len(qs)
         return self.reader.backlog_ms_quantiles(*qs)
 
-    def sojourn_ms(self) -> dict[str, float | None]:
+    def sojourn_ms(self) -> dict[str, float | int | None]:
         """The samples' time inside the CEDDP, from the router's receipt to the end of the
         sensor path's pass that processed them, ms: p50, p99 and max over the run (upper
         bounds, arpz.protocol.timers.SojournMeter; None on the raw path, or none measured)."""
         if self.reader is None:
-            return {"sojourn_ms_p50": None, "sojourn_ms_p99": None, "sojourn_ms_max": None}
+            return {
+                "sojourn_ms_p50": None,
+                "sojourn_ms_p99": None,
+                "sojourn_ms_max": None,
+                "sojourn_untimed": None,
+            }
         p50, p99 = self.reader.sojourn_ms_quantiles(50, 99)
         return {
             "sojourn_ms_p50": p50,
             "sojourn_ms_p99": p99,
             "sojourn_ms_max": self.reader.worst_sojourn_ms,
+            # messages without a router timestamp: in none of the figures above
+            "sojourn_untimed": self.reader.sojourn_untimed,
         }
 
     def refused(self) -> dict[str, int]:

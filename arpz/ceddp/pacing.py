@@ -12,7 +12,9 @@ took them in, against a p90 of 2-4 ms (issue 17, benchmarks/RESULTS.md, stop 36)
 A pacer sleeps a tenth of a millisecond once per ``every_s`` of its loop's work: long enough for
 a thread waiting for the GIL to be woken and take it (``time.sleep(0)`` releases it, but the
 sleeper usually takes it back before the waiter has been scheduled), short enough that a loop
-of 16 ms of CPU gains about 3 ms of wall time.
+of 16 ms of CPU gains 32 sleeps of a little more than 0.1 ms each (the timer's slack).
+``python benchmarks/gil_yield.py`` prints how long a thread waits for the GIL back, paced and
+not.
 """
 
 from __future__ import annotations

@@ -31,14 +31,14 @@ from arpz.zenoh_transport import ZenohTransport
 log = logging.getLogger("arpz.perf.fleet")
 
 
-def _counts(agent: RobotAgent, late_baseline: int) -> dict[str, Any]:
+def _counts(agent: RobotAgent) -> dict[str, Any]:
     counters = agent.counters().values()
     return {
         "produced": sum(c.produced for c in counters),
         "sent": sum(c.sent for c in counters),
         "held_back": sum(c.held_back for c in counters),
         "write_failures": sum(c.write_failures for c in counters),
-        "late_ticks": sum(s.late_ticks for s in agent.sensors) - late_baseline,
+        "late_ticks": sum(s.late_ticks for s in agent.sensors),
     }
 
 
@@ -132,17 +132,15 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
             ]
         for thread in threads:
             thread.start()
-        # the scheduler re-aligns the jobs that fell behind while waiting for the go file and
-        # counts them late once: that is not load, so it is taken off as a baseline
-        stop.wait(0.5)
-        baseline = {name: sum(s.late_ticks for s in a.sensors) for name, a in agents.items()}
+        # no late ticks to take off as a baseline: the stagger above put every job's next run
+        # after the go (before it, the jobs overdue since start-up each counted one late tick)
         wait_for_stop(stop)  # not stop.wait(): a signal may land on any of its threads
         for thread in threads:
             thread.join()
         ran_s = time.monotonic() - started
         # final reports, each waiting (bounded) for the CEDDP's acknowledgement
         errors += _parallel({name: agent.shutdown for name, agent in agents.items()}, "shutdown")
-        counts = {name: _counts(agent, baseline[name]) for name, agent in agents.items()}
+        counts = {name: _counts(agent) for name, agent in agents.items()}
     for error in errors:
         print(f"arpz.perf fleet-worker {index}: {error}", file=sys.stderr, flush=True)
     return {"worker": index, "ran_s": ran_s, "robots": counts, "errors": errors}

@@ -217,9 +217,10 @@ class SojournMeter:
     while the samples' time inside the CEDDP was 17-58 ms at p99 (issue 17, stop 36).
 
     Every message of a pass (a sample, or a writer's batch of them) counts with the pass's
-    oldest one's figure: an upper bound of each one's, read once per pass (a timestamp read per
-    message would cost the sensor path about 1 us each). The delivery thread observes; any
-    thread reads, under the lock."""
+    oldest one's figure: an upper bound of each one's, read once per pass (not a call into
+    Zenoh for every message's timestamp on the sensor path). The delivery thread observes; any
+    thread reads, under the lock. A pass the transport could not time (no router timestamp)
+    counts in ``unknown_samples`` and in no percentile."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()

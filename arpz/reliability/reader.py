@@ -103,6 +103,12 @@ class Reader(Endpoint):
         """The longest such time since the reader started, ms (None as above)."""
         return self._channel.delivery_sojourn.worst_ms
 
+    @property
+    def sojourn_untimed(self) -> int:
+        """Messages delivered whose time in this process could not be told (no router
+        timestamp): in no sojourn figure, counted here."""
+        return self._channel.delivery_sojourn.unknown_samples
+
     def retune(self, *, depth: int) -> None:
         """Follow a QoS assignment's depth (as ``Writer.retune`` on the writers' side)."""
         with self._channel.lock:

@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
+import statistics
 import sys
-import threading
-import time
 
 import pytest
 
 from arpz.ceddp.pacing import YIELD_S, Pacer
+from tests.support import gil_waits_ms
 
 
 class FakeClock:
@@ -52,31 +52,13 @@ def test_a_paced_loop_lets_a_waiting_thread_run_sooner() -> None:
     """Real threads: a thread that gives up the GIL for a moment while a pure-Python loop runs
     gets it back within about a yield with a pacer, not after CPython's switch interval."""
 
-    def busy(pace: Pacer | None, started: threading.Event, seconds: float) -> None:
-        started.set()
-        end = time.perf_counter() + seconds
-        while time.perf_counter() < end:
-            sum(range(200))  # pure Python: the GIL is held between the checks
-            if pace is not None:
-                pace()
-
     def typical_wait(pace: Pacer | None) -> float:
-        started = threading.Event()
-        worker = threading.Thread(target=busy, args=(pace, started, 0.2))
-        worker.start()
-        started.wait(5)
-        waits: list[float] = []
-        while worker.is_alive():
-            before = time.perf_counter()
-            time.sleep(0.001)  # gives up the GIL; taking it back waits for the loop to yield
-            waits.append(time.perf_counter() - before - 0.001)
-        worker.join(5)
         # the median: a scheduling hiccup of a loaded host moves the worst, not the typical
-        return sorted(waits)[len(waits) // 2] if waits else 0.0
+        return statistics.median(gil_waits_ms(pace, 0.2) or [0.0])
 
     unpaced = min(typical_wait(None) for _ in range(3))
     paced = min(typical_wait(Pacer()) for _ in range(3))
     # unpaced, the waiter gets the GIL only when CPython's switch interval (5 ms) forces the
     # loop out; paced, within about a yield (0.5 ms)
-    assert unpaced >= 0.8 * sys.getswitchinterval()
+    assert unpaced >= 0.8 * sys.getswitchinterval() * 1e3  # ms, as the waits
     assert paced < 0.6 * unpaced

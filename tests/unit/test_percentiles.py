@@ -156,3 +156,13 @@ def test_weighted_values_count_as_that_many_equal_values() -> None:
     nan = LogHistogram()
     nan.add_values(np.array([1.0, float("nan")]), np.array([3, 5]))
     assert (nan.total, nan.not_numbers) == (3, 5)
+
+
+@pytest.mark.parametrize(
+    "weights", [np.array([1, 2]), np.array([1, -1, 1])], ids=["short", "negative"]
+)
+def test_bad_weights_are_refused_before_anything_is_counted(weights: np.ndarray) -> None:
+    histogram = LogHistogram()
+    with pytest.raises(ValueError, match="non-negative counts"):
+        histogram.add_values(np.array([1.0, 2.0, 3.0]), weights)
+    assert histogram.total == 0 and histogram.low is None
