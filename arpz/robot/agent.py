@@ -44,6 +44,7 @@ from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
 from arpz.robot.configuration import ConfigurationHandler, robot_computations
 from arpz.robot.hello import HelloProbe
+from arpz.robot.process_cpu import PROCESS_CPU, cpu_percent
 from arpz.robot.qos import decide
 from arpz.robot.scheduler import Job, Scheduler
 from arpz.robot.sensing import SensorChannel, build_sensors, effective_sensors, sense
@@ -118,7 +119,9 @@ class RobotAgent:
         if config.sim is not None:
             self._telemetry_out = Outlet(transport, keys.telemetry_key(fleet, robot), report_qos)
         self._start_s = time.monotonic()
-        self._last_cpu = (time.monotonic(), time.process_time())
+        self._last_cpu = PROCESS_CPU.read()
+        self._cpu_percent = 0.0
+        self._last_report_s = time.monotonic()
         self._telemetry_seq = 0
         #: the sensor messages of one scheduler tick as one Zenoh message (channel mode only: a
         #: bundle the link refuses is recovered by the writers' NACKs, not so a plain put)
@@ -456,10 +459,12 @@ class RobotAgent:
         return self.commands.inbound()
 
     def stats(self, *, final: bool) -> RobotStats:
-        now, cpu = time.monotonic(), time.process_time()
-        last_now, last_cpu = self._last_cpu
-        self._last_cpu = (now, cpu)
-        cpu_percent = 100.0 * (cpu - last_cpu) / (now - last_now) if now > last_now else 0.0
+        reading = PROCESS_CPU.read()  # the process's, shared by the robots in it
+        percent = cpu_percent(self._last_cpu, reading)
+        if percent is not None:
+            self._last_cpu, self._cpu_percent = reading, percent
+        now, last_now = time.monotonic(), self._last_report_s
+        self._last_report_s = now
         counters = self.counters()
         rated: dict[str, TopicCounters] = {}
         interval_s = max(now - last_now, 1e-9)
@@ -488,7 +493,7 @@ class RobotAgent:
             commands_received=received,
             command_decode_errors=errors,
             hello=hello if (self.config.hello.enabled or hello.relayed) else None,
-            cpu_percent=round(cpu_percent, 2),
+            cpu_percent=round(self._cpu_percent, 2),
             qos_epoch=self.qos_epoch,
             qos_rate_hz=self.qos.rate_hz if self.qos else None,
             qos_depth=self.qos.depth if self.qos else None,

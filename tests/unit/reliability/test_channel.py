@@ -550,3 +550,33 @@ def test_a_timer_that_raises_is_counted_and_the_channel_goes_on() -> None:
         wait_until(lambda: len(got) == 50, what="samples after the error")
         assert writer.wait_for_acknowledgments(2.0)  # the reader still acknowledges
         assert reader._channel._worker.is_alive()
+
+
+def test_acknowledged_through_never_waits_for_the_state_lock() -> None:
+    """A robot asks once a sample, on its sensing thread; while the channel's worker holds the
+    state lock (an ACKNACK being handled) it gets the last figure at once, a lower bound."""
+    with _pair("f/robot/*/sensor/*", "f/robot/r1/sensor/imu", QOS_RELIABLE_ALL, _ignore) as (
+        _reader,
+        writer,
+    ):
+        for i in range(3):
+            writer.write(b"%d" % i)
+        wait_until(lambda: writer.acknowledged_through() == 3, what="3 acknowledged")
+        with writer._lock:  # held, as the worker holds it while it handles an ACKNACK
+            answers: list[tuple[int, float]] = []
+
+            def ask() -> None:
+                start = time.monotonic()
+                answers.append((writer.acknowledged_through(), time.monotonic() - start))
+
+            asker = threading.Thread(target=ask)
+            asker.start()
+            asker.join(timeout=2.0)
+            assert not asker.is_alive(), "acknowledged_through waited for the state lock"
+        assert answers[0][0] == 3 and answers[0][1] < 0.5, answers
+        writer.write(b"3")
+        wait_until(lambda: writer.acknowledged_through() == 4, what="the 4th acknowledged")
+
+
+def _ignore(payload: bytes, info: DataInfo) -> None:
+    del payload, info
