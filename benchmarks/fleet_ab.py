@@ -74,9 +74,12 @@ def main() -> int:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--base-extra", default="", help="perf fleet arguments of the base only")
     ap.add_argument("--this-extra", default="", help="perf fleet arguments of this side only")
-    ap.add_argument("fleet_args", nargs="*", help="after --: arguments of perf fleet")
-    opts = ap.parse_args()
-    args = opts.fleet_args or DEFAULT
+    # split at "--" by hand: argparse gives a trailing ``nargs="*"`` positional nothing once
+    # ``base`` and an option came before it ("unrecognized arguments")
+    argv = sys.argv[1:]
+    cut = argv.index("--") if "--" in argv else len(argv)
+    opts = ap.parse_args(argv[:cut])
+    args = argv[cut + 1 :] or DEFAULT
     sides = {"base": opts.base.resolve(), "this": opts.this.resolve()}
     docs: dict[str, list[dict[str, Any]]] = {"base": [], "this": []}
     out = Path(tempfile.mkdtemp(prefix="fleet-ab-"))

@@ -43,7 +43,6 @@ _BATCH = 512
 _STOP = object()
 #: what an inline reader performs on the transport's thread, and a reader's delivery thread on
 #: its own (the rest goes to the worker)
-_INLINE = (Deliver, DeliverRun, Send)
 _DELIVERIES = (Deliver, DeliverRun)
 #: a reader's data waiting in its Zenoh FIFO; beyond this Zenoh stops reading the link
 #: (backpressure to the writers, nothing dropped)
@@ -252,13 +251,20 @@ class Channel:
         return enqueue
 
     def _perform_here(self, actions: list[Action]) -> None:
-        """Perform data and protocol messages on this thread, post the rest to the worker."""
-        rest = [a for a in actions if type(a) not in _INLINE]
-        if not rest:  # the common case: only deliveries and ACKNACKs
-            self.perform(actions)
-            return
-        self.perform([a for a in actions if type(a) in _INLINE])
-        self.post(rest)
+        """Deliver on this thread; post the rest (ACKNACKs, NACKs, events) to the worker.
+
+        Why the ACKNACKs leave this thread: a put gives up the GIL, and taking it back waits
+        for whichever thread took it meanwhile, up to the interpreter's switch interval (5 ms)
+        and more on a loaded host. A CEDDP's sensor reader acknowledges hundreds of writers a
+        second, so its delivery passes queued several times each behind the GIL: with the
+        puts moved to the worker, "time in the CEDDP" at 50 robots fell from 48-57 to 11-13
+        ms at p99 (``python benchmarks/fleet_ab.py``, three rounds, issue 17). An ACKNACK
+        leaves a little later; what it acknowledges is unchanged."""
+        deliveries = [a for a in actions if type(a) in _DELIVERIES]
+        if deliveries:
+            self.perform(deliveries)
+        if len(deliveries) < len(actions):
+            self.post([a for a in actions if type(a) not in _DELIVERIES])
 
     def _worker_needed(self) -> bool:
         """Lock held, after the machine ran on another thread than the worker: the machine now
