@@ -9,6 +9,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+import msgspec
 import pytest
 
 from arpz.memory_transport import MemoryBus, MemoryTransport
@@ -580,3 +581,39 @@ def test_acknowledged_through_never_waits_for_the_state_lock() -> None:
 
 def _ignore(payload: bytes, info: DataInfo) -> None:
     del payload, info
+
+
+class _PutThreads(MemoryTransport):
+    """Notes the thread of every put (a reader puts only control traffic: ACKNACKs, NACKs)."""
+
+    def __init__(self, bus: MemoryBus) -> None:
+        super().__init__(bus)
+        self.put_threads: list[str] = []
+
+    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+        self.put_threads.append(threading.current_thread().name)
+        super().put(key, payload, attachment=attachment)
+
+
+def test_a_delivery_pass_leaves_its_acknacks_to_the_control_thread() -> None:
+    """A put gives the GIL up, and the delivery thread would wait to take it back with the pass's
+    samples held (the CEDDP's sensor path, issue 17): its ACKNACKs go out on the control thread.
+    Heartbeats ride on the data here, as a fleet's robots send them, so the delivery thread is
+    the one that decides to acknowledge."""
+    bus = MemoryBus()
+    reader_side = _PutThreads(bus)
+    got: list[int] = []
+    qos = msgspec.structs.replace(QOS_RELIABLE_ALL, piggyback_heartbeats=True)
+    with (
+        Reader(reader_side, "f/robot/*/sensor/*", qos, lambda p, i: got.append(i.seq)) as reader,
+        Writer(MemoryTransport(bus), "f/robot/r1/sensor/imu", qos) as writer,
+    ):
+        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
+        for i in range(50):
+            writer.write(b"%d" % i)
+        assert writer.wait_for_acknowledgments(5.0)
+        wait_until(lambda: len(got) == 50, what="50 delivered")
+    threads = set(reader_side.put_threads)
+    assert threads, "the reader sent no ACKNACK"
+    assert "arpz-reader-f/robot/*/sensor/*" not in threads, threads
+    assert threads == {"arpz-reader-f/robot/*/sensor/*/control"}, threads
