@@ -237,7 +237,7 @@ class Channel:
                     return
                 if wake:
                     self.wake()
-                # data and protocol messages here; events and tokens on the worker as always
+                # deliveries here; ACKNACKs, NACKs, events and tokens on the worker
                 self._perform_here(actions)
 
             return run_inline
