@@ -258,8 +258,9 @@ class Channel:
         and more on a loaded host. A CEDDP's sensor reader acknowledges hundreds of writers a
         second, so its delivery passes queued several times each behind the GIL: with the
         puts moved to the worker, "time in the CEDDP" at 50 robots fell from 48-57 to 11-13
-        ms at p99 (``python benchmarks/fleet_ab.py``, three rounds, issue 17). An ACKNACK
-        leaves a little later; what it acknowledges is unchanged."""
+        ms at p99 with the host in a slow window (``python benchmarks/fleet_ab.py``, three
+        rounds, issue 17; in a fast one within the noise). An ACKNACK leaves a little later;
+        what it acknowledges is unchanged."""
         deliveries = [a for a in actions if type(a) in _DELIVERIES]
         if deliveries:
             self.perform(deliveries)
