@@ -39,6 +39,7 @@ FIGURES = [
     ("queue p99 ms", ("ceddp", "ingest_backlog_ms_p99"), "{:.1f}"),
     ("CEDDP cores", ("fleet", "ceddp_cpu_cores"), "{:.2f}"),
     ("lost", ("fleet", "lost"), "{:.0f}"),
+    ("host stolen cores", ("fleet", "host_steal_cores"), "{:.2f}"),
 ]
 
 

@@ -280,12 +280,21 @@ def rss_mb(pid: int) -> tuple[float, float] | None:
     return values["VmRSS"], values["VmHWM"]
 
 
-def host_busy_s() -> tuple[float, float]:
-    """(busy, total) CPU seconds of the whole host since boot, from /proc/stat."""
-    first = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
-    ticks = [int(v) for v in first]
+def host_busy_s() -> tuple[float, float, float]:
+    """(busy, total, stolen) CPU seconds of the whole host since boot, from /proc/stat.
+
+    Stolen time is what the hypervisor gave to other guests while this one had work: on a
+    shared VM it tells a slow window of the host from a slow change of the code."""
+    return host_cpu_seconds(Path("/proc/stat").read_text().splitlines()[0])
+
+
+def host_cpu_seconds(cpu_line: str) -> tuple[float, float, float]:
+    """``host_busy_s`` of the ``cpu`` line of /proc/stat (user nice system idle iowait irq
+    softirq steal ..., in clock ticks)."""
+    ticks = [int(v) for v in cpu_line.split()[1:]]
     idle = ticks[3] + (ticks[4] if len(ticks) > 4 else 0)
-    return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS
+    steal = ticks[7] if len(ticks) > 7 else 0
+    return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS, steal / CLOCK_TICKS
 
 
 class ProcSampler:
@@ -336,9 +345,16 @@ class ProcSampler:
         )
 
     def host_busy_cores(self) -> float | None:
-        busy = self.host_end[0] - self.host0[0]
+        return self._host_cores(0)
+
+    def host_steal_cores(self) -> float | None:
+        """Cores' worth of CPU the hypervisor took from this host over the window."""
+        return self._host_cores(2)
+
+    def _host_cores(self, column: int) -> float | None:
+        seconds = self.host_end[column] - self.host0[column]
         span = self.t_end - self.t0
-        return round(busy / span, 3) if span > 0 else None
+        return round(seconds / span, 3) if span > 0 else None
 
 
 # --------------------------------------------------------------------------------- one run
@@ -510,6 +526,7 @@ def run_load(
         window_s=load_s,
         workers_cpu_cores=round(sum(sampler.cores(p.popen.pid) for p in workers), 3),
         host_busy_cores=sampler.host_busy_cores(),
+        host_steal_cores=sampler.host_steal_cores(),
         failures=failures,
     )
     return RunResult(point, figures, rows, [p.popen.pid for p in procs])

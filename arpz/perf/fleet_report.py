@@ -177,6 +177,8 @@ class FleetPoint:
     #: the median robot's p99: beside the worst robot's, whether the fleet's tail is every
     #: robot's or a few robots' (at 50 robots one robot's 77 ms against a median of 13)
     latency_ms_p99_median_robot: float | None = None
+    #: CPU the hypervisor gave to other guests during the window, in cores (within host busy)
+    host_steal_cores: float | None = None
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -318,6 +320,7 @@ def fleet_point(
     workers_cpu_cores: float,
     host_busy_cores: float | None,
     failures: Sequence[str] = (),
+    host_steal_cores: float | None = None,
 ) -> FleetPoint:
     """The fleet's figures; ``failures``: problems found outside the rows (a process that did
     not stop, ...), added to the reconciliation failures."""
@@ -359,6 +362,7 @@ def fleet_point(
         workers_cpu_us_per_sample=per_sample_us(workers_cpu_cores, window_s, delivered),
         workers_cpu_cores=workers_cpu_cores,
         host_busy_cores=host_busy_cores,
+        host_steal_cores=host_steal_cores,
         reconciled=not problems,
         generator_limited=sent_ratio < MIN_DELIVERED_RATIO,
         failures=problems,
@@ -533,7 +537,7 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "
         f"({_fmt(p.ceddp_cpu_us_per_sample, '.0f')} us a sample), robot workers "
         f"{p.workers_cpu_cores:.2f} cores, host busy {_fmt(p.host_busy_cores)} of "
-        f"{_host_cores()} cores"
+        f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)})"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
     missing = unavailable(ceddps)

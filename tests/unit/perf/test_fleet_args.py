@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 from pathlib import Path
 
 import pytest
@@ -14,6 +15,7 @@ from arpz.perf.fleet import (
     FleetOptions,
     ceddp_configs,
     check_options,
+    host_cpu_seconds,
     parse_sweep,
     placement,
     robot_phases,
@@ -120,3 +122,14 @@ def test_robot_phases_spread_the_fleet_over_each_job_s_period() -> None:
     assert spread == {"r0": 0.0, "r1": 0.25, "r2": 0.5, "r3": 0.75}
     aligned = robot_phases(FleetOptions(robots=4, robot_phases="aligned"), robots)
     assert set(aligned.values()) == {0.0}
+
+
+def test_host_cpu_reads_busy_total_and_stolen_ticks_of_proc_stat() -> None:
+    # user nice system idle iowait irq softirq steal guest guest_nice, in clock ticks
+    line = "cpu  500 0 200 1000 100 0 40 60 0 0"
+    busy, total, stolen = host_cpu_seconds(line)
+    ticks = os.sysconf("SC_CLK_TCK")
+    assert busy == pytest.approx(800 / ticks)  # idle and iowait left out, steal counted
+    assert total == pytest.approx(1900 / ticks)
+    assert stolen == pytest.approx(60 / ticks)
+    assert host_cpu_seconds("cpu 1 2 3 4")[2] == 0.0  # an old kernel without the steal column

@@ -109,6 +109,7 @@ def test_fleet_point_aggregates_and_flags_a_generator_limited_run() -> None:
         window_s=10.0,
         workers_cpu_cores=1.0,
         host_busy_cores=1.6,
+        host_steal_cores=0.25,
     )
     assert point.offered == 8000 and point.offered_per_s == 800
     assert point.sent == 4000 and point.sent_ratio == 0.5
@@ -122,6 +123,7 @@ def test_fleet_point_aggregates_and_flags_a_generator_limited_run() -> None:
     assert "reconciled: sent == delivered + lost for all 4 robots" in text
     assert "GENERATOR-LIMITED" in text
     assert "p99 (worst robot) 6.00 ms (median robot 4.50 ms)" in text
+    assert "host busy 1.60 of" in text and "cores (stolen by the hypervisor 0.25)" in text
 
 
 def test_a_run_that_does_not_reconcile_prints_failed() -> None:
