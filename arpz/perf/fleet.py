@@ -297,6 +297,25 @@ def host_cpu_seconds(cpu_line: str) -> tuple[float, float, float]:
     return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS, steal / CLOCK_TICKS
 
 
+#: iterations of ``host_probe_ms``'s loop: about 13 ms on this project's 2-core VM in a fast window
+PROBE_ITERATIONS = 300_000
+
+
+def host_probe_ms(tries: int = 7) -> float:
+    """The best of ``tries`` timings of a fixed pure-Python loop, in ms, taken while nothing of
+    the run is running. A shared host has slow and fast windows that the hypervisor does not
+    report as stolen time (0.00 cores stolen in runs that sent 0.55-0.69 of what the same code
+    sent in a fast window): this figure, beside a run's, says which window it ran in."""
+    best = float("inf")
+    for _ in range(tries):
+        start = time.perf_counter()
+        x = 0
+        for i in range(PROBE_ITERATIONS):
+            x = (x + i * 7) & 0xFFFF
+        best = min(best, time.perf_counter() - start)
+    return round(best * 1e3, 2)
+
+
 class ProcSampler:
     """CPU and RSS of some processes over the measured window, sampled every call of ``sample``
     (the busiest one-second interval is the peak)."""
@@ -435,6 +454,7 @@ def run_load(
     plan_path.write_text(json.dumps(plan, indent=1), encoding="utf-8")
     procs: list[Proc] = []
     watcher: CeddpWatcher | None = None
+    probe_before = host_probe_ms()
 
     def say(text: str) -> None:
         if progress is not None:
@@ -512,6 +532,7 @@ def run_load(
             watcher.close()
         for proc in procs:
             proc.kill()
+    probe_after = host_probe_ms()
     rows = robot_rows(where, docs, counts)
     figures = [
         ceddp_figures(k, docs[k], rows, sampler.figures(p.popen.pid), load_s, self_reports[k])
@@ -527,6 +548,7 @@ def run_load(
         workers_cpu_cores=round(sum(sampler.cores(p.popen.pid) for p in workers), 3),
         host_busy_cores=sampler.host_busy_cores(),
         host_steal_cores=sampler.host_steal_cores(),
+        host_probe_ms=(probe_before, probe_after),
         failures=failures,
     )
     return RunResult(point, figures, rows, [p.popen.pid for p in procs])
