@@ -253,8 +253,14 @@ class FrameOutlet:
 
 class Inlet:
     """Where one key expression's messages arrive: a reliable-channel ``Reader`` or a plain
-    subscription. ``on_message(key, payload)`` runs on the Reader's own threads (one call at a
-    time, in order per writer) or, plain, on Zenoh's callback thread: it must only queue.
+    subscription. ``on_message(key, payload)`` runs on Zenoh's callback thread (through the
+    Reader's inline delivery: one call at a time, in order per writer; samples a NACK recovered
+    on the Reader's control thread, in turn): it must only queue.
+
+    Inline because an Inlet's messages are few (commands, reports, configurations): a delivery
+    thread of its own would sit in a blocking Zenoh receive, which wakes 10 times a second to
+    look for signals and takes the process's GIL each time; a robot keeps three Inlets, and
+    their delivery threads were a fifth of an idle fleet worker's wake-ups (issue 17).
 
     ``on_incompatible(key, policy)`` is called once per key whose publisher disagrees on the mode
     (a plain put to a channel Inlet, or a channel-headed sample to a plain one), and once per
@@ -287,6 +293,7 @@ class Inlet:
                 events=ReaderEventCallbacks(
                     incompatible_qos=self._on_channel_incompatible, message_lost=on_lost
                 ),
+                inline_delivery=True,
             )
         else:
 

@@ -59,6 +59,11 @@ LOSSY_HOLD_PERIODS = 50
 BATCH_MAX_BYTES = 48 * 1024
 
 
+#: the longest a quiet writer's heartbeat timer sleeps (``WriterMachine._go_quiet``): the
+#: driver's own idle period (``arpz.reliability._channel.MAX_IDLE_S``)
+QUIET_HEARTBEAT_S = 1.0
+
+
 class HistoryFullError(ArpzError, TimeoutError):
     """KEEP_ALL history full of samples some reader has not acknowledged."""
 
@@ -181,6 +186,9 @@ class WriterMachine:
         #: the heartbeat period in force: ``heartbeat_period_s``, grown while the writer is
         #: calm (``QosProfile.heartbeat_backoff``; ``tick``)
         self._hb_interval_s = qos.heartbeat_period_s
+        #: the heartbeat timer found nothing to say: it sleeps until the next write, match or
+        #: NACK re-arms it (``_rearm``), or ``QUIET_HEARTBEAT_S``
+        self.quiet = False
         #: ``last_seq`` when a FINAL heartbeat (every reliable reader acknowledged everything)
         #: last went out; -1 after anything else. See ``_heartbeat_due``.
         self._final_hb_at = -1
@@ -297,6 +305,8 @@ class WriterMachine:
 
         This is the hot path of a publisher: everything that can be decided once is decided in
         ``__init__`` or on (un)matching, not here."""
+        if self.quiet:
+            self._rearm(self._mono())
         history = self.history
         actions: Sequence[Action] = _NO_ACTIONS
         if len(history) >= self._capacity:
@@ -429,6 +439,7 @@ class WriterMachine:
         now = self._mono()
         self._hb_interval_s = heartbeat
         self._next_hb_s = min(self._next_hb_s, now + heartbeat)
+        self.quiet = False
         self._deadline = DeadlineTimer(deadline_s, now)
         self._timed = deadline_s > 0 or self._manual
         return actions
@@ -596,6 +607,7 @@ class WriterMachine:
         p = _ReaderProxy(guid, hex_, mq.reliable, start, wire.directed_key(self.topic, hex_))
         p.requested_deadline_s = mq.as_profile().deadline_s
         self.proxies[guid] = p
+        self._rearm(self._mono())
         self._n_reliable += p.reliable
         if p.reliable:
             self.history_offered += max(self.last_seq - start + 1, 0)
@@ -682,25 +694,29 @@ class WriterMachine:
         if self.qos.lifespan_s > 0:
             self._expire(self.clock.wall_ns())
         if now >= self._next_hb_s:
-            # calm: nothing to announce, or the data carried the heartbeat (every reader
-            # answered): the period grows (heartbeat_backoff), and the driver wakes less often
-            calm = True
+            self.quiet = False
             if self._heartbeat_due(now):
+                # calm: the data carried the heartbeat (every reader answered): the period grows
+                # (heartbeat_backoff), and the driver wakes less often
+                calm = True
                 if self._ack_requested_since_hb and self._data_carries_heartbeat(now):
                     self.heartbeats_piggybacked += 1
                 else:
                     calm = False
                     actions.append(self._heartbeat(now, 0))
-            if calm:
-                self._hb_interval_s = min(
-                    2 * self._hb_interval_s,
-                    self.qos.heartbeat_backoff * self.qos.heartbeat_period_s,
-                )
-            # else the period holds: an unanswered request is a late reader as often as a lost
-            # sample, and the heartbeat now sent makes a reader that misses something NACK,
-            # which brings the base period back (``_heartbeat_now_lossy``). Falling back on
-            # every late answer fed a CEDDP that was behind more heartbeats and ACKNACKs.
-            self._next_hb_s = now + self._hb_interval_s
+                if calm:
+                    self._grow_heartbeat_period()
+                # else the period holds: an unanswered request is a late reader as often as a
+                # lost sample, and the heartbeat now sent makes a reader that misses something
+                # NACK, which brings the base period back (``_heartbeat_now_lossy``). Falling
+                # back on every late answer fed a CEDDP that was behind more heartbeats and
+                # ACKNACKs.
+                self._next_hb_s = now + self._hb_interval_s
+            elif self._link_lossy(now):  # nothing to say, but a sample may soon be lost
+                self._grow_heartbeat_period()
+                self._next_hb_s = now + self._hb_interval_s
+            else:
+                self._go_quiet(now)
             self._ack_requested_since_hb = False
             self._ack_on_next_write = True
         for p in self.proxies.values():
@@ -720,6 +736,42 @@ class WriterMachine:
         if self._hb_interval_s > base:
             self._hb_interval_s = base
             self._next_hb_s = min(self._next_hb_s, now + base)
+        self._rearm(now)
+
+    def _grow_heartbeat_period(self) -> None:
+        self._hb_interval_s = min(
+            2 * self._hb_interval_s, self.qos.heartbeat_backoff * self.qos.heartbeat_period_s
+        )
+
+    def _go_quiet(self, now: float) -> None:
+        """Nothing to say (every reader synced and acknowledged everything) on a link that lost
+        nothing lately: the timer sleeps until a write, a new reader or a NACK re-arms it
+        (``_rearm``), or at most ``QUIET_HEARTBEAT_S`` (a liveliness lease's next assertion
+        sooner). A writer that wrote now and then woke at every heartbeat period to find
+        nothing to say: a robot's report, announce, QoS and config-ack writers 10 times a
+        second each, each wake-up a turn of its process's GIL (issue 17).
+
+        A write re-arms the timer without waking the driver: the reader's acknowledgement does
+        (the driver then sleeps until the re-armed heartbeat, as before). Waking it for every
+        write of a 1 Hz stream cost more wake-ups than the quiet saved. What it costs: when the
+        first sample after a quiet spell is lost, nothing acknowledges it and its heartbeat
+        comes when the driver next wakes, within ``QUIET_HEARTBEAT_S`` instead of one period;
+        the reader's NACK then marks the link lossy, and heartbeats keep their period for
+        ``LOSSY_HOLD_PERIODS`` periods."""
+        self._grow_heartbeat_period()  # calm, as a period with nothing to say always was
+        self.quiet = True
+        horizon = now + QUIET_HEARTBEAT_S
+        lease = self.qos.lease_duration_s
+        if lease > 0:
+            horizon = min(horizon, self._last_live_hb_s + lease / 4)
+        self._next_hb_s = horizon
+
+    def _rearm(self, now: float) -> None:
+        """Out of quiet: the heartbeat timer fires within its period again (a write's
+        heartbeat comes no later than it would have without the quiet)."""
+        if self.quiet:
+            self.quiet = False
+            self._next_hb_s = min(self._next_hb_s, now + self._hb_interval_s)
 
     def _data_carries_heartbeat(self, now: float) -> bool:
         """A DATA that asked for an acknowledgement since the timer last fired, and that every
@@ -740,9 +792,13 @@ class WriterMachine:
             return False
         if self._manual or self.batch or self._min_acked() <= self._ack_request_seq:
             return False
-        if now - self._last_nack_s < LOSSY_HOLD_PERIODS * self.qos.heartbeat_period_s:
+        if self._link_lossy(now):
             return False
         return all(p.reliable and p.synced for p in self.proxies.values())
+
+    def _link_lossy(self, now: float) -> bool:
+        """A reader NACKed within the last ``LOSSY_HOLD_PERIODS`` heartbeat periods."""
+        return now - self._last_nack_s < LOSSY_HOLD_PERIODS * self.qos.heartbeat_period_s
 
     def busy(self) -> bool:
         """A batch waits to go out, or one went out within the batch delay (the topic is

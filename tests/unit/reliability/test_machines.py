@@ -21,7 +21,7 @@ from arpz.protocol.qos import (
 )
 from arpz.protocol.reader_machine import ReaderMachine
 from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.protocol.writer_machine import LOSSY_HOLD_PERIODS, QUIET_HEARTBEAT_S, WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node, publish
 
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -546,9 +546,12 @@ def test_a_calm_stream_lengthens_its_heartbeat_period_up_to_the_backoff() -> Non
     assert acks[8] <= acks[1] / 3, acks
 
 
-def test_a_quiet_writer_lets_its_heartbeat_timer_grow() -> None:
-    """A writer with nothing to announce (everything acknowledged) wakes its driver at the grown
-    period, not ten times a second: a robot keeps about ten writers, mostly quiet at low rates."""
+def test_a_quiet_writer_sleeps_until_it_writes_again() -> None:
+    """A writer that wrote nothing since its timer last fired and has nothing to announce
+    (everything acknowledged) sleeps up to QUIET_HEARTBEAT_S: a robot keeps about ten writers,
+    mostly quiet at low rates, and each woke its driver at every heartbeat period. Its next
+    write re-arms the timer within the (grown) period, so a lost last sample is still
+    recovered within two of them."""
     for backoff, longest in ((1, 0.1), (8, 0.8)):
         bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1), backoff)
         w = writer.machine
@@ -558,8 +561,67 @@ def test_a_quiet_writer_lets_its_heartbeat_timer_grow() -> None:
         for _ in range(300):  # 3 s, nothing written
             bus.run_for(0.01)
             gaps.append(w.next_heartbeat_s - bus.clock.now_s)
-        assert max(gaps) == pytest.approx(longest, abs=0.011), backoff
-        assert len(reader.delivered) == 3
+        assert max(gaps) == pytest.approx(QUIET_HEARTBEAT_S, abs=0.011), backoff
+        assert w.quiet and len(reader.delivered) == 3
+        bus.write(writer, b"again")
+        assert not w.quiet
+        assert w.next_heartbeat_s - bus.clock.now_s <= longest + 1e-6, backoff
+        bus.run_for(0.05)
+        assert reader.delivered[-1][0] == b"again"
+        _recover_a_lost_last_sample(bus, writer, reader, within_s=2 * longest + 0.1)
+
+
+def test_a_writer_on_a_link_that_lost_something_keeps_its_heartbeats() -> None:
+    """After a reader's NACK the link counts as lossy for LOSSY_HOLD_PERIODS periods: an idle
+    writer's heartbeats keep their period then (a lost sample is announced within one), and it
+    goes quiet only once the link has been clean that long."""
+    bus, writer, reader = _streaming(QosProfile(heartbeat_period_s=0.1))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    publish(bus, writer, 3, 0.01)
+    _recover_a_lost_last_sample(bus, writer, reader, within_s=2 * 0.1 + 0.1)
+    assert w.nacks >= 1
+    gaps = []
+    for _ in range(200):  # 2 s idle, within the 5 s hold
+        bus.run_for(0.01)
+        gaps.append(w.next_heartbeat_s - bus.clock.now_s)
+    assert not w.quiet and max(gaps) <= 0.1 + 1e-6
+    bus.run_for(LOSSY_HOLD_PERIODS * 0.1)
+    assert w.quiet
+
+
+def test_a_quiet_writer_wakes_for_a_new_reader_and_its_liveliness_lease() -> None:
+    """Quiet is only for a writer with nothing to say: a reader that matches re-arms the timer
+    (its heartbeats come at the period while it catches up), and a liveliness lease is still
+    asserted every lease / 4."""
+    bus, writer, _ = _streaming(QosProfile(heartbeat_period_s=0.1))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    publish(bus, writer, 3, 0.01)
+    bus.run_for(2.0)
+    assert w.quiet
+    bus.add(ReaderMachine("t/a", QosProfile(heartbeat_period_s=0.1), new_guid(), bus.clock))
+    while len(w.proxies) < 2:
+        bus.step()
+    assert not w.quiet and w.next_heartbeat_s - bus.clock.now_s <= 0.1 + 1e-6
+
+    qos = QosProfile(heartbeat_period_s=0.1, lease_duration_s=2.0)
+    lease_bus, _ = world(1, Link(delay_s=0.001))
+    leased = lease_bus.add(WriterMachine("t/l", qos, new_guid(), lease_bus.clock))
+    lease_bus.add(
+        ReaderMachine("t/l", QosProfile(heartbeat_period_s=0.1), new_guid(), lease_bus.clock)
+    )
+    lease_bus.run_for(0.3)
+    lw = leased.machine
+    assert isinstance(lw, WriterMachine)
+    publish(lease_bus, leased, 3, 0.01)
+    before = lw.heartbeats
+    gaps = []
+    for _ in range(400):  # 4 s, nothing written: quiet between the lease's heartbeats
+        lease_bus.run_for(0.01)
+        gaps.append(lw.next_heartbeat_s - lease_bus.clock.now_s)
+    assert max(gaps) <= 0.5 + 0.011
+    assert 7 <= lw.heartbeats - before <= 9  # every 0.5 s
 
 
 def test_a_late_reader_keeps_a_grown_period_and_its_nack_ends_it() -> None:

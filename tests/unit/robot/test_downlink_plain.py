@@ -56,7 +56,12 @@ def test_a_channel_robot_refuses_plain_commands_and_says_so() -> None:
             lambda: agent.inbound()["cmd/velocity"].refused == 3, what="three refused commands"
         )
         assert actuator.counts["velocity"] == 0
-        stats = agent.stats(final=False)
-        assert any("cmd/velocity" in line for line in stats.incompatible_qos), stats
+        # the event comes from the reader's control thread, after the refusal itself
+        wait_until(
+            lambda: any(
+                "cmd/velocity" in line for line in agent.stats(final=False).incompatible_qos
+            ),
+            what="the INCOMPATIBLE_QOS event in the robot's report",
+        )
     finally:
         agent.shutdown()
