@@ -767,8 +767,9 @@ class WriterMachine:
         self._next_hb_s = horizon
 
     def _rearm(self, now: float) -> None:
-        """Out of quiet: the heartbeat timer fires within its period again (a write's
-        heartbeat comes no later than it would have without the quiet)."""
+        """Out of quiet: the heartbeat timer is due within its period again. The driver sees it
+        at its next wake-up (a reader's acknowledgement, a match, a NACK, or its idle period),
+        so after a write it can come later than the period: see ``_go_quiet``."""
         if self.quiet:
             self.quiet = False
             self._next_hb_s = min(self._next_hb_s, now + self._hb_interval_s)
