@@ -283,8 +283,9 @@ def rss_mb(pid: int) -> tuple[float, float] | None:
 def host_busy_s() -> tuple[float, float, float]:
     """(busy, total, stolen) CPU seconds of the whole host since boot, from /proc/stat.
 
-    Stolen time is what the hypervisor gave to other guests while this one had work: on a
-    shared VM it tells a slow window of the host from a slow change of the code."""
+    Stolen time is CPU the hypervisor gave to other guests while this one had work. On this
+    project's shared VM it stayed 0.00 cores even in the slow windows (issue 17, stop 38): a
+    slow run without stolen time is slow because the same work cost more CPU."""
     return host_cpu_seconds(Path("/proc/stat").read_text().splitlines()[0])
 
 
@@ -297,15 +298,16 @@ def host_cpu_seconds(cpu_line: str) -> tuple[float, float, float]:
     return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS, steal / CLOCK_TICKS
 
 
-#: iterations of ``host_probe_ms``'s loop: about 13 ms on this project's 2-core VM in a fast window
+#: iterations of ``host_probe_ms``'s loop: about 13 ms on this project's 2-core VM
 PROBE_ITERATIONS = 300_000
 
 
 def host_probe_ms(tries: int = 7) -> float:
     """The best of ``tries`` timings of a fixed pure-Python loop, in ms, taken while nothing of
-    the run is running. A shared host has slow and fast windows that the hypervisor does not
-    report as stolen time (0.00 cores stolen in runs that sent 0.55-0.69 of what the same code
-    sent in a fast window): this figure, beside a run's, says which window it ran in."""
+    the run is running: the host's single-thread speed, beside the run's figures. On this
+    project's VM it read 12.9-14.0 ms in slow windows as in fast ones (issue 17, stop 38): what
+    slows there is the work that crosses threads and the kernel, not a Python loop, so a run
+    that is slow with a normal probe was slowed by that, not by a slower CPU."""
     best = float("inf")
     for _ in range(tries):
         start = time.perf_counter()

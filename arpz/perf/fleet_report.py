@@ -180,7 +180,7 @@ class FleetPoint:
     #: CPU the hypervisor gave to other guests during the window, in cores (within host busy)
     host_steal_cores: float | None = None
     #: a fixed Python loop's best time before and after the run (``fleet.host_probe_ms``):
-    #: which window of a shared host the run was in
+    #: the host's single-thread speed at the time
     host_probe_ms_before: float | None = None
     host_probe_ms_after: float | None = None
 
