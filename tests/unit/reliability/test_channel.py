@@ -347,8 +347,8 @@ def test_an_idle_writer_sleeps_and_heartbeats_at_its_period_once_it_writes() -> 
     machine = writer._machine
     ticks = count_ticks(writer)
     try:
-        time.sleep(1.0)  # deliberately: the wakes of an idle second
-        assert 1 <= len(ticks) <= 2, ticks  # 5 at one a heartbeat period, 20 with the cap
+        time.sleep(1.5)  # deliberately: the wakes of an idle 1.5 s (the first may precede it)
+        assert 1 <= len(ticks) <= 2, ticks  # 7 at one a heartbeat period, 30 with the cap
         assert machine.quiet
         # a reader that matched and never acknowledges: heartbeats every period
         b.declare_token(wire.reader_token("t/idle", "ab" * 8, "RVA_0_0"))
