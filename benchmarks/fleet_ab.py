@@ -40,7 +40,6 @@ FIGURES = [
     ("CEDDP cores", ("fleet", "ceddp_cpu_cores"), "{:.2f}"),
     ("lost", ("fleet", "lost"), "{:.0f}"),
     ("host stolen cores", ("fleet", "host_steal_cores"), "{:.2f}"),
-    ("host probe ms", ("fleet", "host_probe_ms_before"), "{:.1f}"),
 ]
 
 

@@ -62,16 +62,17 @@ def thread_names(pid: int) -> dict[int, str]:
     return names
 
 
-def wakeups(pid: int, window_s: float) -> tuple[float, dict[str, float]]:
-    """Wake-ups a second of ``pid`` over ``window_s``: the total and per thread kind."""
-    before = switches(pid)
-    time.sleep(window_s)
-    after = switches(pid)
-    names = thread_names(pid)
+def per_thread(before: dict[int, int], after: dict[int, int]) -> dict[int, int]:
+    """Wake-ups of each thread between two ``switches`` readings (a thread born in between
+    counts from zero; one that ended is left out)."""
+    return {tid: count - before.get(tid, 0) for tid, count in after.items()}
+
+
+def by_kind(counts: dict[int, int], names: dict[int, str]) -> dict[str, int]:
     kinds: collections.Counter[str] = collections.Counter()
-    for tid, count in after.items():
-        kinds[names.get(tid, "(unnamed native thread)")] += count - before.get(tid, count)
-    return sum(kinds.values()) / window_s, {k: v / window_s for k, v in kinds.items()}
+    for tid, count in counts.items():
+        kinds[names.get(tid, "(unnamed native thread)")] += count
+    return dict(kinds)
 
 
 def measure(checkout: Path, opts: argparse.Namespace) -> tuple[float, dict[str, float], float]:
@@ -91,15 +92,20 @@ def measure(checkout: Path, opts: argparse.Namespace) -> tuple[float, dict[str, 
             time.sleep(3)  # the first reports and matches settle
             worker = _child(proc.pid, "fleet-worker")
             ceddp = _child(proc.pid, "arpz.ceddp")
-            ceddp_before = switches(ceddp)
-            total, kinds = wakeups(worker, opts.window)
-            ceddp_total = sum(switches(ceddp).values()) - sum(ceddp_before.values())
+            # both processes over the same window; the names are read after it (py-spy stops
+            # the worker for a moment)
+            worker_before, ceddp_before = switches(worker), switches(ceddp)
+            time.sleep(opts.window)
+            worker_after, ceddp_after = switches(worker), switches(ceddp)
+            kinds = by_kind(per_thread(worker_before, worker_after), thread_names(worker))
+            ceddp_total = sum(per_thread(ceddp_before, ceddp_after).values())
             proc.wait(timeout=opts.window + 120)
         finally:
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
-    return total, kinds, ceddp_total / (opts.window + 0.0)
+    rates = {kind: count / opts.window for kind, count in kinds.items()}
+    return sum(rates.values()), rates, ceddp_total / opts.window
 
 
 def _read(log: IO[str]) -> str:

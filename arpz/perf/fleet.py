@@ -298,26 +298,6 @@ def host_cpu_seconds(cpu_line: str) -> tuple[float, float, float]:
     return (sum(ticks) - idle) / CLOCK_TICKS, sum(ticks) / CLOCK_TICKS, steal / CLOCK_TICKS
 
 
-#: iterations of ``host_probe_ms``'s loop: about 13 ms on this project's 2-core VM
-PROBE_ITERATIONS = 300_000
-
-
-def host_probe_ms(tries: int = 7) -> float:
-    """The best of ``tries`` timings of a fixed pure-Python loop, in ms, taken while nothing of
-    the run is running: the host's single-thread speed, beside the run's figures. On this
-    project's VM it read 12.9-14.0 ms in slow windows as in fast ones (issue 17, stop 38): what
-    slows there is the work that crosses threads and the kernel, not a Python loop, so a run
-    that is slow with a normal probe was slowed by that, not by a slower CPU."""
-    best = float("inf")
-    for _ in range(tries):
-        start = time.perf_counter()
-        x = 0
-        for i in range(PROBE_ITERATIONS):
-            x = (x + i * 7) & 0xFFFF
-        best = min(best, time.perf_counter() - start)
-    return round(best * 1e3, 2)
-
-
 class ProcSampler:
     """CPU and RSS of some processes over the measured window, sampled every call of ``sample``
     (the busiest one-second interval is the peak)."""
@@ -456,7 +436,6 @@ def run_load(
     plan_path.write_text(json.dumps(plan, indent=1), encoding="utf-8")
     procs: list[Proc] = []
     watcher: CeddpWatcher | None = None
-    probe_before = host_probe_ms()
 
     def say(text: str) -> None:
         if progress is not None:
@@ -534,7 +513,6 @@ def run_load(
             watcher.close()
         for proc in procs:
             proc.kill()
-    probe_after = host_probe_ms()
     rows = robot_rows(where, docs, counts)
     figures = [
         ceddp_figures(k, docs[k], rows, sampler.figures(p.popen.pid), load_s, self_reports[k])
@@ -550,7 +528,6 @@ def run_load(
         workers_cpu_cores=round(sum(sampler.cores(p.popen.pid) for p in workers), 3),
         host_busy_cores=sampler.host_busy_cores(),
         host_steal_cores=sampler.host_steal_cores(),
-        host_probe_ms=(probe_before, probe_after),
         failures=failures,
     )
     return RunResult(point, figures, rows, [p.popen.pid for p in procs])

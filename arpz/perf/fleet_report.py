@@ -179,10 +179,6 @@ class FleetPoint:
     latency_ms_p99_median_robot: float | None = None
     #: CPU the hypervisor gave to other guests during the window, in cores (within host busy)
     host_steal_cores: float | None = None
-    #: a fixed Python loop's best time before and after the run (``fleet.host_probe_ms``):
-    #: the host's single-thread speed at the time
-    host_probe_ms_before: float | None = None
-    host_probe_ms_after: float | None = None
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -325,7 +321,6 @@ def fleet_point(
     host_busy_cores: float | None,
     failures: Sequence[str] = (),
     host_steal_cores: float | None = None,
-    host_probe_ms: tuple[float, float] | None = None,
 ) -> FleetPoint:
     """The fleet's figures; ``failures``: problems found outside the rows (a process that did
     not stop, ...), added to the reconciliation failures."""
@@ -368,8 +363,6 @@ def fleet_point(
         workers_cpu_cores=workers_cpu_cores,
         host_busy_cores=host_busy_cores,
         host_steal_cores=host_steal_cores,
-        host_probe_ms_before=host_probe_ms[0] if host_probe_ms else None,
-        host_probe_ms_after=host_probe_ms[1] if host_probe_ms else None,
         reconciled=not problems,
         generator_limited=sent_ratio < MIN_DELIVERED_RATIO,
         failures=problems,
@@ -544,8 +537,7 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "
         f"({_fmt(p.ceddp_cpu_us_per_sample, '.0f')} us a sample), robot workers "
         f"{p.workers_cpu_cores:.2f} cores, host busy {_fmt(p.host_busy_cores)} of "
-        f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)}); host "
-        f"probe {_fmt(p.host_probe_ms_before)} / {_fmt(p.host_probe_ms_after)} ms before / after"
+        f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)})"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
     missing = unavailable(ceddps)

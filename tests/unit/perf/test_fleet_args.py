@@ -9,7 +9,6 @@ from pathlib import Path
 import pytest
 
 from arpz.config import CeddpConfig, RobotConfig, from_dict
-from arpz.perf import fleet
 from arpz.perf.__main__ import main
 from arpz.perf.fleet import (
     FleetArgumentError,
@@ -17,7 +16,6 @@ from arpz.perf.fleet import (
     ceddp_configs,
     check_options,
     host_cpu_seconds,
-    host_probe_ms,
     parse_sweep,
     placement,
     robot_phases,
@@ -135,11 +133,3 @@ def test_host_cpu_reads_busy_total_and_stolen_ticks_of_proc_stat() -> None:
     assert total == pytest.approx(1900 / ticks)
     assert stolen == pytest.approx(60 / ticks)
     assert host_cpu_seconds("cpu 1 2 3 4")[2] == 0.0  # an old kernel without the steal column
-
-
-def test_the_host_probe_keeps_the_best_of_its_tries(monkeypatch: pytest.MonkeyPatch) -> None:
-    # three tries whose loops took 30, 10 and 20 ms: preempted tries are left out
-    readings = iter([0.0, 0.030, 1.0, 1.010, 2.0, 2.020])
-    monkeypatch.setattr(fleet, "PROBE_ITERATIONS", 10)
-    monkeypatch.setattr(fleet.time, "perf_counter", lambda: next(readings))
-    assert host_probe_ms(tries=3) == 10.0
