@@ -32,6 +32,18 @@ class LaunchError(ArpzError, RuntimeError):
     """A process did not start, stopped early, did not stop, or wrote no summary."""
 
 
+class PortTaken(LaunchError):
+    """The CEDDP could not listen on a port ``free_port`` had found free: another process
+    took it in between (a port cannot be held for a child to bind). The caller chooses new
+    ports and starts again (``PORT_ATTEMPTS``); seen under parallel tests."""
+
+
+#: how many times a caller starts a fleet on fresh ports after ``PortTaken``
+PORT_ATTEMPTS = 3
+#: what Zenoh's log says when a listener's port is taken (TCP and UDP alike)
+_PORT_TAKEN = "Address already in use"
+
+
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
     """A loopback port that was free a moment ago (bind to 0 and release): TCP, or UDP with
     ``socket.SOCK_DGRAM``. The one helper the tools, benchmarks and tests share."""
@@ -175,7 +187,12 @@ def run_fleet(
     try:
         ceddp = Proc.spawn("ceddp", ["-m", "arpz.ceddp", "--config", str(ceddp_path)], workdir)
         procs.append(ceddp)
-        ceddp.wait_line("ready on", timeout_s=60)
+        try:
+            ceddp.wait_line("ready on", timeout_s=60)
+        except LaunchError as exc:
+            if ceddp.popen.poll() is not None and ceddp.has_line(_PORT_TAKEN):
+                raise PortTaken(str(exc)) from None
+            raise
         order = [r for r in spec.first if r in robot_paths]
         order += [r for r in robot_paths if r not in order]
         robots: list[Proc] = []

@@ -64,28 +64,61 @@ class HeldHeartbeats:
 
 
 class SlowFirstDelivery:
-    """An ``on_data`` that is busy for ``busy_s`` on the sample ``first`` (the delivery thread
-    then cannot take what arrives meanwhile: it waits in the transport's queue)."""
+    """An ``on_data`` that is busy on the sample ``first`` until ``queue_behind`` has seen the
+    samples behind it arrive, then ``busy_s`` more (the delivery thread cannot take what
+    arrives meanwhile: it waits in the transport's queue). Busy for a fixed time from the
+    first sample instead, a loaded machine could bring the others after the busy spell, with
+    nothing queued (seen in CI)."""
 
     def __init__(self, first: bytes = b"first", busy_s: float = 0.3) -> None:
         self.first = first
         self.busy_s = busy_s
         self.started = threading.Event()
+        self.release = threading.Event()
         self.done: list[bytes] = []
 
     def __call__(self, payload: bytes, _info: object) -> None:
         if payload == self.first:
             self.started.set()
-            time.sleep(self.busy_s)  # deliberately: the delivery thread is busy
+            self.release.wait(10.0)  # deliberately: the delivery thread is busy
+            time.sleep(self.busy_s)
         self.done.append(payload)
 
-    def queue_behind(self, write: Callable[[bytes], object], more: int = 5) -> None:
-        """Write ``first``, then ``more`` samples while it is being delivered; wait for all."""
+    def queue_behind(
+        self,
+        write: Callable[[bytes], object],
+        more: int = 5,
+        arrived_through: Callable[[], int] | None = None,
+    ) -> None:
+        """Write ``first``, then ``more`` samples while it is being delivered; wait until
+        ``arrived_through`` (the highest seq the reader's session received, ``SeqProbe``) says
+        they all arrived, when given; then let the delivery go on and wait for all."""
         write(self.first)
         assert self.started.wait(5.0), "the first sample was never delivered"
         for i in range(more):
             write(str(i).encode())
+        if arrived_through is not None:
+            wait_until(lambda: arrived_through() >= more + 1, what="the samples behind it arrive")
+        self.release.set()
         wait_until(lambda: len(self.done) == more + 1, what=f"all {more + 1} delivered")
+
+
+class SeqProbe:
+    """A transport callback on a reliable topic's data key: the highest seq received (a DATA
+    message or a batch). Declared on the reader's session it says what reached the reader's
+    queue, which the queue itself does not."""
+
+    def __init__(self) -> None:
+        self.highest = 0
+
+    def __call__(self, _key: str, payload: bytes, attachment: bytes | None) -> None:
+        header = wire.decode_data(attachment)
+        if header is not None:
+            self.highest = max(self.highest, header.seq)
+            return
+        batch = wire.decode_batch(payload, attachment) if attachment is not None else None
+        if batch is not None:
+            self.highest = max(self.highest, batch.first + len(batch.payloads) - 1)
 
 
 @contextmanager

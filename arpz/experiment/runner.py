@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import shutil
 import signal
+import socket
 import sys
 import time
 from collections.abc import Callable
@@ -25,7 +26,7 @@ from arpz.errors import ArpzError
 from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
 from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile
-from arpz.launch import LaunchError, Proc, free_port, run_fleet
+from arpz.launch import PORT_ATTEMPTS, LaunchError, PortTaken, Proc, free_port, run_fleet
 from arpz.netem import GilbertElliott, Impairments, NetemProxy
 
 #: seconds a cell takes beyond its measurement (starting and stopping 4 processes), for the ETA
@@ -115,25 +116,20 @@ class Interrupted(ArpzError):
     """Ctrl-C or SIGTERM: the cell in progress is not written."""
 
 
-def run_cell(
-    spec: ExperimentSpec, cell: Cell, out: Path, *, keep_logs: bool = False
-) -> dict[str, Any]:
-    """Run one cell and return its results.csv row (status "error" when a part failed)."""
-    started = time.monotonic()
-    workdir = out / "runs" / cell.slug
-    if workdir.exists():
-        shutil.rmtree(workdir)
-    rrd_dir = out / "rrd"
-    rrd_dir.mkdir(parents=True, exist_ok=True)
-    rrd = rrd_dir / f"{cell.slug}.rrd"
-    udp_port, tcp_port = free_port(), free_port()
+def _run_on_fresh_ports(
+    spec: ExperimentSpec, cell: Cell, workdir: Path, rrd: Path
+) -> tuple[dict[str, Any], Links, dict[str, int]]:
+    """Start the links and the fleet on ports free a moment ago and run the cell's window;
+    (the CEDDP's summary, the links, their totals over the impaired window). Raises
+    LaunchError (PortTaken when another process took a port meanwhile); the links are stopped
+    whatever happens."""
+    udp_port, tcp_port = free_port(socket.SOCK_DGRAM), free_port()
     forward = f"udp/127.0.0.1:{udp_port}"
     profiles = {
         robot: spec.profile(spec.robot_networks.get(robot, cell.network))
         for robot in spec.robot_names
     }
     links = Links.start(forward, profiles, spec.seed + cell.repeat)
-    link_totals: dict[str, int] = {}
     try:
         fleet = cell_fleet(
             spec,
@@ -169,14 +165,38 @@ def run_cell(
         summary = run_fleet(
             fleet, workdir, duration_s=backstop, until=until, progress=None, label=cell.slug
         )
-    except LaunchError as exc:
-        link_totals = links.stop()
-        return error_row(
-            cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
-        )
     finally:
-        if not link_totals:
-            link_totals = links.stop()
+        link_totals = links.stop()
+    return summary, links, link_totals
+
+
+def run_cell(
+    spec: ExperimentSpec, cell: Cell, out: Path, *, keep_logs: bool = False
+) -> dict[str, Any]:
+    """Run one cell and return its results.csv row (status "error" when a part failed)."""
+    started = time.monotonic()
+    workdir = out / "runs" / cell.slug
+    if workdir.exists():
+        shutil.rmtree(workdir)
+    rrd_dir = out / "rrd"
+    rrd_dir.mkdir(parents=True, exist_ok=True)
+    rrd = rrd_dir / f"{cell.slug}.rrd"
+    attempt = 1
+    while True:
+        try:
+            summary, links, link_totals = _run_on_fresh_ports(spec, cell, workdir, rrd)
+            break
+        except PortTaken as exc:
+            if attempt >= PORT_ATTEMPTS:
+                return error_row(
+                    cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
+                )
+            attempt += 1
+            print(f"{cell.slug}: a port was taken; starting again on new ports", file=sys.stderr)
+        except LaunchError as exc:
+            return error_row(
+                cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
+            )
     measured = (links.last_seen or started) - (links.impaired_at or started)
     row = row_from_summary(
         cell,

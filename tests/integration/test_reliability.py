@@ -31,7 +31,7 @@ from arpz.reliability import (
     Writer,
     WriterEventCallbacks,
 )
-from tests.support import SlowFirstDelivery, client, router, wait_until
+from tests.support import SeqProbe, SlowFirstDelivery, client, router, wait_until
 
 pytestmark = pytest.mark.integration
 
@@ -385,9 +385,10 @@ def _across_a_router(
     qos: QosProfile,
     on_data: Callable[[bytes, DataInfo], None],
     router_config: str | None = None,
+    probe: SeqProbe | None = None,
 ) -> Iterator[tuple[Reader, Writer]]:
     """A Reader and a Writer on two client sessions of a real router (``router_config``: its
-    Zenoh JSON5 file), matched."""
+    Zenoh JSON5 file), matched; ``probe`` subscribed to the data on the reader's session."""
     with (
         router(config_file=router_config) as (_, endpoint),
         client(endpoint) as robot,
@@ -395,8 +396,15 @@ def _across_a_router(
         Reader(server, key, qos, on_data) as reader,
         Writer(robot, key, qos) as writer,
     ):
-        wait_until(lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match")
-        yield reader, writer
+        probed = server.subscribe(key, probe) if probe is not None else None
+        try:
+            wait_until(
+                lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match"
+            )
+            yield reader, writer
+        finally:
+            if probed is not None:
+                probed.undeclare()
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/task")
@@ -422,9 +430,9 @@ def test_a_reader_s_backlog_counts_from_the_router_s_receipt() -> None:
     """Zenoh's FIFO does not say how deep it is; the router's timestamp on every sample says
     how long the oldest waiting one has waited (the CEDDP's CeddpStats.ingest_backlog_ms).
     The reader on a client session, the writer on another, a real router between them."""
-    slow = SlowFirstDelivery(busy_s=0.3)
-    with _across_a_router("t/backlog", QOS_RELIABLE_ALL, slow) as (reader, writer):
-        slow.queue_behind(writer.write)
+    slow, probe = SlowFirstDelivery(busy_s=0.3), SeqProbe()
+    with _across_a_router("t/backlog", QOS_RELIABLE_ALL, slow, probe=probe) as (reader, writer):
+        slow.queue_behind(writer.write, arrived_through=lambda: probe.highest)
         waited = reader.take_backlog_ms()
         (p99,) = reader.backlog_ms_quantiles(99)  # every pull's wait, taken into the sample
     assert 200 <= waited < 5000, waited
@@ -453,9 +461,12 @@ def test_a_backlog_nobody_can_time_is_unknown_not_zero(tmp_path: Path) -> None:
     cannot tell how long they queued, and says so (None) rather than "no backlog"."""
     config = tmp_path / "no_timestamps.json5"
     config.write_text("{ timestamping: { enabled: { router: false } } }\n")
-    slow = SlowFirstDelivery(busy_s=0.3)
-    with _across_a_router("t/untimed", QOS_RELIABLE_ALL, slow, str(config)) as (reader, writer):
-        slow.queue_behind(writer.write)
+    slow, probe = SlowFirstDelivery(busy_s=0.3), SeqProbe()
+    with _across_a_router("t/untimed", QOS_RELIABLE_ALL, slow, str(config), probe) as (
+        reader,
+        writer,
+    ):
+        slow.queue_behind(writer.write, arrived_through=lambda: probe.highest)
         assert reader.take_backlog_ms() is None
         assert reader.worst_backlog_ms is None
         assert reader.backlog_ms_quantiles(50, 99) == [None, None]
