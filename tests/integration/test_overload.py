@@ -40,12 +40,13 @@ MAX_DRAIN_S = 40.0
 WATCH_S = 4.0
 
 
-def _robot(tmp: Path, robot: str, endpoint: str) -> Path:
+def _robot(tmp: Path, robot: str, endpoint: str, bundles: bool) -> Path:
     """Every reading sent (no local cache), so the offered load is what the QoS assigns."""
     path = tmp / f"{robot}.toml"
     path.write_text(
         f'robot_id = "{robot}"\nfleet = "itest"\nconnect = ["{endpoint}"]\n'
         'preset = "machine1"\npreset_rate_hz = 50\nstats_period_s = 0.2\n'
+        f"bundle_sensors = {str(bundles).lower()}\n"
         "[local_cache]\nenabled = false\n"
     )
     return path
@@ -78,14 +79,18 @@ class Watch:
             return [s for at, s in self.stats if at >= t]
 
 
+# with bundles (the configuration perf fleet measures) too: it failed with them before stop 39,
+# not understood (docs/protocol.md "Bundles"); it passes since, both before and after a bundled
+# robot's sensor writers stopped batching
+@pytest.mark.parametrize("bundles", [False, True], ids=["messages", "bundles"])
 def test_an_overloaded_ceddp_cuts_the_budget_and_returns_within_its_latency_bound(
-    tmp_path: Path,
+    tmp_path: Path, bundles: bool
 ) -> None:
     watch = Watch()
     with ceddp(tmp_path, extra=CEDDP) as (server, endpoint), client(endpoint) as raw:
         raw.subscribe("arpz/itest/ceddp/stats", watch.on_stats)
         raw.subscribe("arpz/itest/ceddp/qos", watch.on_assignment)
-        configs = [_robot(tmp_path, name, endpoint) for name in ("robot1", "robot2")]
+        configs = [_robot(tmp_path, name, endpoint, bundles) for name in ("robot1", "robot2")]
         with robots(tmp_path, configs) as procs:
             wait_until(
                 lambda: watch.overload_epoch() is not None,
