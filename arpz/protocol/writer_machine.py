@@ -203,7 +203,13 @@ class WriterMachine:
         self._pack = wire.DATA.pack
         #: deadline or manual liveliness: only then does a write need the time
         self._timed = qos.deadline_s > 0 or self._manual
-        self._n_reliable = 0
+        #: matched reliable readers
+        self.n_reliable = 0
+        #: advances whenever ``acknowledged_through`` may have changed but by a write (a reader
+        #: acknowledged, matched or left, an overwrite moved a reader on): a caller that asks
+        #: once a sample can keep the last answer while it stands (``Writer``). With no
+        #: reliable reader every write changes the answer, and the epoch says nothing
+        self.ack_epoch = 0
         #: write batching: payloads written but not yet sent (seq from ``last_seq - len(batch) +
         #: 1``) and their stamps; kept apart from the history, which may overwrite them
         self.batch: list[bytes] = []
@@ -323,7 +329,7 @@ class WriterMachine:
         seq = self.last_seq = self.last_seq + 1
         history[seq] = (payload, stamp_ns)
         flags = 0
-        if self._n_reliable and (
+        if self.n_reliable and (
             self._ack_on_next_write or seq - self._last_ack_request >= self._ack_interval
         ):
             flags = wire.F_ACK_REQUEST
@@ -338,7 +344,7 @@ class WriterMachine:
             self._asserted_since_hb = True
             self._deadline_met(now, timed)
             self._lease.assert_alive(now)
-        if not self._n_reliable and self._purges and len(history) >= _PURGE_EVERY:
+        if not self.n_reliable and self._purges and len(history) >= _PURGE_EVERY:
             self._purge()  # nobody needs these; amortised, not on every write
         if self._batch_max == 1:
             return (
@@ -467,6 +473,7 @@ class WriterMachine:
             if p.reliable and seq >= p.acked:
                 self.overwritten_unacked += 1
                 p.acked = seq + 1
+                self.ack_epoch += 1
 
     def _assert(self, now: float) -> None:
         self._asserted_since_hb = True
@@ -587,7 +594,8 @@ class WriterMachine:
             p = self.proxies.pop(guid, None)
             if p is None:
                 return []
-            self._n_reliable -= p.reliable
+            self.n_reliable -= p.reliable
+            self.ack_epoch += 1
             self._purge()
             return [self._matched(-1, hex_)]
         if guid in self.proxies or guid in self._incompatible:
@@ -608,7 +616,8 @@ class WriterMachine:
         p.requested_deadline_s = mq.as_profile().deadline_s
         self.proxies[guid] = p
         self._rearm(self._mono())
-        self._n_reliable += p.reliable
+        self.n_reliable += p.reliable
+        self.ack_epoch += 1
         if p.reliable:
             self.history_offered += max(self.last_seq - start + 1, 0)
         self.matched_total += 1
@@ -640,6 +649,7 @@ class WriterMachine:
         base = min(an.base, self.last_seq + 1)
         if base > p.acked:
             p.acked = base
+            self.ack_epoch += 1
         if p.resent:
             p.confirmed(max(p.acked, self.first))
         # A seq resent less than the holdoff ago is still on its way (a burst of resends to a

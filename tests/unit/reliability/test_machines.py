@@ -735,3 +735,49 @@ def test_a_writer_that_leaves_with_a_gap_is_unmatched_once_and_its_slot_can_be_r
     bus.run_for(0.5)
     assert ("t/a", guid) in r.writers
     bus.remove(again)
+
+
+def test_the_ack_epoch_moves_whenever_acknowledged_through_does() -> None:
+    """``Writer.acknowledged_through`` keeps its last figure while the machine's ``ack_epoch``
+    stands: every change of the figure but a write without reliable readers must move the
+    epoch. Checked at every step of a lossy KEEP_LAST run (ACKNACKs, overwrites that move a
+    reader on, GAPs), a second reader matching and both leaving."""
+    bus, _ = world(11, Link(loss=0.2, delay_s=0.003))
+    writer = bus.add(WriterMachine("t/a", QosProfile(depth=2), new_guid(), bus.clock))
+    first = bus.add(ReaderMachine("t/a", QosProfile(depth=2), new_guid(), bus.clock))
+    w = writer.machine
+    assert isinstance(w, WriterMachine)
+    kept = (-1, 0)  # (epoch, figure) as a Writer keeps them
+    checked = 0
+
+    def check() -> None:
+        nonlocal kept, checked
+        epoch, figure = kept
+        if w.ack_epoch == epoch and w.n_reliable:
+            assert figure == w.acknowledged_through(), (epoch, figure, w.acknowledged_through())
+            checked += 1
+        else:
+            kept = (w.ack_epoch, w.acknowledged_through())
+
+    bus.run_for(0.3)
+    second = None
+    for i in range(1500):
+        bus.write(writer, b"%d" % i)
+        check()
+        if i == 500:
+            second = bus.add(ReaderMachine("t/a", QosProfile(depth=2), new_guid(), bus.clock))
+        if i == 1000:
+            bus.remove(first)
+        if i % 3 == 0:
+            bus.step(0.0005)
+            check()
+    assert second is not None
+    bus.run_for(1.0)
+    check()
+    bus.remove(second)
+    bus.run_for(0.1)  # the reader's token goes on the bus
+    assert w.n_reliable == 0
+    bus.write(writer, b"after")  # no reliable reader: the figure is every write's
+    check()
+    assert w.acknowledged_through() == w.last_seq
+    assert checked > 300, checked  # steps where the kept figure was the one returned
