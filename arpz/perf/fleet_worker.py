@@ -29,6 +29,8 @@ from arpz.transport import SessionSettings
 from arpz.zenoh_transport import ZenohTransport
 
 log = logging.getLogger("arpz.perf.fleet")
+#: how long a robot waits for its settling burst's replies (``RobotAgent.settle_clock``)
+SETTLE_CLOCK_S = 1.0
 
 
 def _counts(agent: RobotAgent) -> dict[str, Any]:
@@ -114,6 +116,11 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         print(f"arpz.perf fleet-worker {index}: ready ({len(agents)} robots)", flush=True)
         while not go_file.exists() and not stop.is_set():
             time.sleep(0.01)
+        # every robot's clock estimate again, now that the fleet has started and before its
+        # load (one robot after another: the exchanges must not queue behind each other)
+        unsettled = [n for n, a in agents.items() if not a.settle_clock(SETTLE_CLOCK_S)]
+        if unsettled:
+            log.warning("clock not settled within %.1f s: %s", SETTLE_CLOCK_S, unsettled)
         started = time.monotonic()
         # each robot's jobs at its own phase of their periods (``--robot-phases``): released
         # together they would run in lockstep, every report of the fleet in the same instant

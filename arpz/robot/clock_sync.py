@@ -53,6 +53,9 @@ class ClockSync:
         self.bad_replies = 0
         #: requests the transport refused to send (session closing)
         self.send_failures = 0
+        #: ``settle``'s burst: its first request's stamp, and its replies so far
+        self._settle_from_ns = 2**63
+        self._settle_replies = 0
 
     def wall_ns(self) -> int:
         """This robot's wall clock for every stamp it makes (shifted by ``shift_s``)."""
@@ -83,6 +86,23 @@ class ClockSync:
         self.exchange()
         return self._first.wait(timeout_s)
 
+    def settle(self, timeout_s: float) -> bool:
+        """A burst, and wait (bounded) until every one of its replies came: whether they did.
+        For a caller that knows the link is calm now (``RobotAgent.settle_clock``): the filter
+        then holds this burst's exchanges, and keeps the fastest of them and the earlier ones."""
+        with self._lock:
+            self._settle_from_ns = self.wall_ns()
+            self._settle_replies = 0
+        self.exchange()
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._lock:
+                if self._settle_replies >= self.config.burst:
+                    return True
+            if time.monotonic() >= deadline:
+                return False
+            time.sleep(0.001)
+
     def _on_reply(self, payload: bytes) -> None:
         t4_ns = self.wall_ns()
         try:
@@ -98,6 +118,8 @@ class ClockSync:
             if not self._filter.add(exchange):
                 self.bad_replies += 1
                 return
+            if reply.t1_ns >= self._settle_from_ns:
+                self._settle_replies += 1
         self._first.set()
 
     def stats(self) -> ClockStats:

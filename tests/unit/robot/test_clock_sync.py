@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import threading
 import time
 
 from arpz.ceddp.clock_service import ClockService
 from arpz.config import RobotClockConfig
 from arpz.memory_transport import MemoryBus, MemoryTransport
 from arpz.robot.clock_sync import ClockSync
+from arpz.transport import ReplyCallback
+from tests.support import wait_until
 
 
 def test_a_shifted_robot_measures_its_shift_against_the_ceddp() -> None:
@@ -47,3 +50,52 @@ def test_bad_requests_and_bad_replies_are_counted_not_used() -> None:
 def test_the_wall_clock_of_a_robot_is_shifted_by_shift_s() -> None:
     sync = ClockSync(RobotClockConfig(shift_s=-2.0), MemoryTransport(MemoryBus()), "f")
     assert abs(sync.wall_ns() - (time.time_ns() - 2_000_000_000)) < 50_000_000
+
+
+class _SlowReplies(MemoryTransport):
+    """Replies come back ``reply_delay_s`` late (a congested link back to the robot): an
+    exchange whose delay is all on one side, so its offset is off by half of it."""
+
+    def __init__(self, bus: MemoryBus) -> None:
+        super().__init__(bus)
+        self.reply_delay_s = 0.0
+
+    def request(
+        self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
+    ) -> None:
+        delay_s = self.reply_delay_s
+
+        def later(answer: bytes) -> None:
+            if delay_s:
+                threading.Timer(delay_s, on_reply, args=(answer,)).start()
+            else:
+                on_reply(answer)
+
+        super().request(key, payload, later, timeout_s=timeout_s)
+
+
+def test_settling_in_calm_replaces_a_first_estimate_taken_in_congestion() -> None:
+    """The load generator's case: the first burst's replies come 40 ms late (the estimate is
+    off by about 20 ms, though both clocks are one); a settling burst on a calm link waits for
+    all of its replies, and the estimate is then within one or two milliseconds."""
+    bus = MemoryBus()
+    ClockService(MemoryTransport(bus), "f").start()
+    link = _SlowReplies(bus)
+    sync = ClockSync(RobotClockConfig(burst=3), link, "f")
+    link.reply_delay_s = 0.04
+    assert sync.first_estimate(1.0)
+    off = sync.stats().offset_ns
+    assert off is not None and off <= -15_000_000, off  # the congested estimate
+    wait_until(lambda: sync.replies == 3, what="the congested burst's last replies")
+    link.reply_delay_s = 0.002  # calm: replies still come after settle's requests returned
+    assert sync.settle(1.0)
+    stats = sync.stats()
+    assert stats.offset_ns is not None and abs(stats.offset_ns) < 2_000_000, stats
+    assert stats.samples == 6
+
+
+def test_settling_without_a_clock_service_gives_up_in_time() -> None:
+    sync = ClockSync(RobotClockConfig(burst=2), MemoryTransport(MemoryBus()), "f")
+    started = time.monotonic()
+    assert not sync.settle(0.05)
+    assert time.monotonic() - started < 1.0
