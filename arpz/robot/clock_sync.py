@@ -88,8 +88,9 @@ class ClockSync:
 
     def settle(self, timeout_s: float) -> bool:
         """A burst, and wait (bounded) until every one of its replies came: whether they did.
-        For a caller that knows the link is calm now (``RobotAgent.settle_clock``): the filter
-        then holds this burst's exchanges, and keeps the fastest of them and the earlier ones."""
+        For a caller that knows the link is calm now (``RobotAgent.settle_clock``): the
+        estimate is then the fastest of this burst's exchanges and the earlier ones of the
+        filter's window."""
         with self._lock:
             self._settle_from_ns = self.wall_ns()
             self._settle_replies = 0
