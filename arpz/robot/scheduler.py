@@ -129,6 +129,8 @@ class Scheduler:
     def _reschedule(job: Job, now_s: float, on_late: Callable[[Job, int], None] | None) -> None:
         job.due_s += job.period_s
         if job.due_s < now_s - job.period_s:
+            # re-aligned to a period from now: the periods between this run's due time and
+            # the next run are periods without a run (with the re-alignment's fraction)
             if on_late is not None:
-                on_late(job, int((now_s - job.due_s) / job.period_s))
+                on_late(job, round((now_s - job.due_s) / job.period_s) + 1)
             job.due_s = now_s + job.period_s

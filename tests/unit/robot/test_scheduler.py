@@ -129,3 +129,31 @@ def test_stagger_puts_every_job_at_its_fraction_of_its_own_period() -> None:
     assert runs == [("fast", 5.0025)] and late == []
     with pytest.raises(ValueError, match="fraction"):
         scheduler.stagger(0.0, 1.0)
+
+
+def test_runs_and_late_ticks_add_up_to_the_periods_that_passed() -> None:
+    """What a late robot did not sense is counted: the periods a stalled job skipped are its
+    late ticks, so its runs + late ticks = the periods that passed. The fleet's load generator
+    reads its shortfall from this (issue 17: it counted about half of what a stalled robot
+    skipped, one period too few per stall)."""
+    scheduler = Scheduler()
+    clock = StepClock()
+    late = [0]
+    runs = [0]
+    stalls = iter([0.025, 0.0, 0.047, 0.0, 0.0, 0.013, 0.101] * 40)
+
+    def stalling(_now: float) -> None:
+        clock.now_s += next(stalls, 0.0)  # the thread held up (the GIL, the CPU)
+
+    def sensor(_now: float) -> None:
+        runs[0] += 1
+
+    def count(job: Job, ticks: int) -> None:
+        if job is imu:
+            late[0] += ticks
+
+    scheduler.every(0.05, stalling, "body")
+    imu = scheduler.every(0.01, sensor, "imu")
+    scheduler.run(clock.stop, clock, end_s=10.0, on_late=count)
+    assert late[0] > 100, late
+    assert abs(runs[0] + late[0] - 1000) <= 3, (runs[0], late[0])  # 10 s of 10 ms periods
