@@ -18,7 +18,7 @@ from typing import Any, TextIO
 
 from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, emit_json, fail
 from arpz.errors import ArpzError
-from arpz.launch import PORT_ATTEMPTS, FleetSpec, LaunchError, PortTaken, Proc, free_port, run_fleet
+from arpz.launch import FleetSpec, LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 
 PRESET_CYCLE = ("machine1", "machine2", "machine3")
 #: exit code of a mission that ran and failed (as opposed to 1: the demo itself failed)
@@ -107,27 +107,23 @@ def run_demo(options: DemoOptions, workdir: Path, progress: TextIO = sys.stderr)
     def mission_over(ceddp: Proc) -> bool:
         return ceddp.has_line("arpz.ceddp: mission ")
 
-    attempt = 1
-    while True:
+    def start() -> tuple[FleetSpec, dict[str, Any]]:
         spec = demo_spec(options, f"tcp/127.0.0.1:{free_port()}")
-        try:
-            summary = run_fleet(
-                spec,
-                workdir,
-                # a mission ends with its verdict; the time limit is the judge's, plus a margin
-                duration_s=options.duration_s + (30 if options.mission else 0),
-                until=mission_over if options.mission else None,
-                progress=progress,
-                label="demo",
-            )
-            break
-        except PortTaken as exc:
-            if attempt >= PORT_ATTEMPTS:
-                raise DemoError(str(exc)) from None
-            attempt += 1
-            print("demo: the CEDDP's port was taken; starting again on a new one", file=progress)
-        except LaunchError as exc:
-            raise DemoError(str(exc)) from None
+        summary = run_fleet(
+            spec,
+            workdir,
+            # a mission ends with its verdict; the time limit is the judge's, plus a margin
+            duration_s=options.duration_s + (30 if options.mission else 0),
+            until=mission_over if options.mission else None,
+            progress=progress,
+            label="demo",
+        )
+        return spec, summary
+
+    try:
+        spec, summary = on_fresh_ports(start, lambda why: print(f"demo: {why}", file=progress))
+    except LaunchError as exc:
+        raise DemoError(str(exc)) from None
     failures = check_summary(summary, len(spec.robots), hello=options.mission is None)
     if failures:
         print(format_summary(summary), file=progress)

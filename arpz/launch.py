@@ -21,11 +21,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, TypeVar
 
 import tomli_w
 
 from arpz.errors import ArpzError
+
+T = TypeVar("T")
 
 
 class LaunchError(ArpzError, RuntimeError):
@@ -34,11 +36,11 @@ class LaunchError(ArpzError, RuntimeError):
 
 class PortTaken(LaunchError):
     """The CEDDP could not listen on a port ``free_port`` had found free: another process
-    took it in between (a port cannot be held for a child to bind). The caller chooses new
-    ports and starts again (``PORT_ATTEMPTS``); seen under parallel tests."""
+    took it in between (a port cannot be held for a child to bind). ``on_fresh_ports`` starts
+    again on new ones; seen under parallel tests."""
 
 
-#: how many times a caller starts a fleet on fresh ports after ``PortTaken``
+#: how many times ``on_fresh_ports`` starts a fleet on fresh ports after ``PortTaken``
 PORT_ATTEMPTS = 3
 #: what Zenoh's log says when a listener's port is taken (TCP and UDP alike)
 _PORT_TAKEN = "Address already in use"
@@ -150,6 +152,20 @@ class Proc:
         if self.log_path is None:
             return f"its output:\n{self.output()}"
         return f"see {self.log_path}" + (f":\n{self.tail()}" if tail else "")
+
+
+def on_fresh_ports(start: Callable[[], T], say: Callable[[str], None]) -> T:
+    """``start()``, again after ``PortTaken`` (up to ``PORT_ATTEMPTS`` times; ``say`` tells
+    why): ``start`` must choose its ports on every call. Any other ``LaunchError``, and the
+    last ``PortTaken``, go to the caller."""
+    for attempt in range(1, PORT_ATTEMPTS + 1):
+        try:
+            return start()
+        except PortTaken:
+            if attempt == PORT_ATTEMPTS:
+                raise
+            say("a port was taken between its choice and the bind; starting again on new ports")
+    raise AssertionError("unreachable")  # the loop returns or raises
 
 
 @dataclass

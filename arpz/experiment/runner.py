@@ -26,7 +26,7 @@ from arpz.errors import ArpzError
 from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
 from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile
-from arpz.launch import PORT_ATTEMPTS, LaunchError, PortTaken, Proc, free_port, run_fleet
+from arpz.launch import LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 from arpz.netem import GilbertElliott, Impairments, NetemProxy
 
 #: seconds a cell takes beyond its measurement (starting and stopping 4 processes), for the ETA
@@ -181,22 +181,15 @@ def run_cell(
     rrd_dir = out / "rrd"
     rrd_dir.mkdir(parents=True, exist_ok=True)
     rrd = rrd_dir / f"{cell.slug}.rrd"
-    attempt = 1
-    while True:
-        try:
-            summary, links, link_totals = _run_on_fresh_ports(spec, cell, workdir, rrd)
-            break
-        except PortTaken as exc:
-            if attempt >= PORT_ATTEMPTS:
-                return error_row(
-                    cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
-                )
-            attempt += 1
-            print(f"{cell.slug}: a port was taken; starting again on new ports", file=sys.stderr)
-        except LaunchError as exc:
-            return error_row(
-                cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
-            )
+    try:
+        summary, links, link_totals = on_fresh_ports(
+            lambda: _run_on_fresh_ports(spec, cell, workdir, rrd),
+            lambda why: print(f"{cell.slug}: {why}", file=sys.stderr),
+        )
+    except LaunchError as exc:
+        return error_row(
+            cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
+        )
     measured = (links.last_seen or started) - (links.impaired_at or started)
     row = row_from_summary(
         cell,

@@ -59,8 +59,8 @@ LOSSY_HOLD_PERIODS = 50
 BATCH_MAX_BYTES = 48 * 1024
 
 
-#: the longest a quiet writer's heartbeat timer sleeps (``WriterMachine._go_quiet``): the
-#: driver's own idle period (``arpz.reliability._channel.MAX_IDLE_S``)
+#: the longest a quiet writer's heartbeat timer sleeps (``WriterMachine._go_quiet``); the
+#: driver's idle period (``arpz.reliability._channel.MAX_IDLE_S``) is this one
 QUIET_HEARTBEAT_S = 1.0
 
 

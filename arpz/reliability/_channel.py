@@ -31,7 +31,7 @@ from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, Tok
 from arpz.protocol.events import DataInfo
 from arpz.protocol.reader_machine import ReaderMachine
 from arpz.protocol.timers import BacklogMeter, SojournMeter, WaitMeter
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.protocol.writer_machine import QUIET_HEARTBEAT_S, WriterMachine
 from arpz.throttled_log import ThrottledLog
 from arpz.transport import Handle, PullSubscriber, Transport, TransportError
 
@@ -90,8 +90,9 @@ class _Turns:
 
 _TOKEN = object()
 _POST = object()
-#: the longest a worker sleeps with nothing to do (a writer's next heartbeat comes sooner)
-MAX_IDLE_S = 1.0
+#: the longest a worker sleeps with nothing to do (a writer's next heartbeat comes sooner): a
+#: quiet writer's timer horizon, so that neither wakes the worker the other does not
+MAX_IDLE_S = QUIET_HEARTBEAT_S
 
 
 def _heartbeat_at(writer: WriterMachine, now: float) -> float:

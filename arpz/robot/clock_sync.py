@@ -56,6 +56,7 @@ class ClockSync:
         #: ``settle``'s burst: its first request's stamp, and its replies so far
         self._settle_from_ns = 2**63
         self._settle_replies = 0
+        self._settled = threading.Event()
 
     def wall_ns(self) -> int:
         """This robot's wall clock for every stamp it makes (shifted by ``shift_s``)."""
@@ -94,15 +95,9 @@ class ClockSync:
         with self._lock:
             self._settle_from_ns = self.wall_ns()
             self._settle_replies = 0
+            self._settled.clear()
         self.exchange()
-        deadline = time.monotonic() + timeout_s
-        while True:
-            with self._lock:
-                if self._settle_replies >= self.config.burst:
-                    return True
-            if time.monotonic() >= deadline:
-                return False
-            time.sleep(0.001)
+        return self._settled.wait(timeout_s)
 
     def _on_reply(self, payload: bytes) -> None:
         t4_ns = self.wall_ns()
@@ -121,6 +116,8 @@ class ClockSync:
                 return
             if reply.t1_ns >= self._settle_from_ns:
                 self._settle_replies += 1
+                if self._settle_replies >= self.config.burst:
+                    self._settled.set()
         self._first.set()
 
     def stats(self) -> ClockStats:

@@ -17,7 +17,6 @@ from pathlib import Path
 import msgspec
 
 from arpz import keys
-from arpz.bundling import Bundler
 from arpz.channel_io import FrameOutlet, Outlet
 from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
 from arpz.endpoints import frame_fragment_bytes
@@ -134,7 +133,7 @@ def sensor_outlet(
 ) -> Outlet | FrameOutlet:
     """A camera or point cloud through the channel goes as fragments on ``frames/{topic}``
     (``frames_qos``); every other sensor, and every sensor in plain mode, on ``sensor/{topic}``
-    (behind a ``Bundler``: unbatched, the bundle being its batching)."""
+    (with ``bundle_sensors``: unbatched, the tick's bundle being its batching)."""
     frames_qos = config.profile("frames")
     if sensor.kind in LARGE_KINDS and frames_qos is not None:
         key = keys.frames_key(config.fleet, config.robot_id, sensor.name)
@@ -142,7 +141,7 @@ def sensor_outlet(
         return FrameOutlet(transport, key, frames_qos, LARGE_SAMPLE_BYTES, fragment_bytes)
     key = keys.sensor_key(config.fleet, config.robot_id, sensor.name)
     qos = config.profile("sensor")
-    if qos is not None and isinstance(transport, Bundler) and qos.batching:
+    if qos is not None and config.bundle_sensors and qos.batching:
         # The tick's bundle batches a robot's sensor messages already. A writer's own batch
         # opened only when the robot ran late and wrote a topic twice within batch_max_delay_s
         # (a catch-up tick): that sample then left the bundle and waited for the writer's
