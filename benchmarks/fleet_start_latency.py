@@ -58,7 +58,11 @@ def main() -> int:
     if not args.rrd.is_file():
         print(f"fleet_start_latency: no such file: {args.rrd}", file=sys.stderr)
         return 2
-    rows = series(args.rrd, ("latency_ms_p50", "clock_offset_ms", "clock_delay_ms"))
+    try:
+        rows = series(args.rrd, ("latency_ms_p50", "clock_offset_ms", "clock_delay_ms"))
+    except RuntimeError as exc:  # rerun's reader: not an .rrd, or cut short
+        print(f"fleet_start_latency: cannot read {args.rrd}: {exc}", file=sys.stderr)
+        return 2
     p50 = {p.split("/")[3]: v for p, v in rows.items() if p.startswith("/metrics/latency_ms_p50/")}
     if not p50:
         print(f"fleet_start_latency: no latency series in {args.rrd}", file=sys.stderr)
