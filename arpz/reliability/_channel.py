@@ -95,9 +95,15 @@ _POST = object()
 MAX_IDLE_S = QUIET_HEARTBEAT_S
 
 
-def _heartbeat_at(writer: WriterMachine, now: float) -> float:
-    """When (``time.monotonic``) the writer's heartbeat timer fires; its clock may be another."""
-    return now + max(0.0, writer.next_heartbeat_s - writer.clock.monotonic_s())
+def _heartbeat_at(writer: WriterMachine) -> float:
+    """When (``time.monotonic``) the writer's heartbeat timer fires; its clock may be another.
+
+    Its clock is read first and ``time.monotonic`` after it, so that with the same clock the
+    answer is never before the heartbeat is due. Reading "now" first, before the tick that
+    set the timer, woke the worker as early as the tick and its lock had taken (on a loaded
+    CI host, long enough for a quiet writer to wake twice, 0.2 ms apart)."""
+    remaining = writer.next_heartbeat_s - writer.clock.monotonic_s()
+    return time.monotonic() + max(0.0, remaining)
 
 
 def tick_intervals_s(machine: WriterMachine | ReaderMachine) -> tuple[float, float]:
@@ -416,7 +422,7 @@ class Channel:
                             self._count_error("reliable channel worker: unexpected error")
                     if writer is not None:
                         self.lock.notify_all()  # a KEEP_ALL write may be waiting for room
-                        next_tick = min(next_tick, _heartbeat_at(writer, time.monotonic()))
+                        next_tick = min(next_tick, _heartbeat_at(writer))
                     if self.machine.busy():
                         next_tick = min(next_tick, time.monotonic() + self._fine_s)
                     if self._tick_now:
@@ -440,7 +446,7 @@ class Channel:
                         actions = []
                     next_tick = now + (self._fine_s if self.machine.busy() else self._idle_s)
                     if writer is not None:
-                        next_tick = min(next_tick, _heartbeat_at(writer, now))
+                        next_tick = min(next_tick, _heartbeat_at(writer))
                     self.next_tick_s = next_tick
                     ticket = self._ticket(actions)
                 self._perform_in_turn(ticket, actions)

@@ -388,7 +388,8 @@ def _across_a_router(
     probe: SeqProbe | None = None,
 ) -> Iterator[tuple[Reader, Writer]]:
     """A Reader and a Writer on two client sessions of a real router (``router_config``: its
-    Zenoh JSON5 file), matched; ``probe`` subscribed to the data on the reader's session."""
+    Zenoh JSON5 file), matched and synced; ``probe`` subscribed to the data on the reader's
+    session."""
     with (
         router(config_file=router_config) as (_, endpoint),
         client(endpoint) as robot,
@@ -401,6 +402,10 @@ def _across_a_router(
             wait_until(
                 lambda: writer.matched_count == 1 and reader.matched_count == 1, what="match"
             )
+            # and synced: a sample that reaches the reader before the writer's SYNC waits in
+            # its buffer and is delivered by the worker when SYNC comes, not by the delivery
+            # thread these tests time (seen in CI: the slow pass ran on the worker)
+            assert writer.wait_for_acknowledgments(5.0), "the reader never answered SYNC"
             yield reader, writer
         finally:
             if probed is not None:

@@ -30,7 +30,7 @@ from arpz.reliability import (
     Writer,
     WriterEventCallbacks,
 )
-from arpz.reliability._channel import _Turns, tick_intervals_s
+from arpz.reliability._channel import _heartbeat_at, _Turns, tick_intervals_s
 from arpz.transport import TransportError
 from tests.support import SlowFirstDelivery, wait_until
 
@@ -318,6 +318,28 @@ def test_a_writer_ticks_at_its_batch_delay_or_sync_period_not_at_the_reader_s_na
     assert tick_intervals_s(reader)[0] == 0.002
     quick = QosProfile(nack_delay_s=0.002, nack_period_s=0.02, batch_max_delay_s=0.0005)
     assert tick_intervals_s(WriterMachine("t/a", quick, new_guid(), FakeClock()))[0] == 0.0005
+
+
+class _PreemptedClock:
+    """The real monotonic clock, read by a thread that then loses the CPU for 5 ms."""
+
+    def monotonic_s(self) -> float:
+        now = time.monotonic()
+        time.sleep(0.005)  # deliberately: the reading thread waits for the GIL
+        return now
+
+    def wall_ns(self) -> int:
+        return time.time_ns()
+
+
+def test_a_writer_s_worker_never_aims_before_its_heartbeat_is_due() -> None:
+    """The worker sleeps until the writer's next heartbeat; aimed a little early, it woke to
+    find nothing due and woke again at once (a quiet writer ticked twice 0.2 ms apart in CI).
+    The machine's clock and the worker's may be read with a pause between them."""
+    writer = WriterMachine("t/a", QosProfile(heartbeat_period_s=0.2), new_guid(), _PreemptedClock())
+    writer.tick()  # arms the timer a period from now, in the machine's clock
+    for _ in range(5):
+        assert _heartbeat_at(writer) >= writer.next_heartbeat_s
 
 
 def count_ticks(writer: Writer) -> list[float]:
