@@ -18,7 +18,7 @@ and in robot.toml: ``driver = "mypackage.sensors:GpioPir"`` with ``options = { p
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any, ClassVar, cast
 
 from arpz.errors import ArpzError
 from arpz.messages import SensorValue
@@ -69,17 +69,18 @@ class DriverValueError(ArpzError, TypeError):
 
 
 def check_value(kind: str, value: object) -> SensorValue:
-    """Make sure a driver's value has the Table 1 type; ints are accepted for float kinds."""
+    """Make sure a driver's value has the Table 1 type; ints are accepted for float kinds.
+
+    Called for every reading (40 000 a second in ``python -m arpz.perf fleet``): a value of
+    exactly its kind's type is checked first and returned as it is."""
     expected = VALUE_TYPES[kind]
+    if type(value) is expected:
+        allowed = STRING_VALUES.get(kind)
+        if allowed is None or value in allowed:
+            return cast(SensorValue, value)
+        choices = " or ".join(repr(v) for v in allowed)
+        raise DriverValueError(f"a {kind} driver must return {choices}, got {value!r}")
     if expected is float and isinstance(value, int) and not isinstance(value, bool):
         return float(value)
-    if type(value) is not expected:
-        raise DriverValueError(
-            f"a {kind} driver must return {expected.__name__}, "
-            f"got {type(value).__name__}: {value!r:.80}"
-        )
-    if kind in STRING_VALUES and value not in STRING_VALUES[kind]:
-        allowed = " or ".join(repr(v) for v in STRING_VALUES[kind])
-        raise DriverValueError(f"a {kind} driver must return {allowed}, got {value!r}")
-    assert isinstance(value, float | bool | str | bytes)
-    return value
+    got = f"{type(value).__name__}: {value!r:.80}"
+    raise DriverValueError(f"a {kind} driver must return {expected.__name__}, got {got}")

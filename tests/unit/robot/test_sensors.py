@@ -2,6 +2,7 @@ import itertools
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from arpz.config import SensorConfig
@@ -9,7 +10,7 @@ from arpz.robot.sensors import make_driver, preset_sensors
 from arpz.robot.sensors.base import SensorDriver, check_value
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
-from arpz.robot.sensors.simulated import SIMULATED
+from arpz.robot.sensors.simulated import SIMULATED, _Quantiser
 
 EXPECTED_TYPES = {
     "lidar": float,
@@ -155,10 +156,33 @@ def test_user_driver_by_import_path_and_errors() -> None:
 
 def test_check_value_enforces_table_1() -> None:
     assert check_value("lidar", 3) == 3.0
+    assert type(check_value("lidar", 3)) is float
+    assert check_value("lidar", 2.5) == 2.5
+    assert check_value("pir", "detect") == "detect"
+    assert check_value("light", "dark") == "dark"
+    assert check_value("flame", False) is False
+    assert check_value("camera", b"\x00\x01") == b"\x00\x01"
     with pytest.raises(TypeError):
         check_value("flame", 1)
-    with pytest.raises(TypeError):
+    with pytest.raises(TypeError, match="detect"):
         check_value("pir", "maybe")
+    with pytest.raises(TypeError):
+        check_value("lidar", True)  # a bool is an int, not a reading
+    with pytest.raises(TypeError):
+        check_value("camera", bytearray(2))
+    with pytest.raises(TypeError):
+        check_value("light", 1.0)
+
+
+def test_a_quantised_reading_is_the_level_rounded_to_6_decimals_each_time() -> None:
+    """The quantiser keeps each level's float: the same as computing it again, every time."""
+    rng = np.random.default_rng(5)
+    for step in (0.01, 0.3, 9.80665 / 16384):
+        quantise = _Quantiser(step)
+        for value in rng.normal(5.0, 3.0, 2000):
+            expected = round(round(float(value) / step) * step, 6)
+            assert quantise(float(value)) == expected
+            assert quantise(float(value)) == expected  # the kept level
 
 
 @pytest.mark.parametrize(("kind", "size"), [("camera", 640 * 480 * 3), ("pointcloud", 87_381 * 12)])
