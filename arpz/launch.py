@@ -43,7 +43,7 @@ class PortTaken(LaunchError):
 #: how many times ``on_fresh_ports`` starts a fleet on fresh ports after ``PortTaken``
 PORT_ATTEMPTS = 3
 #: what Zenoh's log says when a listener's port is taken (TCP and UDP alike)
-_PORT_TAKEN = "Address already in use"
+PORT_TAKEN_LOG = "Address already in use"
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -206,7 +206,7 @@ def run_fleet(
         try:
             ceddp.wait_line("ready on", timeout_s=60)
         except LaunchError as exc:
-            if ceddp.popen.poll() is not None and ceddp.has_line(_PORT_TAKEN):
+            if ceddp.popen.poll() is not None and ceddp.has_line(PORT_TAKEN_LOG):
                 raise PortTaken(str(exc)) from None
             raise
         order = [r for r in spec.first if r in robot_paths]

@@ -8,9 +8,9 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from arpz.launch import free_port  # re-exported: the tests import it from here
+from arpz.launch import PORT_TAKEN_LOG, free_port  # free_port: the tests import it from here
 from arpz.protocol import wire
-from arpz.transport import SessionSettings
+from arpz.transport import SessionSettings, TransportError
 from arpz.zenoh_transport import ZenohTransport
 
 
@@ -121,18 +121,29 @@ class SeqProbe:
             self.highest = max(self.highest, batch.first + len(batch.payloads) - 1)
 
 
+#: fresh ports ``router`` tries when the one it chose was taken meanwhile
+ROUTER_PORT_TRIES = 3
+
+
 @contextmanager
 def router(
     port: int | None = None, config_file: str | None = None
 ) -> Iterator[tuple[ZenohTransport, str]]:
     """A real Zenoh router (a Python session in router mode) on loopback.
 
-    Yields (transport, endpoint)."""
-    port = port or free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    transport = ZenohTransport.open(
-        SessionSettings(mode="router", listen=[endpoint], config_file=config_file)
-    )
+    Yields (transport, endpoint). Without ``port``, one that another process takes between
+    ``free_port`` and the bind is replaced by a new one (up to 3 tries), as ``arpz.launch``
+    does for the tools (a CI run failed on that race, stop 38)."""
+    for attempt in range(1, ROUTER_PORT_TRIES + 1):
+        endpoint = f"tcp/127.0.0.1:{port or free_port()}"
+        try:
+            transport = ZenohTransport.open(
+                SessionSettings(mode="router", listen=[endpoint], config_file=config_file)
+            )
+            break
+        except TransportError as exc:
+            if port is not None or attempt == ROUTER_PORT_TRIES or PORT_TAKEN_LOG not in str(exc):
+                raise
     try:
         yield transport, endpoint
     finally:

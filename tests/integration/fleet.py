@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from arpz.launch import Proc
+from arpz.launch import PORT_TAKEN_LOG, LaunchError, PortTaken, Proc, on_fresh_ports
 from arpz.netem import Impairments, NetemProxy
 from tests.support import free_port, free_udp_port
 
@@ -96,17 +96,31 @@ def ceddp(
     also_listen: tuple[str, ...] = (),
     env: dict[str, str] | None = None,
 ) -> Iterator[tuple[Process, str]]:
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    listen = ", ".join(f'"{e}"' for e in (endpoint, *also_listen))
-    config = tmp / "ceddp.toml"
-    config.write_text(
-        f'fleet = "{fleet}"\nlisten = [{listen}]\nrrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
-        f'summary_json = "{(tmp / "summary.json").as_posix()}"\nmetrics_period_s = 0.2\n{extra}'
-        + (f'[hello]\nrelay = "{relay}"\n' if relay else "")
-    )
-    proc = Process("ceddp", ["-m", "arpz.ceddp", "--config", str(config)], tmp, env)
+    """A CEDDP on a fresh port; started again on a new one if another process took it between
+    ``free_port`` and the bind (``arpz.launch.on_fresh_ports``' rule: a CI run failed on that
+    race)."""
+
+    def start() -> tuple[Process, str]:
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        listen = ", ".join(f'"{e}"' for e in (endpoint, *also_listen))
+        config = tmp / "ceddp.toml"
+        config.write_text(
+            f'fleet = "{fleet}"\nlisten = [{listen}]\nrrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
+            f'summary_json = "{(tmp / "summary.json").as_posix()}"\nmetrics_period_s = 0.2\n'
+            f"{extra}" + (f'[hello]\nrelay = "{relay}"\n' if relay else "")
+        )
+        proc = Process("ceddp", ["-m", "arpz.ceddp", "--config", str(config)], tmp, env)
+        try:
+            proc.wait_for("ready on")
+        except LaunchError as exc:
+            proc.kill()
+            if PORT_TAKEN_LOG in proc.output():
+                raise PortTaken(str(exc)) from None
+            raise
+        return proc, endpoint
+
+    proc, endpoint = on_fresh_ports(start, lambda why: print(f"ceddp: {why}", flush=True))
     try:
-        proc.wait_for("ready on")
         yield proc, endpoint
     finally:
         proc.kill()

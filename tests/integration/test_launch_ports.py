@@ -17,6 +17,9 @@ import arpz.experiment.runner
 from arpz.demo import DemoOptions, demo_spec, run_demo
 from arpz.experiment.presets import quick
 from arpz.launch import PortTaken, free_port, run_fleet
+from arpz.transport import TransportError
+from tests import support
+from tests.integration import fleet
 
 pytestmark = pytest.mark.integration
 
@@ -68,3 +71,32 @@ def test_an_experiment_cell_starts_again_on_new_ports(
     assert "a port was taken" in capsys.readouterr().err
     assert row["status"] == "ok", row["error"]
     assert int(row["samples_sent"]) > 0
+
+
+def test_the_tests_router_takes_a_new_port_when_its_first_is_taken(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``tests.support.router``, which most integration tests start: the same race, the same
+    answer. A port given explicitly is not replaced."""
+    with taken_port() as port:
+        offered = iter([port])
+        monkeypatch.setattr(support, "free_port", lambda: next(offered, None) or free_port())
+        with support.router() as (_, endpoint):
+            assert endpoint.startswith("tcp/127.0.0.1:") and not endpoint.endswith(f":{port}")
+            with support.client(endpoint):  # it listens there
+                pass
+        with pytest.raises(TransportError, match="in use"), support.router(port):
+            pass
+
+
+def test_the_tests_ceddp_starts_again_when_its_port_is_taken(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``tests.integration.fleet.ceddp``, behind most fleet tests: a real CEDDP process that
+    finds its port taken exits, and the helper starts another on a new port."""
+    with taken_port() as port:
+        offered = iter([port])
+        monkeypatch.setattr(fleet, "free_port", lambda: next(offered, None) or free_port())
+        with fleet.ceddp(tmp_path) as (proc, endpoint):
+            assert not endpoint.endswith(f":{port}")
+            assert proc.popen.poll() is None
