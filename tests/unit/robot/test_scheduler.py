@@ -157,3 +157,27 @@ def test_runs_and_late_ticks_add_up_to_the_periods_that_passed() -> None:
     scheduler.run(clock.stop, clock, end_s=10.0, on_late=count)
     assert late[0] > 100, late
     assert abs(runs[0] + late[0] - 1000) <= 3, (runs[0], late[0])  # 10 s of 10 ms periods
+
+
+def test_due_jobs_run_by_due_time_then_creation_order_the_tick_s_first() -> None:
+    """The heap's order (``Job.__lt__``): the earlier due time first, and among jobs due at the
+    same time the one created first; the tick's jobs before the others, each group in that
+    order."""
+    scheduler = Scheduler()
+    ran: list[str] = []
+    for name, first_s, in_tick in (
+        ("report", 0.0, False),
+        ("imu", 0.002, True),
+        ("lidar", 0.001, True),
+        ("gps", 0.001, True),
+        ("probe", 0.001, False),
+    ):
+        scheduler.every(
+            1.0, lambda _now, n=name: ran.append(n), name, first_s=first_s, in_tick=in_tick
+        )
+    scheduler.run_due(0.002, tick=contextlib.nullcontext)
+    assert ran == ["lidar", "gps", "imu", "report", "probe"]
+    a = Job(1.0, 0, 1.0, lambda _now: None, "a")
+    b = Job(1.0, 1, 1.0, lambda _now: None, "b")
+    c = Job(0.5, 2, 1.0, lambda _now: None, "c")
+    assert a < b and not b < a and c < a and not a < c and not a < a
