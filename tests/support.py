@@ -133,7 +133,7 @@ def router(
 
     Yields (transport, endpoint). Without ``port``, one that another process takes between
     ``free_port`` and the bind is replaced by a new one (up to 3 tries), as ``arpz.launch``
-    does for the tools (a CI run failed on that race, stop 38)."""
+    does for the tools (the race failed a CI run in stop 38, there in an experiment's CEDDP)."""
     for attempt in range(1, ROUTER_PORT_TRIES + 1):
         endpoint = f"tcp/127.0.0.1:{port or free_port()}"
         try:

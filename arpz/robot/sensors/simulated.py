@@ -44,8 +44,9 @@ class Episodes:
 class _Quantiser:
     """A reading rounded to the device's resolution ``step``, then to 6 decimals (so that one
     level is always the same float). Each level's float is computed once: ``round(x, 6)``
-    formats the float as decimal digits, and was the largest cost of a simulated robot's
-    tick (8 % of ``sense`` at 100 Hz, ``python benchmarks/robot_tick_cost.py``, issue 17)."""
+    formats the float as decimal digits, and was the largest single line of a simulated
+    robot's tick (8 % of ``sense`` in ``py-spy record --gil`` of ``python
+    benchmarks/robot_tick_cost.py --hot``, issue 17)."""
 
     #: levels kept at most; beyond, each is computed again (a driver far off its range)
     MAX_LEVELS = 100_000

@@ -66,7 +66,7 @@ def test_a_robot_is_called_when_its_job_is_due_not_whenever_another_s_is() -> No
     stop.set()
     thread.join(5)
     assert not thread.is_alive() and errors == []
-    assert len(fast.calls) >= 100, len(fast.calls)  # 200 at its period on an idle host
+    assert len(fast.calls) >= 50, len(fast.calls)  # 200 at its period on an idle host
     # 5 due, and a call at least every MAX_WAIT_S (20); at the fast one's pace about 200
     assert len(slow.calls) <= 25, len(slow.calls)
     gaps = [b - a for a, b in zip(slow.calls, slow.calls[1:], strict=False)]
