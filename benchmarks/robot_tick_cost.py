@@ -17,8 +17,8 @@ The floor puts the bytes of one recorded bundle each tick.
     python benchmarks/robot_tick_cost.py [--ticks 5000] [--topics 8] [--rounds 3] [--hot]
 
 ``--hot`` runs the ticks back to back in bursts (warm caches), not paced: the sensing path's
-own cost, which varies less from one run to the next than the paced figure (for an A/B of a
-change to it, run from each checkout in turn).
+own cost, without what the caches cost after each sleep (for an A/B of a change to it, run
+from each checkout in turn: the window moves both figures).
 """
 
 from __future__ import annotations
@@ -129,9 +129,9 @@ def run_ticks(
 def hot_ticks(bundler: Bundler, sensors: list[SensorChannel], first: int, ticks: int) -> float:
     """Main-thread CPU us a tick run back to back, in bursts of ``HOT_BURST`` ticks with a
     pause after each (for the reader to catch up): the median burst's figure. The code's own
-    cost, with its caches warm; at 100 Hz on a shared host each tick costs 2-4x this (after
-    each sleep the caches are cold), which is why the paced figure, not this one, is a
-    robot's, and why this one is the steadier for an A/B of a change to the sensing path."""
+    cost, with its caches warm; at 100 Hz on a shared host each tick costs up to 5x this
+    (after each sleep the caches are cold): the paced figure, not this one, is a robot's.
+    This one shows a change to the code itself without the cold caches' share."""
     bursts: list[float] = []
     tick = first
     while tick < first + ticks:
