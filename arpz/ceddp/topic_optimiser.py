@@ -53,6 +53,7 @@ from arpz.ceddp.optimiser import (
     OptimiserError,
     QosLimits,
     _best_depth,
+    _solve,
 )
 
 TopicMethod = Literal["closed", "cvxpy"]
@@ -338,8 +339,7 @@ def solve_topics_cvxpy(
         share <= [float(x) / scale for x in p.highs],
     ]
     problem: Any = cp.Problem(cp.Maximize(w @ cp.log(share)), constraints)
-    problem.solve(solver=solver)
-    if str(problem.status) not in _SOLVED:
+    if _solve(problem, solver) not in _SOLVED:
         raise OptimiserError(f"CVXPY ({solver}) could not solve the rates: {problem.status}")
     solved = [
         min(float(hi), max(float(lo), float(v) * scale))
@@ -351,8 +351,7 @@ def solve_topics_cvxpy(
         cp.Maximize(cp.sum(depth)),
         [depth <= bound, depth >= limits.dmin, depth <= limits.dmax],
     )
-    milp.solve(solver="SCIPY")
-    if str(milp.status) not in _SOLVED:
+    if _solve(milp, "SCIPY") not in _SOLVED:
         raise OptimiserError(f"CVXPY (SCIPY) could not solve the depths: {milp.status}")
     depths = [round(float(v)) for v in depth.value]
     elapsed_s = time.perf_counter() - start

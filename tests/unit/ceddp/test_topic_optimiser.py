@@ -205,9 +205,34 @@ _CVXPY_AHEAD_2 = (
 )
 
 
+#: CI (a clean clone beside a busy loop, stop 40) found CLARABEL's status "optimal_inaccurate"
+#: here: CVXPY's warning that says so raised out of the solve under ``-W error``. The optimiser
+#: accepts that status on purpose; its rates agree with the exact ones to 2.3e-4
+_CVXPY_INACCURATE = (
+    QosLimits(rmax_hz=400.0, rmin_hz=1.7937936797820266, dmax=4655, dmin=1),
+    [
+        TopicDemand(robot=r, topic=t, weight=w, change_hz=ch, cost=c, max_rate_hz=mx)
+        for r, t, w, ch, c, mx in [
+            ("r0", "t0", 5.874276184176096, None, 1.756209269199121, None),
+            ("r0", "t1", 9.12641911039699, None, 1.756209269199121, 150.0),
+            ("r1", "t0", 6.630945842198559, None, 1.4302673809982656, None),
+            ("r1", "t1", 2.2427641628905524, None, 1.4302673809982656, None),
+            ("r1", "t2", 1.2725677480731572, 1.9, 1.4302673809982656, 272.58768712492497),
+            ("r2", "t0", 7.867284789985021, None, 1.1043972555450288, 340.27051138566276),
+            ("r2", "t1", 9.0, 97.93023486237914, 1.1043972555450288, 321.96285724561966),
+            ("r2", "t2", 1.9489132976312966, 108.51501353110798, 1.1043972555450288, None),
+            ("r2", "t3", 7.529796264599197, None, 1.1043972555450288, 375.06316514236926),
+            ("r3", "t0", 0.1, None, 1.9617585990376478, None),
+            ("r3", "t1", 2.2288547242022614, 38.905970306406616, 1.9617585990376478, None),
+        ]
+    ],
+)
+
+
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @example(_CVXPY_AHEAD)
 @example(_CVXPY_AHEAD_2)
+@example(_CVXPY_INACCURATE)
 @given(_instances())
 def test_closed_form_equals_cvxpy(instance: tuple[QosLimits, list[TopicDemand]]) -> None:
     limits, demands = instance
