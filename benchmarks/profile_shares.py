@@ -10,6 +10,9 @@ only, so that the shares are of Python time, not of threads waiting:
         --gil --threads --format raw -o /tmp/f/raw.txt
     python benchmarks/profile_shares.py /tmp/f/raw.txt [--top 40]
 
+``--within sense --lines``: the lines inside one function's calls (how stop 40 found what a
+robot's ``sense`` spends, in a profile of ``benchmarks/robot_tick_cost.py --hot``).
+
 Thread names are folded (a robot's name, a thread number and a pid become one row), so the 25
 Hello writers of 25 robots show as one.
 """
@@ -35,7 +38,7 @@ _PROCESS = re.compile(r'process (\d+):"')
 _THREAD_FRAME = "thread ("
 
 
-def stacks(raw: str) -> list[tuple[str, list[str], int]]:
+def stacks(raw: str, *, lines: bool = False) -> list[tuple[str, list[str], int]]:
     """(thread, function frames, samples) of each stack of py-spy's raw output, a stack a line:
     ``[process...;]thread (tid): name;frame;...;frame count``. With ``--subprocesses`` a process
     frame carries the command line, which may hold newlines, quotes and semicolons (``python -c``
@@ -53,7 +56,9 @@ def stacks(raw: str) -> list[tuple[str, list[str], int]]:
         if at == 0 and not text.startswith(_THREAD_FRAME):
             continue  # a line of a command line that happens to end in a number
         pending = []
-        frames = [_LINE.sub(")", f) for f in text[at:].split(";")]
+        frames = text[at:].split(";")
+        if not lines:  # a function's lines as one row
+            frames = [_LINE.sub(")", f) for f in frames]
         pids = _PROCESS.findall(text[:at])
         thread = (f"process {pids[-1]}: " if pids else "") + thread_row(frames[0])
         out.append((thread, frames[1:], int(count)))
@@ -65,11 +70,22 @@ def stacks(raw: str) -> list[tuple[str, list[str], int]]:
     return out
 
 
-def shares(raw: str) -> tuple[int, dict[str, collections.Counter[str]]]:
-    """(samples, {"thread": ..., "inclusive": ..., "self": ...}) of py-spy's raw output."""
+def function_name(frame: str) -> str:
+    """``Writer.write (arpz/reliability/writer.py:103)`` -> ``Writer.write``."""
+    return frame.partition(" (")[0]
+
+
+def shares(
+    raw: str, *, within: str | None = None, lines: bool = False
+) -> tuple[int, dict[str, collections.Counter[str]]]:
+    """(samples, {"thread": ..., "inclusive": ..., "self": ...}) of py-spy's raw output; with
+    ``within``, of the stacks that pass through that function only (its share of itself is
+    then 100 %); with ``lines``, a row per line of each function."""
     counters = {k: collections.Counter[str]() for k in ("thread", "inclusive", "self")}
     total = 0
-    for thread, functions, n in stacks(raw):
+    for thread, functions, n in stacks(raw, lines=lines):
+        if within is not None and not any(function_name(f) == within for f in functions):
+            continue
         total += n
         counters["thread"][thread] += n
         for function in set(functions):
@@ -83,12 +99,20 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("raw", type=Path, help="py-spy record --format raw output")
     ap.add_argument("--top", type=int, default=30)
+    ap.add_argument(
+        "--within",
+        metavar="FUNCTION",
+        help="only the stacks through this function (e.g. sense): shares of its time",
+    )
+    ap.add_argument("--lines", action="store_true", help="a row per line, not per function")
     args = ap.parse_args()
     try:
-        total, counters = shares(args.raw.read_text())
-    except ValueError as exc:
+        total, counters = shares(args.raw.read_text(), within=args.within, lines=args.lines)
+    except (OSError, ValueError) as exc:
         ap.error(str(exc))
-    print(f"{total} samples")
+    if total == 0:
+        ap.error(f"no samples{f' through {args.within}' if args.within else ''} in {args.raw}")
+    print(f"{total} samples" + (f" through {args.within}" if args.within else ""))
     for kind, counter in counters.items():
         print(f"--- by {kind}")
         for name, n in counter.most_common(args.top):

@@ -172,6 +172,8 @@ def main() -> None:
         help="ticks back to back in bursts of 300 (warm caches: the code's own cost, for A/Bs)",
     )
     args = ap.parse_args()
+    if args.ticks < 1 or args.rounds < 1:
+        ap.error(f"--ticks and --rounds must be >= 1, got {args.ticks} and {args.rounds}")
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     sensor_keys = f"arpz/perf/robot/{ROBOT}/sensor/*"
     robot_rows: list[float] = []

@@ -69,6 +69,11 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--peeks", type=int, default=11, help="not-due calls a tick (11)")
     args = ap.parse_args()
+    if args.ticks < 1 or args.rounds < 1 or args.peeks < 0:
+        ap.error(
+            "need --ticks, --rounds >= 1, --peeks >= 0; "
+            f"got {args.ticks}, {args.rounds}, {args.peeks}"
+        )
     scheduled: list[float] = []
     floor: list[float] = []
     for round_ in range(args.rounds):

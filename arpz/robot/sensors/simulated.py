@@ -44,9 +44,9 @@ class Episodes:
 class _Quantiser:
     """A reading rounded to the device's resolution ``step``, then to 6 decimals (so that one
     level is always the same float). Each level's float is computed once: ``round(x, 6)``
-    formats the float as decimal digits, and was the largest single line of a simulated
-    robot's tick (8 % of ``sense`` in ``py-spy record --gil`` of ``python
-    benchmarks/robot_tick_cost.py --hot``, issue 17)."""
+    formats the float as decimal digits, and was the second line of a simulated robot's
+    ``sense`` (6 % of it: ``python benchmarks/profile_shares.py RAW --within sense --lines`` of
+    a ``py-spy`` profile of ``benchmarks/robot_tick_cost.py --hot``, benchmarks/RESULTS.md)."""
 
     #: levels kept at most; beyond, each is computed again (a driver far off its range)
     MAX_LEVELS = 100_000
@@ -71,7 +71,8 @@ class _Simulated(SensorDriver):
         #: episodes and large readings (arrays)
         self.rng = np.random.default_rng(seed)
         #: each reading's scalar draws: a Python generator's is ten times cheaper than a
-        #: numpy one's (0.03 against 0.29 us; a load generator reads 40 000 times a second)
+        #: numpy one's (25.5 against 284 ns, ``python -m timeit``; benchmarks/RESULTS.md),
+        #: and a load generator reads 40 000 times a second
         self.draw = random.Random(seed)
 
 
