@@ -62,6 +62,8 @@ FLEET = "perf"
 ROBOT_THREADS = ("shared", "own")
 #: when each robot's periodic jobs start after the go (``--robot-phases``)
 ROBOT_PHASES = ("spread", "aligned")
+#: the worker processes' Linux scheduling policy (``--robot-sched``)
+ROBOT_SCHED = ("normal", "batch")
 
 
 class FleetArgumentError(ArpzError, ValueError):
@@ -85,6 +87,10 @@ class FleetOptions:
     heartbeat_ms: float | None = None
     #: the worker processes' niceness: the CEDDP gets the CPU first, the robots what is left
     robot_nice: int = 10
+    #: "batch": the workers run under SCHED_BATCH, whose threads' wake-ups do not preempt a
+    #: running thread (each robot's channel and Zenoh threads wait for the robots thread's
+    #: time slice instead of taking the CPU from it); "normal": SCHED_OTHER
+    robot_sched: str = "batch"
     #: a tick's sensor messages as one Zenoh message (the robots' default; False: one per topic)
     bundles: bool = True
     #: with bundles (and so piggybacked heartbeats): the longest a calm stream's heartbeat
@@ -125,6 +131,10 @@ def check_options(o: FleetOptions) -> None:
     if o.robot_phases not in ROBOT_PHASES:
         raise FleetArgumentError(
             f"--robot-phases must be one of {', '.join(ROBOT_PHASES)}, got {o.robot_phases!r}"
+        )
+    if o.robot_sched not in ROBOT_SCHED:
+        raise FleetArgumentError(
+            f"--robot-sched must be one of {', '.join(ROBOT_SCHED)}, got {o.robot_sched!r}"
         )
     if not 0 <= o.robot_nice <= 19:
         raise FleetArgumentError(f"--robot-nice must be 0..19, got {o.robot_nice}")
@@ -233,6 +243,7 @@ def worker_plan(
         "workers": workers,
         "go_file": str(workdir / "go"),
         "nice": o.robot_nice,
+        "sched": o.robot_sched,
         "robot_threads": o.robot_threads,
         "phases": robot_phases(o, list(where)),
         "zenoh_config": str(Path(o.zenoh_config).resolve()) if o.zenoh_config else None,
@@ -489,6 +500,7 @@ def run_load(
         failures = _stop_all(workers, timeout_s=60 + 0.2 * o.robots)
         counts: dict[str, dict[str, Any]] = {}
         ran_s = []
+        scheduling: set[str] = set()
         for proc in workers:
             result = _last_json(proc)
             if result is None:
@@ -497,6 +509,7 @@ def run_load(
             counts.update(result["robots"])
             failures += result["errors"]
             ran_s.append(float(result["ran_s"]))
+            scheduling.add(str(result.get("scheduling", "unknown")))
         # the robots sent from the go file to SIGINT: that is the window of the offered load
         load_s = sum(ran_s) / len(ran_s) if ran_s else window_s
         self_reports = [vars(r) for r in watcher.snapshot()]
@@ -529,6 +542,7 @@ def run_load(
         host_busy_cores=sampler.host_busy_cores(),
         host_steal_cores=sampler.host_steal_cores(),
         failures=failures,
+        workers_scheduling="; ".join(sorted(scheduling)) or None,
     )
     return RunResult(point, figures, rows, [p.popen.pid for p in procs])
 
@@ -566,6 +580,13 @@ def add_fleet_parser(sub: Any) -> None:
         type=int,
         default=10,
         help="niceness of the robot processes (10): the CEDDP is served first",
+    )
+    f.add_argument(
+        "--robot-sched",
+        choices=ROBOT_SCHED,
+        default="batch",
+        help="the robot processes' scheduling policy: batch (default; SCHED_BATCH: their "
+        "threads' wake-ups do not preempt a running robot) or normal (SCHED_OTHER)",
     )
     f.add_argument(
         "--robot-threads",
@@ -628,6 +649,7 @@ def options_from_args(args: argparse.Namespace) -> FleetOptions:
         zenoh_config=args.zenoh_config,
         p99_bound_ms=args.p99_bound_ms,
         robot_nice=args.robot_nice,
+        robot_sched=args.robot_sched,
         heartbeat_ms=args.heartbeat_ms,
         bundles=not args.no_bundles,
         heartbeat_backoff=args.heartbeat_backoff,

@@ -179,6 +179,9 @@ class FleetPoint:
     latency_ms_p99_median_robot: float | None = None
     #: CPU the hypervisor gave to other guests during the window, in cores (within host busy)
     host_steal_cores: float | None = None
+    #: how the kernel scheduled the workers' robots threads ("SCHED_BATCH, nice 10"), as they
+    #: read it themselves; several, "; "-separated, if the workers differed
+    workers_scheduling: str | None = None
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -321,6 +324,7 @@ def fleet_point(
     host_busy_cores: float | None,
     failures: Sequence[str] = (),
     host_steal_cores: float | None = None,
+    workers_scheduling: str | None = None,
 ) -> FleetPoint:
     """The fleet's figures; ``failures``: problems found outside the rows (a process that did
     not stop, ...), added to the reconciliation failures."""
@@ -363,6 +367,7 @@ def fleet_point(
         workers_cpu_cores=workers_cpu_cores,
         host_busy_cores=host_busy_cores,
         host_steal_cores=host_steal_cores,
+        workers_scheduling=workers_scheduling,
         reconciled=not problems,
         generator_limited=sent_ratio < MIN_DELIVERED_RATIO,
         failures=problems,
@@ -536,7 +541,9 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
     lines.append(
         f"CPU: CEDDP {_fmt(p.ceddp_cpu_cores)} cores "
         f"({_fmt(p.ceddp_cpu_us_per_sample, '.0f')} us a sample), robot workers "
-        f"{p.workers_cpu_cores:.2f} cores, host busy {_fmt(p.host_busy_cores)} of "
+        f"{p.workers_cpu_cores:.2f} cores"
+        + (f" ({p.workers_scheduling})" if p.workers_scheduling else "")
+        + f", host busy {_fmt(p.host_busy_cores)} of "
         f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)})"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )

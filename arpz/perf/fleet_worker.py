@@ -121,6 +121,10 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
     # the robots yield the CPU to the CEDDP: on one host the load generator must not starve
     # the server it measures (real robots have CPUs of their own)
     os.nice(int(plan.get("nice", 0)))
+    if plan.get("sched", "normal") == "batch":
+        # before any thread starts: the threads created later (Zenoh's, the channels') inherit
+        # the calling thread's policy; the niceness set above stays and still weighs their share
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
     zenoh_config = plan.get("zenoh_config")
     with ExitStack() as stack:
         agents: dict[str, RobotAgent] = {}
@@ -159,6 +163,7 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
             ]
         for thread in threads:
             thread.start()
+        scheduling = thread_scheduling(threads[0].native_id)
         # no late ticks to take off as a baseline: the stagger above put every job's next run
         # after the go (before it, the jobs overdue since start-up each counted one late tick)
         wait_for_stop(stop)  # not stop.wait(): a signal may land on any of its threads
@@ -170,4 +175,21 @@ def run_worker(plan_path: Path, index: int, stop: threading.Event) -> dict[str, 
         counts = {name: _counts(agent) for name, agent in agents.items()}
     for error in errors:
         print(f"arpz.perf fleet-worker {index}: {error}", file=sys.stderr, flush=True)
-    return {"worker": index, "ran_s": ran_s, "robots": counts, "errors": errors}
+    return {
+        "worker": index,
+        "ran_s": ran_s,
+        "robots": counts,
+        "errors": errors,
+        "scheduling": scheduling,
+    }
+
+
+def thread_scheduling(tid: int | None) -> str:
+    """How the kernel schedules a thread, as the report prints it ("SCHED_BATCH, nice 10"):
+    read from the robots' own thread, so the report shows what ran, not what was asked."""
+    if tid is None:
+        return "unknown"
+    policy = os.sched_getscheduler(tid)
+    names = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_BATCH: "SCHED_BATCH"}
+    nice = os.getpriority(os.PRIO_PROCESS, tid)  # a thread id: Linux keeps nice per thread
+    return f"{names.get(policy, f'policy {policy}')}, nice {nice}"

@@ -30,11 +30,15 @@ def _gone(pid: int) -> bool:
         return True
 
 
-@pytest.mark.parametrize("robot_threads", ["shared", "own"])
+@pytest.mark.parametrize(
+    ("robot_threads", "robot_sched", "scheduling"),
+    [("shared", "batch", "SCHED_BATCH, nice 10"), ("own", "normal", "SCHED_OTHER, nice 10")],
+)
 def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
-    tmp_path: Path, robot_threads: str
+    tmp_path: Path, robot_threads: str, robot_sched: str, scheduling: str
 ) -> None:
-    """Either way a worker runs its robots (one thread for all, the default; a thread each)."""
+    """Either way a worker runs its robots (one thread for all, the default; a thread each),
+    under either scheduling policy, which the report shows as the robots' thread read it."""
     out_json, out_csv = tmp_path / "fleet.json", tmp_path / "fleet.csv"
     run = subprocess.run(
         [
@@ -54,6 +58,8 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
             "4",
             "--robot-threads",
             robot_threads,
+            "--robot-sched",
+            robot_sched,
             "--workdir",
             str(tmp_path / "work"),
             "--json",
@@ -77,6 +83,8 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
         assert row["sent"] > 0 and row["latency_ms_p99"] is not None
     fleet = doc["fleet"]
     assert fleet["reconciled"] and fleet["failures"] == []
+    assert fleet["workers_scheduling"] == scheduling
+    assert f"robot workers {fleet['workers_cpu_cores']:.2f} cores ({scheduling})" in run.stdout
     assert fleet["delivered"] == sum(r["delivered"] for r in robots.values())
     # 6 robots x 2 topics x 20 Hz for about 4 s, on a shared host: most of it, never more
     assert 0.5 * 960 <= fleet["sent"] <= 1.2 * 960

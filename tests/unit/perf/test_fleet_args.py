@@ -37,6 +37,7 @@ from arpz.perf.fleet_watch import ceddp_of
         ({"robot_nice": 20}, "--robot-nice must be 0..19"),
         ({"robot_threads": "many"}, "--robot-threads must be one of shared, own"),
         ({"robot_phases": "random"}, "--robot-phases must be one of spread, aligned"),
+        ({"robot_sched": "fifo"}, "--robot-sched must be one of normal, batch"),
         ({"heartbeat_ms": 0.0}, "--heartbeat-ms must be > 0"),
         ({"heartbeat_backoff": 0}, "--heartbeat-backoff must be 1..64"),
         ({"heartbeat_backoff": 65}, "--heartbeat-backoff must be 1..64"),
@@ -103,7 +104,7 @@ def test_the_plan_is_configs_the_ceddp_and_the_robots_accept(tmp_path: Path) -> 
         assert robot.sensor_qos.piggyback_heartbeats and robot.sensor_qos.heartbeat_backoff == 8
     ceddp = from_dict(ceddps[0], CeddpConfig, source="t")
     assert ceddp.sensor_qos == robots[0].sensor_qos
-    assert plan["nice"] == 10
+    assert plan["nice"] == 10 and plan["sched"] == "batch"
 
 
 def test_a_self_report_is_attributed_by_its_robots() -> None:
