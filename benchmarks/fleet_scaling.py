@@ -59,6 +59,7 @@ def curve_line(p: FleetPoint) -> str:
         f"{_f(p.ceddp_cpu_cores)} cores ({_f(p.ceddp_cpu_us_per_sample, '.0f')} us/sample), "
         f"RSS {_f(p.ceddp_rss_mb, '.0f')} MB, robots {p.workers_cpu_cores:.2f} cores, host "
         f"{_f(p.host_busy_cores)} cores{' GENERATOR-LIMITED' * p.generator_limited}"
+        f"{f' STOLEN {p.host_steal_cores:.3f} cores' if p.steal_flagged else ''}"
         f"{'' if p.reconciled else ' FAILED: ' + '; '.join(p.failures[:3])}"
     )
 

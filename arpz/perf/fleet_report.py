@@ -15,6 +15,10 @@ Definitions (docs/performance.md repeats them):
   issue's target) or whose delivered/offered falls below 0.99; a point whose robots could not
   even send 99 % of the offered rate is flagged ``generator_limited``: there the load generator,
   not the CEDDP, was the limit.
+- a run in which the hypervisor took at least ``STEAL_FLAG_CORES`` of the host's CPU is flagged
+  ``steal_flagged``: its latency tail holds the vCPU's pauses, which no process of the run can
+  shorten (stop 42: 0.02-0.07 cores stolen went with a worst-robot p99 of 17-82 ms at 50 robots,
+  <= 0.002 with 6-8 ms).
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ from typing import Any
 #: is not keeping up
 P99_BOUND_MS = 10.0
 MIN_DELIVERED_RATIO = 0.99
+#: stolen CPU (cores, over the window) from which a run's tail is the hypervisor's: 1 % of a
+#: core is 0.6 s of a 60 s run, several 10 ms pauses a second on average
+STEAL_FLAG_CORES = 0.01
 
 #: what the CEDDP does not publish (yet): reported as unavailable, with the reason
 MISSING = {
@@ -182,6 +189,13 @@ class FleetPoint:
     #: how the kernel scheduled the workers' robots threads ("SCHED_BATCH, nice 10"), as they
     #: read it themselves; several, "; "-separated, if the workers differed
     workers_scheduling: str | None = None
+    #: the most the hypervisor took in one second of the window, in cores
+    host_steal_cores_peak: float | None = None
+
+    @property
+    def steal_flagged(self) -> bool:
+        """The hypervisor took enough CPU that the latency tail is (partly) its pauses."""
+        return self.host_steal_cores is not None and self.host_steal_cores >= STEAL_FLAG_CORES
 
 
 def _num(row: Mapping[str, Any], key: str) -> float | None:
@@ -325,6 +339,7 @@ def fleet_point(
     failures: Sequence[str] = (),
     host_steal_cores: float | None = None,
     workers_scheduling: str | None = None,
+    host_steal_cores_peak: float | None = None,
 ) -> FleetPoint:
     """The fleet's figures; ``failures``: problems found outside the rows (a process that did
     not stop, ...), added to the reconciliation failures."""
@@ -367,6 +382,7 @@ def fleet_point(
         workers_cpu_cores=workers_cpu_cores,
         host_busy_cores=host_busy_cores,
         host_steal_cores=host_steal_cores,
+        host_steal_cores_peak=host_steal_cores_peak,
         workers_scheduling=workers_scheduling,
         reconciled=not problems,
         generator_limited=sent_ratio < MIN_DELIVERED_RATIO,
@@ -443,7 +459,7 @@ def result_dict(
 ) -> dict[str, Any]:
     """The JSON document of one run."""
     return {
-        "fleet": asdict(point),
+        "fleet": {**asdict(point), "steal_flagged": point.steal_flagged},
         "ceddps": [asdict(c) for c in ceddps],
         "robots": [{**asdict(r), "reconciled": r.reconciled} for r in rows],
         "unavailable": unavailable(ceddps),
@@ -461,7 +477,7 @@ def write_robot_csv(path: Path, rows: Sequence[RobotRow]) -> None:
             out.writerow([*(getattr(r, name) for name in ROBOT_COLUMNS[:-1]), r.reconciled])
 
 
-SWEEP_COLUMNS = [f.name for f in fields(FleetPoint) if f.name != "failures"]
+SWEEP_COLUMNS = [f.name for f in fields(FleetPoint) if f.name != "failures"] + ["steal_flagged"]
 
 
 def write_sweep_csv(
@@ -547,6 +563,13 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)})"
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
+    if p.steal_flagged:
+        lines.append(
+            f"STOLEN: the hypervisor took {_fmt(p.host_steal_cores)} cores "
+            f"({(p.host_steal_cores or 0) * p.window_s:.1f} s of CPU over the window; up to "
+            f"{_fmt(p.host_steal_cores_peak)} cores in one second): this run's latency tail "
+            "includes the vCPU's pauses; compare runs without it"
+        )
     missing = unavailable(ceddps)
     if missing:
         lines.append("unavailable: " + "; ".join(f"{k}: {v}" for k, v in missing.items()))
@@ -567,6 +590,14 @@ def _host_cores() -> int:
 def _cpu_of(figures: Sequence[CeddpFigures], index: int) -> float | None:
     process = figures[index].process if len(figures) > index else None
     return process.cpu_cores if process is not None else None
+
+
+def _ring(ax: Any, points: Sequence[FleetPoint], values: list[Any], style: str, label: str) -> None:
+    """Open markers around the flagged points of a curve (nothing when none is flagged)."""
+    if points:
+        ax.plot(
+            [p.robots for p in points], values, style, fillstyle="none", markersize=10, label=label
+        )
 
 
 def plot_sweep(
@@ -590,6 +621,8 @@ def plot_sweep(
     lat, cpu, rate = axes
     lat.plot(ns, [p.latency_ms_p99 for p in points], "o-", label="p99 (worst robot)")
     lat.plot(ns, [p.latency_ms_p50 for p in points], "s--", label="p50 (median robot)")
+    stolen = [p for p in points if p.steal_flagged]
+    _ring(lat, stolen, [p.latency_ms_p99 for p in stolen], "mD", "hypervisor stole >= 0.01 core")
     lat.axhline(p99_bound_ms, color="grey", linestyle=":", label=f"bound {p99_bound_ms:g} ms")
     lat.set_yscale("log")
     lat.set_ylabel("latency robot -> CEDDP ingest (ms)")
@@ -604,15 +637,7 @@ def plot_sweep(
     rate.plot(ns, [p.sent / p.window_s if p.window_s else 0 for p in points], "x--", label="sent")
     rate.plot(ns, [p.delivered_per_s for p in points], "o-", label="delivered")
     limited = [p for p in points if p.generator_limited]
-    if limited:
-        rate.plot(
-            [p.robots for p in limited],
-            [p.delivered_per_s for p in limited],
-            "rs",
-            fillstyle="none",
-            markersize=10,
-            label="generator-limited",
-        )
+    _ring(rate, limited, [p.delivered_per_s for p in limited], "rs", "generator-limited")
     rate.set_ylabel("samples/s")
     for ax in axes:
         ax.set_xlabel("robots")

@@ -86,6 +86,11 @@ def test_fleet_load_reports_every_robot_reconciled_and_ends_its_processes(
     assert fleet["workers_scheduling"] == scheduling
     assert f"robot workers {fleet['workers_cpu_cores']:.2f} cores ({scheduling})" in run.stdout
     assert fleet["delivered"] == sum(r["delivered"] for r in robots.values())
+    # the hypervisor's share, whole window and worst second, and the flag the report derives
+    stolen, stolen_peak = fleet["host_steal_cores"], fleet["host_steal_cores_peak"]
+    assert 0.0 <= stolen <= stolen_peak < 2.0, fleet
+    assert fleet["steal_flagged"] is (stolen >= 0.01)
+    assert ("STOLEN: the hypervisor took" in run.stdout) is fleet["steal_flagged"]
     # 6 robots x 2 topics x 20 Hz for about 4 s, on a shared host: most of it, never more
     assert 0.5 * 960 <= fleet["sent"] <= 1.2 * 960
     (ceddp,) = doc["ceddps"]

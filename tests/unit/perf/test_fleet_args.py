@@ -5,10 +5,12 @@ from __future__ import annotations
 import dataclasses
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from arpz.config import CeddpConfig, RobotConfig, from_dict
+from arpz.perf import fleet
 from arpz.perf.__main__ import main
 from arpz.perf.fleet import (
     FleetArgumentError,
@@ -134,3 +136,17 @@ def test_host_cpu_reads_busy_total_and_stolen_ticks_of_proc_stat() -> None:
     assert total == pytest.approx(1900 / ticks)
     assert stolen == pytest.approx(60 / ticks)
     assert host_cpu_seconds("cpu 1 2 3 4")[2] == 0.0  # an old kernel without the steal column
+
+
+def test_the_sampler_keeps_the_worst_second_of_stolen_cpu(monkeypatch: pytest.MonkeyPatch) -> None:
+    # (monotonic s, stolen s since boot): 0.2 s stolen in the second second, none after
+    clock = iter([0.0, 1.0, 2.0, 2.5, 3.0, 4.0])
+    stolen = iter([0.0, 0.0, 0.2, 0.2, 0.2, 0.2])
+    # the module's own clock only: time.monotonic stays the pytest runner's
+    monkeypatch.setattr(fleet, "time", SimpleNamespace(monotonic=lambda: next(clock)))
+    monkeypatch.setattr(fleet, "host_busy_s", lambda: (0.0, 0.0, next(stolen)))
+    sampler = fleet.ProcSampler([])
+    for _ in range(5):
+        sampler.sample()
+    assert sampler.host_steal_cores() == pytest.approx(0.05)  # 0.2 s over 4 s
+    assert sampler.host_steal_cores_peak() == pytest.approx(0.2)  # all in one second

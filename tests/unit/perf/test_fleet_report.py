@@ -124,6 +124,37 @@ def test_fleet_point_aggregates_and_flags_a_generator_limited_run() -> None:
     assert "GENERATOR-LIMITED" in text
     assert "p99 (worst robot) 6.00 ms (median robot 4.50 ms)" in text
     assert "host busy 1.60 of" in text and "cores (stolen by the hypervisor 0.25)" in text
+    assert point.steal_flagged and "STOLEN: the hypervisor took 0.25 cores (2.5 s" in text
+
+
+@pytest.mark.parametrize(
+    ("stolen", "flagged"), [(None, False), (0.0, False), (0.009, False), (0.01, True), (0.3, True)]
+)
+def test_a_run_is_flagged_when_the_hypervisor_took_a_hundredth_of_a_core(
+    tmp_path: Path, stolen: float | None, flagged: bool
+) -> None:
+    rows = _rows(2)
+    point = fleet_point(
+        rows=rows,
+        ceddps=[],
+        topics=2,
+        rate_hz=100,
+        processes=1,
+        window_s=60.0,
+        workers_cpu_cores=1.0,
+        host_busy_cores=1.8,
+        host_steal_cores=stolen,
+        host_steal_cores_peak=None if stolen is None else 4 * stolen,
+    )
+    assert point.steal_flagged is flagged
+    text = format_run(point, [], rows)
+    assert ("STOLEN" in text) is flagged
+    if flagged:
+        assert f"{stolen * 60:.1f} s of CPU over the window; up to {4 * stolen:.2f} cores" in text
+    assert result_dict(point, [], rows)["fleet"]["steal_flagged"] is flagged
+    path = tmp_path / "sweep.csv"
+    write_sweep_csv(path, [point], [[]])
+    assert _read_csv(path)[0]["steal_flagged"] == str(flagged)
 
 
 def test_a_run_that_does_not_reconcile_prints_failed() -> None:
