@@ -42,7 +42,7 @@ FIGURES = [
     ("queue p99 ms", ("ceddp", "ingest_backlog_ms_p99"), "{:.1f}"),
     ("CEDDP cores", ("fleet", "ceddp_cpu_cores"), "{:.2f}"),
     ("lost", ("fleet", "lost"), "{:.0f}"),
-    # 0.02 cores or more went with a worst-robot p99 of 17-82 ms at 50 robots (stop 42): a
+    # 0.015 cores or more went with a worst-robot p99 of 13-82 ms at 50 robots (stop 42): a
     # round whose two sides differ in it compares the hypervisor, not the change
     ("host stolen cores", ("fleet", "host_steal_cores"), "{:.3f}"),
 ]

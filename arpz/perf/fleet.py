@@ -296,9 +296,9 @@ def host_busy_s() -> tuple[float, float, float]:
 
     Stolen time is CPU the hypervisor gave to other guests while this one had work. On this
     project's shared VM it stayed 0.00 cores in stop 38's slow windows (there the same work cost
-    more CPU), but in stop 42's the 50-robot runs with 0.02-0.07 cores stolen had a worst-robot
-    p99 of 17-82 ms and those with <= 0.002 one of 6-8 ms: the vCPU's pauses are the tail, so
-    the report flags them (``FleetPoint.steal_flagged``)."""
+    more CPU), but in stop 42's the 50-robot runs with 0.015-0.065 cores stolen had a worst-robot
+    p99 of 13-82 ms and those with <= 0.002 one of 5.6-8.4 ms: the vCPU's pauses are the tail,
+    so the report flags them (``FleetPoint.steal_flagged``)."""
     return host_cpu_seconds(Path("/proc/stat").read_text().splitlines()[0])
 
 

@@ -16,9 +16,10 @@ Definitions (docs/performance.md repeats them):
   even send 99 % of the offered rate is flagged ``generator_limited``: there the load generator,
   not the CEDDP, was the limit.
 - a run in which the hypervisor took at least ``STEAL_FLAG_CORES`` of the host's CPU is flagged
-  ``steal_flagged``: its latency tail holds the vCPU's pauses, which no process of the run can
-  shorten (stop 42: 0.02-0.07 cores stolen went with a worst-robot p99 of 17-82 ms at 50 robots,
-  <= 0.002 with 6-8 ms).
+  ``steal_flagged``: the vCPU's pauses, which no process of the run can shorten, are in its
+  latency max, and in its p99 when they are frequent (stop 42, thirteen 50-robot runs: 0.015-0.065
+  cores stolen went with a worst-robot p99 of 13-82 ms, <= 0.002 with 5.6-8.4 ms, 0.006-0.010
+  with 7.5-11.3 ms; a second with 0.1-0.2 cores stolen, with a max of 110-220 ms).
 """
 
 from __future__ import annotations
@@ -560,15 +561,21 @@ def format_run(point: FleetPoint, ceddps: Sequence[CeddpFigures], rows: Sequence
         f"{p.workers_cpu_cores:.2f} cores"
         + (f" ({p.workers_scheduling})" if p.workers_scheduling else "")
         + f", host busy {_fmt(p.host_busy_cores)} of "
-        f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)})"
+        f"{_host_cores()} cores (stolen by the hypervisor {_fmt(p.host_steal_cores)}"
+        + (
+            f", up to {_fmt(p.host_steal_cores_peak)} in one second)"
+            if p.host_steal_cores_peak is not None
+            else ")"
+        )
         + ("; GENERATOR-LIMITED: the robots sent < 99 % of the offered rate" * p.generator_limited)
     )
     if p.steal_flagged:
         lines.append(
             f"STOLEN: the hypervisor took {_fmt(p.host_steal_cores)} cores "
             f"({(p.host_steal_cores or 0) * p.window_s:.1f} s of CPU over the window; up to "
-            f"{_fmt(p.host_steal_cores_peak)} cores in one second): this run's latency tail "
-            "includes the vCPU's pauses; compare runs without it"
+            f"{_fmt(p.host_steal_cores_peak)} cores in one second): this run's latency "
+            "includes the vCPU's pauses (its max, and its p99 when they are frequent); "
+            "compare runs without them"
         )
     missing = unavailable(ceddps)
     if missing:

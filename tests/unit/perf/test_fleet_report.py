@@ -149,6 +149,8 @@ def test_a_run_is_flagged_when_the_hypervisor_took_a_hundredth_of_a_core(
     assert point.steal_flagged is flagged
     text = format_run(point, [], rows)
     assert ("STOLEN" in text) is flagged
+    if stolen is not None:
+        assert f"(stolen by the hypervisor {stolen:.2f}, up to {4 * stolen:.2f} in one" in text
     if flagged:
         assert f"{stolen * 60:.1f} s of CPU over the window; up to {4 * stolen:.2f} cores" in text
     assert result_dict(point, [], rows)["fleet"]["steal_flagged"] is flagged
