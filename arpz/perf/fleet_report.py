@@ -17,9 +17,9 @@ Definitions (docs/performance.md repeats them):
   not the CEDDP, was the limit.
 - a run in which the hypervisor took at least ``STEAL_FLAG_CORES`` of the host's CPU is flagged
   ``steal_flagged``: the vCPU's pauses, which no process of the run can shorten, are in its
-  latency max, and in its p99 when they are frequent (stop 42, thirteen 50-robot runs: 0.015-0.065
-  cores stolen went with a worst-robot p99 of 13-82 ms, <= 0.002 with 5.6-8.4 ms, 0.006-0.010
-  with 7.5-11.3 ms; a second with 0.1-0.2 cores stolen, with a max of 110-220 ms).
+  latency max, and in its p99 when they are frequent (stop 42, fourteen 50-robot runs: 0.015-0.065
+  cores stolen went with a worst-robot p99 of 13-82 ms, <= 0.002 with 5.6-8.4 ms, 0.005-0.010
+  with 7.5-12.0 ms; a second with 0.1-0.2 cores stolen, with a max of 83-217 ms).
 """
 
 from __future__ import annotations
@@ -35,8 +35,8 @@ from typing import Any
 #: is not keeping up
 P99_BOUND_MS = 10.0
 MIN_DELIVERED_RATIO = 0.99
-#: stolen CPU (cores, over the window) from which a run's tail is the hypervisor's: 1 % of a
-#: core is 0.6 s of a 60 s run, several 10 ms pauses a second on average
+#: stolen CPU (cores, over the window) from which a run's tail is partly the hypervisor's: 1 %
+#: of a core is 0.6 s of a 60 s run, 10 ms of pauses a second on average
 STEAL_FLAG_CORES = 0.01
 
 #: what the CEDDP does not publish (yet): reported as unavailable, with the reason
