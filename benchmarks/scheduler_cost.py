@@ -2,10 +2,12 @@
 a robot like the fleet's (8 sensor jobs at 100 Hz inside the tick's context, 4 slower jobs:
 reports, probes, clock) against the floor, the same 8 no-op jobs called in the same context
 with no scheduler, in one run. The load generator of ``python -m arpz.perf fleet`` runs 12-13
-robots' schedulers on one thread of each worker, so each tick also peeks at the other robots'
-heaps; ``--peeks`` (11) of those not-due calls count with every tick.
+robots' schedulers on one thread of each worker. Until ec1d213 it called every robot whenever
+any one was due, so each tick also peeked at the other robots' heaps: ``--peeks 11`` counts
+those not-due calls with every tick (stop 40's figures, benchmarks/RESULTS.md, were taken so).
+Since then a worker calls a robot only when its next job is due: the default, ``--peeks 0``.
 
-    python benchmarks/scheduler_cost.py [--ticks 50000] [--rounds 3] [--peeks 11]
+    python benchmarks/scheduler_cost.py [--ticks 50000] [--rounds 3] [--peeks 0]
 """
 
 from __future__ import annotations
@@ -67,7 +69,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--ticks", type=int, default=50_000)
     ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--peeks", type=int, default=11, help="not-due calls a tick (11)")
+    ap.add_argument(
+        "--peeks",
+        type=int,
+        default=0,
+        help="not-due calls a tick (0; 11: a fleet worker before ec1d213)",
+    )
     args = ap.parse_args()
     if args.ticks < 1 or args.rounds < 1 or args.peeks < 0:
         ap.error(

@@ -189,7 +189,10 @@ def thread_scheduling(tid: int | None) -> str:
     read from the robots' own thread, so the report shows what ran, not what was asked."""
     if tid is None:
         return "unknown"
-    policy = os.sched_getscheduler(tid)
+    try:
+        policy = os.sched_getscheduler(tid)
+        nice = os.getpriority(os.PRIO_PROCESS, tid)  # a thread id: Linux keeps nice per thread
+    except OSError as exc:  # the thread ended already (every robot failed): still a report
+        return f"unknown ({exc.strerror})"
     names = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_BATCH: "SCHED_BATCH"}
-    nice = os.getpriority(os.PRIO_PROCESS, tid)  # a thread id: Linux keeps nice per thread
     return f"{names.get(policy, f'policy {policy}')}, nice {nice}"

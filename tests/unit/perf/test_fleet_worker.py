@@ -3,10 +3,12 @@ robot whose job raises is reported and left out while the others go on."""
 
 from __future__ import annotations
 
+import os
 import threading
 import time
+from pathlib import Path
 
-from arpz.perf.fleet_worker import run_together
+from arpz.perf.fleet_worker import run_together, thread_scheduling
 from tests.support import wait_until
 
 
@@ -71,3 +73,17 @@ def test_a_robot_is_called_when_its_job_is_due_not_whenever_another_s_is() -> No
     assert len(slow.calls) <= 25, len(slow.calls)
     gaps = [b - a for a, b in zip(slow.calls, slow.calls[1:], strict=False)]
     assert gaps and max(gaps) < 0.2 + 0.3, gaps  # called again, never far past its due time
+
+
+def test_a_thread_s_scheduling_is_read_from_the_kernel_and_a_gone_thread_is_unknown() -> None:
+    """What the report prints as the robots' thread's policy; a thread that has ended (every
+    robot failed before it was read) gives "unknown", not an exception that loses the
+    worker's counts."""
+    here = thread_scheduling(threading.get_native_id())
+    policy = {os.SCHED_OTHER: "SCHED_OTHER", os.SCHED_BATCH: "SCHED_BATCH"}[
+        os.sched_getscheduler(0)
+    ]
+    assert here == f"{policy}, nice {os.getpriority(os.PRIO_PROCESS, 0)}", here
+    no_such = int(Path("/proc/sys/kernel/pid_max").read_text()) + 1  # no thread has this id
+    assert thread_scheduling(no_such).startswith("unknown ("), thread_scheduling(no_such)
+    assert thread_scheduling(None) == "unknown"
