@@ -92,8 +92,10 @@ class Outlet:
 
         ``count_unmatched``: count a message written while no reader is matched (it reaches no
         one: a VOLATILE writer delivers only within a match); for low-rate keys whose receiver
-        reconciles against the sender, such as commands."""
-        if count_unmatched and not self.matched:
+        reconciles against the sender, such as commands. A reader away (its session lost, its
+        match to resume) is not "no one": the message reaches it or is reported lost to it when
+        it is back."""
+        if count_unmatched and not self.matched and not self.awaited:
             self.unmatched += 1
         if self.writer is None:
             assert self.publisher is not None
@@ -152,6 +154,11 @@ class Outlet:
             return self.writer.matched_count > 0
         assert self.publisher is not None
         return self.publisher.matching
+
+    @property
+    def awaited(self) -> bool:
+        """A reader whose session was lost may resume its match (never without the channel)."""
+        return self.writer is not None and self.writer.awaited_count > 0
 
     def wait_for_acknowledgments(self, timeout_s: float) -> bool:
         """True once every matched reader acknowledged everything (at once without the channel)."""

@@ -12,6 +12,7 @@ that left, and problem (6) is re-solved when the fleet's topics change.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -58,6 +59,8 @@ KIND_NAMES = {
 _REPORT_KINDS = ("stats", "announce", "qos", "telemetry")
 #: incarnations of one robot reported separately in the summary (the ingest tracks as many)
 MAX_INCARNATIONS = 16
+#: a robot's outages (away and back as the same incarnation) kept for the summary
+MAX_OUTAGES = 64
 
 BUDGET_DECODER = msgspec.msgpack.Decoder(BudgetChange)
 
@@ -84,6 +87,16 @@ class RobotRecord:
     mode: str | None = None
     #: the last report of each incarnation, at most MAX_INCARNATIONS (the oldest dropped)
     incarnations: dict[str, RobotStats] = field(default_factory=dict)
+    #: when its presence last vanished (monotonic s; None while present)
+    away_since_s: float | None = None
+    #: it came back after being away this long (s) and its next report says whether as the
+    #: same incarnation (a dead zone, a roam) or a new one (a restart); None: nothing pending
+    back_after_s: float | None = None
+    #: the incarnation it had when it went away
+    away_incarnation: str = ""
+    #: times it was away and came back as the same incarnation, with how long (s), newest
+    #: MAX_OUTAGES
+    outages: list[float] = field(default_factory=list)
 
     def as_report(self) -> RobotReport:
         return RobotReport(
@@ -94,6 +107,7 @@ class RobotRecord:
             stats=self.stats,
             incompatible=list(self.incompatible),
             incarnations=dict(self.incarnations),
+            outages=list(self.outages),
         )
 
 
@@ -225,6 +239,8 @@ class ControlWorker:
         try:
             if kind == "stats":
                 stats = STATS_DECODER.decode(payload)
+                if record.back_after_s is not None:
+                    self._classify_return(robot, record, stats.incarnation)
                 if record.stats is None or not record.stats.final or stats.final:
                     record.stats = stats
                 known = record.incarnations.get(stats.incarnation)
@@ -324,15 +340,29 @@ class ControlWorker:
         if record.alive == alive:
             return
         record.alive = alive
+        now = time.monotonic()
         if alive:
             record.joins += 1
+            if record.away_since_s is None:
+                self._event(f"robot {robot} joined", "INFO")
+            else:
+                # the next report tells a dead zone or a roam (same incarnation) from a restart
+                record.back_after_s = now - record.away_since_s
+                record.away_since_s = None
         else:
             record.leaves += 1
-        self._event(f"robot {robot} {'joined' if alive else 'left'}", "INFO" if alive else "WARN")
+            record.away_since_s = now
+            record.back_after_s = None
+            record.away_incarnation = record.stats.incarnation if record.stats else ""
+            self._event(
+                f"robot {robot} unreachable: its session ended (a dead zone, a roam or a stop); "
+                "its channel state is kept for it to come back",
+                "WARN",
+            )
         if alive and record.announce is not None:
             self.sink.open_robot(robot, list(record.announce.commands))
         if not alive:
-            self.sink.close_robot(robot)
+            self.sink.robot_away(robot)
             self.ingest.cache_control.forget(robot)
             if record.topic_count is not None:
                 record.topic_count = None
@@ -342,6 +372,25 @@ class ControlWorker:
             self.reassign_qos(f"robot {robot} joined with {record.topic_count} topics")
         for planner in self.planners:
             planner.on_robot(robot, alive)
+
+    def _classify_return(self, robot: str, record: RobotRecord, incarnation: str) -> None:
+        """The first report after a robot came back: one event for the whole absence."""
+        away_s = record.back_after_s or 0.0
+        record.back_after_s = None
+        if incarnation == record.away_incarnation:
+            record.outages.append(away_s)
+            del record.outages[:-MAX_OUTAGES]
+            self._event(
+                f"robot {robot} back after {away_s:.1f} s unreachable (same incarnation: a "
+                "dead zone or a roam); its matches resumed",
+                "WARN",
+            )
+        else:
+            self._event(
+                f"robot {robot} rejoined after {away_s:.1f} s as a new incarnation "
+                f"{incarnation} (restarted)",
+                "INFO",
+            )
 
     def on_budget(self, change: BudgetChange) -> None:
         """The overload governor changed the fleet's budget (metrics thread): queued, so that

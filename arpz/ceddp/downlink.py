@@ -4,8 +4,12 @@ Why one writer per (robot, command) rather than one per command family: a writer
 acknowledgements and its sequence numbers are per key, so a robot that is slow, far or gone
 affects only its own writer (KEEP_LAST overwrites and GAPs are its own), and the robot's reader
 reconciles exactly against what was written for it. The writers are opened when the robot
-announces the commands it acts on, and closed when it leaves, so state stays bounded by the
-robots present.
+announces the commands it acts on, and closed when it has been away for
+``arpz.reliability.AWAY_RETENTION_S``, so state stays bounded by the robots present. A robot
+whose session was lost (a dead zone, a roam) keeps its writers: when it is back, its reader
+resumes the match and every command written meanwhile is resent, expired past its lifespan or
+GAPed and counted lost by the robot, as the ones before (issue 39: closing the writers at the
+leave lost count of about 200 commands a dead zone).
 
 Every command either reaches the robot's reader or is counted: written with no matched reader
 (``unmatched``), refused because the robot never announced the command (``refused``), a KEEP_ALL
@@ -23,6 +27,7 @@ from dataclasses import dataclass
 from arpz import keys
 from arpz.channel_io import Outlet
 from arpz.config import TrafficQos
+from arpz.reliability import AWAY_RETENTION_S
 from arpz.transport import Transport
 
 log = logging.getLogger(__name__)
@@ -68,6 +73,8 @@ class Downlink:
         self.over_limit: dict[str, int] = {}
         self._fleet = fleet
         self._traffic = traffic
+        #: robots whose presence vanished, with when (monotonic s): their writers wait for them
+        self._away_since: dict[str, float] = {}
         self._lock = threading.Lock()
         self._outlets: dict[tuple[str, str], Outlet] = {}
         #: per (robot, command); kept after a robot leaves, for the summary
@@ -75,6 +82,9 @@ class Downlink:
 
     def open_robot(self, robot: str, commands: list[str]) -> None:
         """The robot acts on ``commands`` (its announcement): open a writer for each new one."""
+        self._close_long_away()
+        with self._lock:
+            self._away_since.pop(robot, None)
         for name in commands:
             try:
                 key = keys.command_key(self._fleet, robot, name)
@@ -107,9 +117,24 @@ class Downlink:
             if stale is not None:
                 stale.close(0.0)
 
-    def close_robot(self, robot: str) -> None:
-        """The robot left: close its writers (a returning robot announces again)."""
+    def robot_away(self, robot: str) -> None:
+        """The robot's presence vanished: its writers stay open for it to come back to (its
+        reader's match resumes), and close after AWAY_RETENTION_S."""
         with self._lock:
+            self._away_since.setdefault(robot, time.monotonic())
+        self._close_long_away()
+
+    def _close_long_away(self) -> None:
+        now = time.monotonic()
+        with self._lock:
+            gone = [r for r, t in self._away_since.items() if now - t >= AWAY_RETENTION_S]
+        for robot in gone:
+            self.close_robot(robot)
+
+    def close_robot(self, robot: str) -> None:
+        """The robot is gone for good: close its writers (a returning robot announces again)."""
+        with self._lock:
+            self._away_since.pop(robot, None)
             mine = [k for k in self._outlets if k[0] == robot]
             outlets = [self._outlets.pop(k) for k in mine]
             for k, outlet in zip(mine, outlets, strict=True):
@@ -149,6 +174,7 @@ class Downlink:
         c.guid, c.last_seq = outlet.writer.guid, stats.sent
 
     def snapshot(self) -> dict[tuple[str, str], DownlinkCounters]:
+        self._close_long_away()
         with self._lock:
             for key, outlet in self._outlets.items():
                 self._settle(key, outlet)

@@ -59,6 +59,8 @@ class RobotReport:
     incarnations: dict[str, RobotStats] = field(default_factory=dict)
     #: the robot's clock section (``ClockWatch.summary``; None: no clock watch)
     clock: dict[str, Any] | None = None
+    #: how long (s) each time the robot was unreachable and came back as the same incarnation
+    outages: list[float] = field(default_factory=list)
 
 
 def incarnation_summary(
@@ -307,6 +309,7 @@ def robot_summary(
         "control_decode_errors": report.control_decode_errors,
         "joins": report.joins,
         "leaves": report.leaves,
+        "outages_s": [round(d, 3) for d in report.outages],
         "final_stats": bool(stats and stats.final),
         **{key: sum(row[key] for row in sensors) for key in TOTALS},
         "latency_ms_p50": latency_p50,

@@ -11,6 +11,17 @@ from arpz.protocol.qos import MatchQos, decode_match_qos
 
 log = logging.getLogger("arpz.reliability")
 
+#: how long a reader keeps the state of a writer whose token vanished (and a writer that of a
+#: reader), seconds. A token vanishes when the peer's Zenoh session ends: a dead zone longer
+#: than Zenoh's lease, a robot roaming to another address, a CEDDP restart. The peer that comes
+#: back within this time is the same incarnation (same guid) and its match goes on where it
+#: stopped: nothing it had delivered is delivered again, and what was written in the gap is
+#: resent or reported lost. Five minutes is longer than any history a robot holds at the rates
+#: of seed 001 (KEEP_ALL's 5 000 samples at 100 Hz last 50 s) and than any outage arpz's lab
+#: profiles make; a peer that stays away longer is gone for good and its losses are counted
+#: then (docs/reliability.md "Session loss").
+AWAY_RETENTION_S = 300.0
+
 
 def new_guid() -> bytes:
     """A fresh random id per writer/reader object: a restarted process is a new incarnation,

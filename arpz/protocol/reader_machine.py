@@ -17,7 +17,7 @@ from collections.abc import Sequence
 import msgspec
 
 from arpz.protocol import wire
-from arpz.protocol._common import BadInput, parse_token
+from arpz.protocol._common import AWAY_RETENTION_S, BadInput, parse_token
 from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
 from arpz.protocol.events import (
     DataInfo,
@@ -92,6 +92,11 @@ class ReaderStats(msgspec.Struct, frozen=True):
     implausible: int = 0
     #: writer tokens refused beyond MAX_WRITERS_PER_KEY or the reader's max_writers
     writers_refused: int = 0
+    #: matches that went on after the writer's token came back (its session was lost and
+    #: reopened: a dead zone, a roam), instead of starting again as a new writer
+    resumed: int = 0
+    #: writers away now: token gone, state kept for AWAY_RETENTION_S in case they come back
+    away: int = 0
 
 
 class _WriterProxy:
@@ -209,9 +214,18 @@ class ReaderMachine:
         clock: Clock,
         *,
         max_writers: int = DEFAULT_MAX_WRITERS,
+        away_retention_s: float = AWAY_RETENTION_S,
     ) -> None:
         self.key_expr = wire.check_key_expr(key_expr)
         self.max_writers = max_writers
+        self.away_retention_s = away_retention_s
+        #: writers whose token vanished, by (key, guid), with when their state expires (in that
+        #: order: insertion order is expiry order). A writer whose session was lost comes back
+        #: with the same guid and seqs; its match resumes where it stopped instead of starting
+        #: over, which delivered a TRANSIENT_LOCAL history twice and lost count of the gap
+        #: (issue 39). Bounded by max_writers.
+        self._away: dict[tuple[str, bytes], tuple[_WriterProxy, float]] = {}
+        self.resumed = 0
         #: writer tokens refused for exceeding MAX_WRITERS_PER_KEY or max_writers
         self.writers_refused = 0
         self.qos = qos
@@ -346,6 +360,12 @@ class ReaderMachine:
             self.writers[ident].leaving_s = None
             return actions
         policy = incompatible_policy(mq.as_profile(), self._requested)
+        away = self._away.pop(ident, None)
+        if away is not None:
+            if policy is None:
+                self._resume(away[0], now, actions)
+                return actions
+            self._forget(away[0], now, actions)
         if policy is not None:
             self._incompatible.add(ident)
             self.incompatible += 1
@@ -376,10 +396,12 @@ class ReaderMachine:
         return wire.reader_token(topic, self.hex, self._qos_chunk)
 
     def _unmatch(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
-        """The writer is gone: what it had sent but we still miss can never come."""
-        end = min(p.highest, p.confirmed_high) + 1
-        if p.synced and end > p.expected:
-            self._skip_to(p, end, actions)
+        """The writer's token is gone: the match ends. Its state is kept (``_away``) while the
+        writer may come back with the same guid; what it sent but we miss is counted lost only
+        when it does not (``_forget``)."""
+        del self.writers[(p.topic, p.guid)]
+        self._suspects.discard(p)
+        self._drain_waiters.pop(p, None)
         if p.lease.alive:
             self.alive_count -= 1
             actions.append(self._liveliness(-1, 0, p.hex))
@@ -387,6 +409,54 @@ class ReaderMachine:
             self.not_alive_count -= 1
             actions.append(self._liveliness(0, -1, p.hex))
         actions.append(self._matched(-1, p.hex))
+        if not p.synced:
+            return  # nothing of the match is known: nothing to resume or to count
+        self._away[(p.topic, p.guid)] = (p, now + self.away_retention_s)
+        while len(self._away) > self.max_writers:
+            oldest = next(iter(self._away))
+            self._forget(self._away.pop(oldest)[0], now, actions)
+
+    def _resume(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        """The writer of an away match is back (same key and guid): the match goes on from the
+        seq it stopped at. The writer's heartbeats tell what it wrote meanwhile; what it still
+        holds is NACKed and resent, the rest is GAPed and counted lost."""
+        # The lease and the deadline go on from the writer's last sample: the deadline periods
+        # of the gap are missed ones, and the plausible seq range grows with the silence
+        # (``_seq_limit``), as the writer went on writing.
+        p.leaving_s = None
+        p.nack_high, p.nack_high_s, p.unanswered = 0, -math.inf, 0
+        p.nack_sent.clear()
+        p.an_due_s = now  # an ACKNACK at once: the writer learns where we stand
+        self.writers[(p.topic, p.guid)] = p
+        self._suspects.add(p)
+        self.resumed += 1
+        self.matched_total += 1
+        actions.append(self._matched(1, p.hex))
+        if p.lease.alive:
+            self.alive_count += 1
+            actions.append(self._liveliness(1, 0, p.hex))
+        else:
+            self.not_alive_count += 1
+            actions.append(self._liveliness(0, 1, p.hex))
+
+    def _forget(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
+        """An away writer did not come back in time (or came back incompatible): what it had
+        sent but we still miss can never come."""
+        end = min(p.highest, p.confirmed_high) + 1
+        if end > p.expected:
+            self._skip_to(p, end, actions)
+        self._suspects.discard(p)
+        self._drain_waiters.pop(p, None)
+
+    def _expire_away(self, now: float, actions: list[Action]) -> None:
+        away = self._away
+        while away:
+            ident = next(iter(away))
+            p, until = away[ident]
+            if until > now:
+                return
+            del away[ident]
+            self._forget(p, now, actions)
 
     def _matched(self, change: int, peer: str) -> Notify:
         return Notify(
@@ -945,6 +1015,8 @@ class ReaderMachine:
         full = now >= self._next_full_s
         if full:  # a little early: the channel's idle tick (one period after) is then a full one
             self._next_full_s = now + 0.8 * self._full_period_s
+            if self._away:
+                self._expire_away(now, actions)
         for p in self.writers.values() if full else list(self._suspects):
             if not full and self.writers.get((p.topic, p.guid)) is not p:
                 self._suspects.discard(p)  # unmatched since it became a suspect
@@ -964,13 +1036,7 @@ class ReaderMachine:
             if self._reliable and p.an_due_s <= now:
                 actions.append(self._acknack(p, now))
         for p in gone:
-            del self.writers[(p.topic, p.guid)]
-            # after the unmatch, whose skip over what never came makes it a suspect again: a
-            # departed writer left among the suspects was deleted twice at the next fine tick
-            # (a KeyError that ended the CEDDP's channel thread under overload: issue 17)
             self._unmatch(p, now, actions)
-            self._suspects.discard(p)
-            self._drain_waiters.pop(p, None)
         return actions
 
     def _poll_timers(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
@@ -1065,15 +1131,19 @@ class ReaderMachine:
             impersonations=self.impersonations,
             implausible=self.implausible,
             writers_refused=self.writers_refused,
+            resumed=self.resumed,
+            away=len(self._away),
         )
 
     def accounted(self) -> dict[str, tuple[int, int, int, int, int]]:
         """Per matched writer (guid hex): (first seq of the match, last seq accounted for, and
         of those: delivered, declared lost, dropped past their lifespan). The writer side
-        reconciles against it: the count of each seq between the first and the last."""
+        reconciles against it: the count of each seq between the first and the last. A writer
+        away (its session lost) is still accounted: its match may resume."""
+        away = (p for p, _ in self._away.values())
         return {
             p.hex: (p.start, p.expected - 1, p.delivered, p.lost, p.expired)
-            for p in self.writers.values()
+            for p in (*self.writers.values(), *away)
             if p.synced
         }
 

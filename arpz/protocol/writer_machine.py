@@ -14,7 +14,7 @@ import msgspec
 
 from arpz.errors import ArpzError
 from arpz.protocol import wire
-from arpz.protocol._common import BadInput, parse_token
+from arpz.protocol._common import AWAY_RETENTION_S, BadInput, parse_token
 from arpz.protocol.actions import Action, Notify, Send
 from arpz.protocol.events import (
     DeadlineMissedStatus,
@@ -98,6 +98,11 @@ class WriterStats(msgspec.Struct, frozen=True):
     #: samples the history held when a reliable TRANSIENT_LOCAL reader matched, summed over
     #: matches: what late joiners could ask for, so resends can be judged against it
     history_offered: int = 0
+    #: matches that went on after the reader's token came back (its session was lost and
+    #: reopened) instead of starting again
+    resumed: int = 0
+    #: readers away now: token gone, state kept for AWAY_RETENTION_S in case they come back
+    away: int = 0
     #: periodic heartbeats left out because a DATA asking for an acknowledgement had done their
     #: work since the previous one (a streaming topic; see ``WriterMachine.tick``)
     heartbeats_piggybacked: int = 0
@@ -149,9 +154,29 @@ class _ReaderProxy:
             self.resend_confirmed = True
 
 
+#: readers whose state a writer keeps while they are away (the oldest forgotten first)
+MAX_AWAY_READERS = 64
+
+
 class WriterMachine:
-    def __init__(self, topic: str, qos: QosProfile, guid: bytes, clock: Clock) -> None:
+    def __init__(
+        self,
+        topic: str,
+        qos: QosProfile,
+        guid: bytes,
+        clock: Clock,
+        *,
+        away_retention_s: float = AWAY_RETENTION_S,
+    ) -> None:
         self.topic = wire.check_topic_key(topic)
+        self.away_retention_s = away_retention_s
+        #: readers whose token vanished, by guid, with when their state expires (insertion
+        #: order is expiry order). A reader whose session was lost comes back with the same
+        #: guid: its match resumes where it acknowledged, so nothing goes to it twice and what
+        #: was written in the gap is resent or GAPed (issue 39). Away readers hold no history
+        #: back: a KEEP_ALL writer does not block on a reader that may never return.
+        self._away: dict[bytes, tuple[_ReaderProxy, float]] = {}
+        self.resumed = 0
         self.qos = qos
         self.guid = guid
         self.hex = guid.hex()
@@ -260,6 +285,16 @@ class WriterMachine:
                 acked = p.acked
         return acked
 
+    def _min_acked_kept(self) -> int:
+        """``_min_acked`` with the away readers too: what a purge keeps for them to come back
+        to. They never block a write: a full KEEP_ALL history drops its front for them (they
+        get a GAP when back), it waits only for the readers present."""
+        acked = self._min_acked()
+        for p, _ in self._away.values():
+            if p.reliable and p.acked < acked:
+                acked = p.acked
+        return acked
+
     def _purge(self) -> None:
         """KEEP_ALL VOLATILE: drop what every reliable reader acknowledged, to make room.
 
@@ -268,7 +303,7 @@ class WriterMachine:
         optimistic (or forged) can still get them again, and no purge runs per ACKNACK."""
         if self.qos.transient_local or not self._keep_all:
             return
-        limit = self._min_acked()
+        limit = self._min_acked_kept()
         if limit > self.last_seq:
             self.history.clear()
             self.first = self.last_seq + 1
@@ -295,7 +330,7 @@ class WriterMachine:
     def has_room(self) -> bool:
         if len(self.history) < self._capacity or not self._keep_all:
             return True
-        return self.first < self._min_acked()
+        return self.first < self._min_acked()  # the readers present only (_min_acked_kept)
 
     def write(
         self, payload: bytes, stamp_ns: int | None = None
@@ -589,6 +624,8 @@ class WriterMachine:
             self.bad("malformed reader token", key)
             return []
         _, guid, hex_, mq = parsed
+        now = self.clock.monotonic_s()
+        self._expire_away(now)
         if not alive:
             self._incompatible.discard(guid)
             p = self.proxies.pop(guid, None)
@@ -596,11 +633,17 @@ class WriterMachine:
                 return []
             self.n_reliable -= p.reliable
             self.ack_epoch += 1
+            self._away[guid] = (p, now + self.away_retention_s)
+            while len(self._away) > MAX_AWAY_READERS:
+                del self._away[next(iter(self._away))]
             self._purge()
             return [self._matched(-1, hex_)]
         if guid in self.proxies or guid in self._incompatible:
             return []
         policy = incompatible_policy(self._offered, mq.as_profile())
+        away = self._away.pop(guid, None)
+        if away is not None and policy is None:
+            return self._resume(away[0], now)
         if policy is not None:
             self._incompatible.add(guid)
             self.incompatible += 1
@@ -621,8 +664,33 @@ class WriterMachine:
         if p.reliable:
             self.history_offered += max(self.last_seq - start + 1, 0)
         self.matched_total += 1
-        now = self.clock.monotonic_s()
         return [self._matched(1, hex_), self._sync(p, now)]
+
+    def _resume(self, p: _ReaderProxy, now: float) -> list[Action]:
+        """An away reader is back (same guid): its match goes on from what it acknowledged.
+        The SYNC repeats its old start (a synced reader ignores it) until it ACKNACKs; its
+        NACKs then get what the history still holds and a GAP for the rest."""
+        p.synced = False
+        p.resent.clear()
+        self.proxies[p.guid] = p
+        self._rearm(now)
+        self.n_reliable += p.reliable
+        self.ack_epoch += 1
+        self.matched_total += 1
+        self.resumed += 1
+        return [self._matched(1, p.hex), self._sync(p, now)]
+
+    def _expire_away(self, now: float) -> None:
+        away = self._away
+        while away and next(iter(away.values()))[1] <= now:
+            del away[next(iter(away))]
+
+    @property
+    def awaited_count(self) -> int:
+        """Readers away whose match may still resume: what is written now will reach them or
+        be reported lost to them when they are back, so it is not written to no one."""
+        self._expire_away(self.clock.monotonic_s())
+        return len(self._away)
 
     def _matched(self, change: int, peer: str) -> Notify:
         return Notify(
@@ -660,7 +728,12 @@ class WriterMachine:
         budget = RESEND_BUDGET
         lost_ranges: list[tuple[int, int]] = []
         for lo_, hi_ in an.missing:
-            lo, hi = max(lo_, base, p.start), min(hi_, self.last_seq)
+            lo, hi = max(lo_, base), min(hi_, self.last_seq)
+            if lo < p.start and lo <= hi:
+                # before this match's start: a reader resuming a match this writer had
+                # forgotten (it was away too long) asks for seqs it will never get
+                lost_ranges.append((lo, min(hi, p.start - 1)))
+                lo = p.start
             if lo > hi:
                 continue
             self.nacks += hi - lo + 1
@@ -848,4 +921,6 @@ class WriterMachine:
             incompatible=self.incompatible,
             history=len(self.history),
             bad_input=self.bad.total(),
+            resumed=self.resumed,
+            away=len(self._away),
         )

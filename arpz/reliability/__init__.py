@@ -7,6 +7,7 @@ for every reader delivered + reported lost == sent during the match. ``FrameWrit
 ``FrameReader`` carry large samples (camera frames) as fragments of one radio frame each.
 """
 
+from arpz.protocol._common import AWAY_RETENTION_S
 from arpz.protocol.events import (
     DataInfo,
     DeadlineMissedStatus,
@@ -51,6 +52,7 @@ from arpz.reliability.reader import Reader
 from arpz.reliability.writer import Writer
 
 __all__ = [
+    "AWAY_RETENTION_S",
     "PLAIN_PEER",
     "QOS_DEFAULT",
     "QOS_FRAMES_ALL",

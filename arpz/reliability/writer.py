@@ -251,6 +251,14 @@ class Writer(Endpoint):
         with self._lock:
             return len(self._machine.proxies)
 
+    @property
+    def awaited_count(self) -> int:
+        """Readers whose session was lost and whose match resumes if they come back within
+        arpz.protocol AWAY_RETENTION_S: what is written now still reaches them, or is reported
+        lost to them, when they are back."""
+        with self._lock:
+            return self._machine.awaited_count
+
     def stats(self) -> WriterStats:
         with self._lock:
             stats = self._machine.stats()

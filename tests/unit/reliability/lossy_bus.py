@@ -48,6 +48,9 @@ class LossyBus:
         self._queue: list[tuple[float, int, Any]] = []
         self._order = itertools.count()
         self.dropped = 0
+        #: nodes whose session is lost (a dead zone): nothing reaches them or leaves them, and
+        #: the tokens on each side of the cut vanish for the other, as when Zenoh's lease ends
+        self.cut: set[int] = set()
 
     def add(self, machine: Machine) -> Node:
         node = Node(machine)
@@ -68,6 +71,34 @@ class LossyBus:
         for key in mine:
             self._token(key, False)
 
+    def _owned(self, node: Node) -> list[str]:
+        return [k for k in self.tokens if node.machine.hex in k.split("/")]
+
+    def _tell(self, node: Node, key: str, declare: bool) -> None:
+        if key_matches(node.machine.watch_expr(), key):
+            self._later(0.002, ("token", node, key, declare))
+
+    def partition(self, node: Node) -> None:
+        """The node's session is lost: its tokens vanish for everyone else, everyone else's for
+        it, and no message crosses until ``heal``. The node's machine lives on (same guid)."""
+        self._cross(node, False)
+        self.cut.add(id(node))
+
+    def heal(self, node: Node) -> None:
+        """The node's session is back: the tokens reappear on both sides."""
+        self.cut.discard(id(node))
+        self._cross(node, True)
+
+    def _cross(self, node: Node, declare: bool) -> None:
+        mine = self._owned(node)
+        for other in self.nodes:
+            if other is node or id(other) in self.cut:
+                continue
+            for key in mine:
+                self._tell(other, key, declare)
+            for key in self._owned(other):
+                self._tell(node, key, declare)
+
     def _later(self, delay_s: float, item: Any) -> None:
         heapq.heappush(self._queue, (self.clock.now_s + delay_s, next(self._order), item))
 
@@ -77,8 +108,8 @@ class LossyBus:
         else:
             self.tokens.pop(key, None)
         for node in self.nodes:
-            if key_matches(node.machine.watch_expr(), key):
-                self._later(0.002, ("token", node, key, declare))
+            if id(node) not in self.cut:
+                self._tell(node, key, declare)
 
     def run(self, node: Node, actions: Sequence[Action]) -> None:
         machine = node.machine
@@ -88,6 +119,9 @@ class LossyBus:
             assert machine.busy() == machine.busy_scan()
         for action in actions:
             if isinstance(action, Send):
+                if id(node) in self.cut:
+                    self.dropped += 1
+                    continue
                 self.send(action)
             elif isinstance(action, Deliver):
                 node.delivered.append((action.payload, action.info))
@@ -96,10 +130,18 @@ class LossyBus:
             elif isinstance(action, Notify):
                 node.events.append((action.event, action.status))
             elif isinstance(action, TokenChange):
-                self._token(action.key, action.declare)
+                if id(node) in self.cut:  # the others learn it at ``heal``
+                    if action.declare:
+                        self.tokens[action.key] = 1
+                    else:
+                        self.tokens.pop(action.key, None)
+                else:
+                    self._token(action.key, action.declare)
 
     def send(self, msg: Send) -> None:
         for node in self.nodes:
+            if id(node) in self.cut:
+                continue
             for expr, handler in node.machine.subscriptions():
                 if not key_matches(expr, msg.key):
                     continue
@@ -117,6 +159,9 @@ class LossyBus:
             _, _, item = heapq.heappop(self._queue)
             node = item[1]
             if node not in self.nodes:
+                continue
+            if item[0] == "msg" and id(node) in self.cut:
+                self.dropped += 1  # in flight when the link died
                 continue
             if item[0] == "token":
                 handler = (
@@ -141,7 +186,7 @@ class LossyBus:
         assert isinstance(w, WriterMachine)
         seq, ready, actions = w.write(payload)
         self.run(node, actions)
-        if ready is not None:  # else the batch goes out from a later write or tick
+        if ready is not None and id(node) not in self.cut:  # else a later write or tick
             self.send(Send(w.topic, ready[0], ready[1]))
         return seq
 
