@@ -33,6 +33,7 @@ COMMANDS: dict[str, Command] = {
     "bridge": Command("arpz.bridge.__main__", "the ROS 2 bridge (rmw_zenoh), standalone"),
     "perf": Command("arpz.perf.__main__", "performance tests: channel, ingest, fleet scaling"),
     "netem": Command("arpz.netem.__main__", "the lossy-link emulator (a UDP/TCP proxy)"),
+    "lab": Command("arpz.lab.__main__", "the kernel network lab: namespaces, loss, roaming (root)"),
     "experiment": Command("arpz.experiment.__main__", "experiment grids, results and figures"),
     "configure": Command("arpz.configure.__main__", "seed 002's configuration optimiser"),
 }

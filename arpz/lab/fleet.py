@@ -1,0 +1,253 @@
+"""A CEDDP and N robots as real processes inside a kernel lab, each robot's link driven by its
+profile: what ``python -m arpz lab run`` does.
+
+The configs are the demo's (``arpz.demo.demo_spec``: same fleet, presets, Hello relay, sensor
+QoS) with the endpoint on the lab's server address; ``tls`` and ``quic`` add the fleet
+certificates and Zenoh files of ``deploy/tls/make_fleet_certs.py`` (mutual TLS and access
+control, as deployed). The timeline is written beside the CEDDP's summary.json.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, TextIO
+
+import tomli_w
+
+from arpz.demo import DemoOptions, check_summary, demo_spec
+from arpz.lab.impair import ProfileRunner
+from arpz.lab.names import LabError
+from arpz.lab.net import Lab, LinkCounters
+from arpz.lab.profiles import LinkState, parse_assignments
+from arpz.lab.timeline import TIMELINE_FILE, Entry, Timeline
+from arpz.launch import FleetSpec, LaunchError, Proc
+
+#: the links a lab fleet can use (quic needs the same certificates as tls)
+LINKS = ("tcp", "udp", "tls", "quic")
+#: the CEDDP's port: its namespace is its own, so no other process can hold it
+PORT = 7447
+CERT_SCRIPT = Path(__file__).resolve().parents[2] / "deploy" / "tls" / "make_fleet_certs.py"
+#: seconds between progress lines
+PROGRESS_EVERY_S = 5.0
+
+
+@dataclass(frozen=True)
+class LabRunOptions:
+    robots: int = 2
+    link: str = "tcp"
+    duration_s: float = 60.0
+    #: ``--profile`` values: ``ROBOT=PROFILE`` or ``PROFILE`` (every robot not named)
+    profiles: tuple[str, ...] = ()
+    seed: int = 0
+    #: the demo's settings (rate, reliability, QoS...); its ``robots`` is replaced by ours
+    demo: DemoOptions = field(default_factory=DemoOptions)
+
+    def __post_init__(self) -> None:
+        if self.link not in LINKS:
+            raise ValueError(f"link must be one of {', '.join(LINKS)}, got {self.link!r}")
+        if self.robots < 1 or not self.duration_s > 0:
+            raise ValueError("robots must be >= 1 and duration > 0")
+
+    @property
+    def robot_names(self) -> list[str]:
+        return [f"robot{i}" for i in range(1, self.robots + 1)]
+
+
+@dataclass
+class LabRunResult:
+    summary: dict[str, Any]
+    timeline: Path
+    #: what ``arpz.demo.check_summary`` finds (reconciliation, robots that never reported)
+    problems: list[str]
+    counters: dict[str, LinkCounters]
+
+
+def make_certs(out: Path, fleet: str, robots: list[str], server_ip: str) -> Path:
+    """The fleet CA, certificates and Zenoh files for a CEDDP at ``server_ip``."""
+    if not CERT_SCRIPT.exists():
+        raise LabError(
+            f"tls and quic need {CERT_SCRIPT.name} from an arpz checkout (deploy/tls/), "
+            "which is not installed with the package"
+        )
+    args = [sys.executable, str(CERT_SCRIPT), "--out", str(out), "--fleet", fleet]
+    done = subprocess.run(
+        [*args, "--server-ip", server_ip, *robots],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
+    if done.returncode != 0:
+        raise LabError(f"making the fleet's certificates failed: {done.stderr.strip()}")
+    return out
+
+
+def lab_spec(options: LabRunOptions, lab: Lab, workdir: Path) -> FleetSpec:
+    """The demo's configs, on the lab's addresses and the chosen link."""
+    endpoint = f"{options.link}/{lab.ceddp_address}:{PORT}"
+    demo = replace(options.demo, robots=options.robots, rrd=workdir / "arpz-lab.rrd")
+    spec = demo_spec(demo, endpoint)
+    if options.link in ("tls", "quic"):
+        tls = make_certs(workdir / "tls", spec.ceddp["fleet"], list(spec.robots), lab.ceddp_address)
+        spec.ceddp["zenoh_config"] = str(tls / "zenoh" / "ceddp-router.json5")
+        for robot, conf in spec.robots.items():
+            conf["zenoh_config"] = str(tls / "zenoh" / f"{robot}-client.json5")
+    return spec
+
+
+def _write(path: Path, conf: dict[str, Any]) -> Path:
+    path.write_text(tomli_w.dumps(conf), encoding="utf-8")
+    return path
+
+
+def describe(entry: Entry) -> str | None:
+    """A progress line for a timeline event (None: not worth a line)."""
+    robot = entry.get("robot", "")
+    if entry["event"] == "profile":
+        return f"lab: {robot} profile {entry['profile']}: {entry['description']}"
+    if entry["event"] == "link":
+        state = LinkState(**{k: entry[k] for k in LinkState.__dataclass_fields__})
+        return (
+            f"lab: t={entry['t']:6.1f} s {robot} {state.describe()}, {entry['address']} "
+            f"({entry['cause']})"
+        )
+    if entry["event"] == "error":
+        return f"lab: t={entry['t']:6.1f} s {robot} ERROR {entry['message']}"
+    return None
+
+
+def run_lab(
+    options: LabRunOptions,
+    workdir: Path,
+    *,
+    progress: TextIO = sys.stderr,
+    stop_requested: Callable[[], bool] = lambda: False,
+) -> LabRunResult:
+    """Build the lab, start the CEDDP and the robots in it, run the profiles for
+    ``duration_s`` (or until ``stop_requested()``), clean the links so the final reports
+    arrive, stop robots then CEDDP with SIGINT, tear the lab down. LabError names what
+    failed."""
+    profiles = parse_assignments(list(options.profiles), options.robot_names)
+    workdir.mkdir(parents=True, exist_ok=True)
+
+    def say(entry: Entry) -> None:
+        line = describe(entry)
+        if line is not None:
+            print(line, file=progress, flush=True)
+
+    timeline = Timeline(workdir / TIMELINE_FILE, on_event=say)
+    with Lab.create(options.robot_names, timeline=timeline) as lab:
+        spec = lab_spec(options, lab, workdir)
+        ceddp_conf = dict(spec.ceddp, summary_json=str(workdir / "summary.json"))
+        ceddp_path = _write(workdir / "ceddp.toml", ceddp_conf)
+        ceddp = lab.spawn(
+            "ceddp", lab.ceddp_namespace, ["-m", "arpz.ceddp", "--config", str(ceddp_path)], workdir
+        )
+        ceddp.wait_line("ready on", timeout_s=60)
+        robots: list[Proc] = []
+        order = [r for r in spec.first if r in spec.robots]
+        order += [r for r in spec.robots if r not in order]
+        for group in (
+            [r for r in order if r in spec.first],
+            [r for r in order if r not in spec.first],
+        ):
+            started = [
+                lab.spawn(
+                    robot,
+                    lab.robot(robot).namespace,
+                    [
+                        "-m",
+                        "arpz.robot",
+                        "--config",
+                        str(_write(workdir / f"{robot}.toml", spec.robots[robot])),
+                    ],
+                    workdir,
+                )
+                for robot in group
+            ]
+            robots += started
+            for proc in started:
+                proc.wait_line("running", timeout_s=60)
+        print(
+            f"lab {lab.lab_id}: CEDDP on {options.link}/{lab.ceddp_address}:{PORT} and "
+            f"{len(robots)} robots running; logs in {workdir}",
+            file=progress,
+            flush=True,
+        )
+        runner = ProfileRunner(lab, profiles, seed=options.seed, horizon_s=options.duration_s)
+        failures: list[str] = []
+        runner.start()
+        try:
+            _watch(lab, [ceddp, *robots], options.duration_s, progress, stop_requested)
+        finally:
+            try:
+                runner.stop()
+            except LabError as exc:
+                failures.append(str(exc))
+        for name, link in lab.robots.items():
+            lab.apply(name, LinkState(subnet=link.state.subnet), "end of the run: clean links")
+        counters = {name: lab.counters(name) for name in lab.robots}
+        for proc in reversed(robots):
+            failures += _stop(proc, 20)
+        failures += _stop(ceddp, 30)
+        summary_path = workdir / "summary.json"
+        if not summary_path.exists():
+            failures.append(f"the CEDDP wrote no summary ({summary_path})")
+        if failures:
+            raise LabError("; ".join(failures))
+    summary: dict[str, Any] = json.loads(summary_path.read_text(encoding="utf-8"))
+    problems = check_summary(summary, options.robots)
+    return LabRunResult(summary, timeline.path or workdir / TIMELINE_FILE, problems, counters)
+
+
+def _watch(
+    lab: Lab,
+    procs: list[Proc],
+    duration_s: float,
+    progress: TextIO,
+    stop_requested: Callable[[], bool],
+) -> None:
+    """Wait out the run; a process that exits early is a LabError (unless a stop was asked
+    for: a Ctrl-C at a terminal reaches the children too). Every ``PROGRESS_EVERY_S`` a line
+    with what each link dropped since the last one."""
+    start = last = time.monotonic()
+    before = {name: lab.counters(name) for name in lab.robots}
+    while (elapsed := time.monotonic() - start) < duration_s and not stop_requested():
+        for proc in procs:
+            if proc.popen.poll() is not None and not stop_requested():
+                raise LabError(
+                    f"{proc.name} exited early with code {proc.popen.returncode}; "
+                    f"see {proc.log_path}:\n{proc.tail()}"
+                )
+        if time.monotonic() - last >= PROGRESS_EVERY_S:
+            last = time.monotonic()
+            now = {name: lab.counters(name) for name in lab.robots}
+            links = ", ".join(_dropped(name, before[name], now[name]) for name in lab.robots)
+            print(f"lab: {elapsed:5.1f}/{duration_s:g} s; {links}", file=progress, flush=True)
+            before = now
+        time.sleep(0.1)
+
+
+def _dropped(robot: str, before: LinkCounters, now: LinkCounters) -> str:
+    """What ``robot``'s link dropped between two readings, each way."""
+
+    def share(dropped: int, seen: int) -> str:
+        return f"{dropped}/{seen}" + (f" ({100 * dropped / seen:.0f} %)" if seen else "")
+
+    up = share(now.up_dropped - before.up_dropped, now.up_seen - before.up_seen)
+    down = share(now.down_dropped - before.down_dropped, now.down_seen - before.down_seen)
+    return f"{robot} dropped up {up} down {down}"
+
+
+def _stop(proc: Proc, timeout_s: float) -> list[str]:
+    try:
+        code = proc.stop(timeout_s)
+    except LaunchError as exc:
+        return [str(exc)]
+    return [] if code == 0 else [f"{proc.name} exited with code {code}; see {proc.log_path}"]
