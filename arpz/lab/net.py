@@ -372,7 +372,9 @@ class Lab:
                 )
                 ap.link("set", index=_index(ap, robot.ap_interface), master=bridge)
                 _up(ap, robot.ap_interface)
-        self.run(names.ap, ["sysctl", "-qw", "net.ipv4.ip_forward=1"])
+        # the access point routes between its subnets and the server's (/proc/sys/net is the
+        # opening thread's namespace's)
+        in_namespace(names.ap, lambda: Path("/proc/sys/net/ipv4/ip_forward").write_text("1"))
         self._address(names.ceddp, ceddp_if, CEDDP_ADDRESS, AP_SERVER_ADDRESS)
         for robot in self.robots.values():
             self._address(robot.namespace, robot.interface, robot.address, gateway(0))
