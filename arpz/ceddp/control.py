@@ -354,11 +354,14 @@ class ControlWorker:
             record.away_since_s = now
             record.back_after_s = None
             record.away_incarnation = record.stats.incarnation if record.stats else ""
-            self._event(
-                f"robot {robot} unreachable: its session ended (a dead zone, a roam or a stop); "
-                "its channel state is kept for it to come back",
-                "WARN",
-            )
+            if record.stats is not None and record.stats.final:
+                self._event(f"robot {robot} left (it stopped: its final report is in)", "INFO")
+            else:
+                self._event(
+                    f"robot {robot} unreachable: its session ended (a dead zone, a roam or a "
+                    "crash); its channel state is kept for it to come back",
+                    "WARN",
+                )
         if alive and record.announce is not None:
             self.sink.open_robot(robot, list(record.announce.commands))
         if not alive:
@@ -377,7 +380,9 @@ class ControlWorker:
         """The first report after a robot came back: one event for the whole absence."""
         away_s = record.back_after_s or 0.0
         record.back_after_s = None
-        if incarnation == record.away_incarnation:
+        # reports seen before it went away name the incarnation (all of them: it may have gone
+        # before its first report of the run reached us)
+        if incarnation == record.away_incarnation or incarnation in record.incarnations:
             record.outages.append(away_s)
             del record.outages[:-MAX_OUTAGES]
             self._event(
@@ -388,7 +393,7 @@ class ControlWorker:
         else:
             self._event(
                 f"robot {robot} rejoined after {away_s:.1f} s as a new incarnation "
-                f"{incarnation} (restarted)",
+                f"{incarnation} (restarted; was {record.away_incarnation or 'unknown'})",
                 "INFO",
             )
 

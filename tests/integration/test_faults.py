@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 
 from arpz.netem import Impairments, NetemProxy, Outage
-from tests.integration.fleet import Process, ceddp, settle, write_robot
+from tests.integration.fleet import Process, ceddp, settle, udp_link, write_robot
 from tests.support import free_port, free_udp_port, wait_until
 
 # heavy or timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
@@ -335,3 +335,77 @@ def _restart_and_catch_up(
         assert second.interrupt() == 0, second.output()
     finally:
         second.kill()
+
+
+def test_a_dead_zone_longer_than_the_lease_is_one_outage_and_nothing_arrives_twice(
+    tmp_path: Path,
+) -> None:
+    """Issue 39: a 12 s dead zone (Zenoh's lease is 10 s) ended the robot's session; when it
+    was back its KEEP_ALL TRANSIENT_LOCAL writers' history was taken again as new (sent 14 331,
+    received 17 218, ``reconciled: false``) and about 200 Hello commands were counted nowhere.
+    The robot comes back as the same incarnation: one outage with its duration, every sample
+    of every topic received once or reported lost, and the downlink reconciled."""
+    link = udp_link()
+    summary_json = tmp_path / "summary.json"
+    with ceddp(tmp_path, extra=SUMMARY_EVERY + DURABLE, also_listen=(link.ceddp_endpoint,)) as (
+        server,
+        _endpoint,
+    ):
+        link.proxy.start()
+        try:
+            config = write_robot(
+                tmp_path,
+                "robot1",
+                link.robot_endpoint,
+                preset="machine2",
+                rate_hz=20,
+                hello=True,
+                extra=DURABLE,
+            )
+            robot = Process("robot1", ["-m", "arpz.robot", "--config", str(config)], tmp_path)
+            try:
+                robot.wait_for("running")
+                wait_until(
+                    lambda: (row := _robot_row(summary_json)) is not None and row["sent"] > 0,
+                    what="robot1's samples and reports flowing to the CEDDP",
+                )
+                link.impair(Impairments(outages=(Outage(start_s=0.0, duration_s=12.0),)))
+                settle(12.0)  # deliberately: the dead zone itself, with the robot sensing on
+                wait_until(
+                    lambda: (
+                        (row := _robot_row(summary_json)) is not None and len(row["outages_s"]) == 1
+                    ),
+                    timeout_s=60,
+                    what="robot1 back after the dead zone",
+                )
+                settle(2.0)  # a little traffic after it
+                assert robot.interrupt(timeout_s=30) == 0, robot.output()
+            finally:
+                robot.kill()
+            assert server.interrupt() == 0, server.output()
+        finally:
+            report = link.proxy.stop()
+    assert report.up.dropped_outage > 0, report
+    summary = json.loads(summary_json.read_text())
+    row = summary["robots"]["robot1"]
+    assert row["final_stats"] and len(row["incarnations"]) == 1, row["incarnations"]
+    # the dead zone, then the robot's own stop
+    assert row["leaves"] == 2 and row["joins"] == 2, summary["events"]
+    assert 10.0 <= row["outages_s"][0] <= 25.0, row["outages_s"]
+    for name, topic in _sensor_topics(row).items():
+        assert topic["sent"] == topic["received"] + topic["lost"], (name, topic)
+    assert row["sent"] == row["received"] + row["lost"], row
+    hello = row["downlink"]["hello"]
+    assert hello["written"] > 0 and hello["reconciled"] is True, hello
+    assert hello["written"] == (
+        hello["unmatched"]
+        + hello["write_failures"]
+        + hello["before_match"]
+        + hello["this_writer"]["delivered"]
+        + hello["this_writer"]["lost"]
+        + hello["this_writer"]["lifespan_expired"]
+        + hello["after_robot_stopped"]
+    ), hello
+    events = [e for e in summary["events"] if "robot1" in e]
+    assert any("back after" in e and "same incarnation" in e for e in events), events
+    assert "robot robot1 left (it stopped" in events[-1], events
