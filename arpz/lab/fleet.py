@@ -25,7 +25,7 @@ from arpz.lab.impair import ProfileRunner
 from arpz.lab.names import LabError
 from arpz.lab.net import Lab, LinkCounters
 from arpz.lab.profiles import LinkState, parse_assignments
-from arpz.lab.timeline import TIMELINE_FILE, Entry, Timeline
+from arpz.lab.timeline import TIMELINE_FILE, Entry, Timeline, state_of
 from arpz.launch import FleetSpec, LaunchError, Proc
 
 #: the links a lab fleet can use (quic needs the same certificates as tls)
@@ -112,9 +112,8 @@ def describe(entry: Entry) -> str | None:
     if entry["event"] == "profile":
         return f"lab: {robot} profile {entry['profile']}: {entry['description']}"
     if entry["event"] == "link":
-        state = LinkState(**{k: entry[k] for k in LinkState.__dataclass_fields__})
         return (
-            f"lab: t={entry['t']:6.1f} s {robot} {state.describe()}, {entry['address']} "
+            f"lab: t={entry['t']:6.1f} s {robot} {state_of(entry).describe()}, {entry['address']} "
             f"({entry['cause']})"
         )
     if entry["event"] == "error":
@@ -203,7 +202,7 @@ def run_lab(
             raise LabError("; ".join(failures))
     summary: dict[str, Any] = json.loads(summary_path.read_text(encoding="utf-8"))
     problems = check_summary(summary, options.robots)
-    return LabRunResult(summary, timeline.path or workdir / TIMELINE_FILE, problems, counters)
+    return LabRunResult(summary, workdir / TIMELINE_FILE, problems, counters)
 
 
 def _watch(

@@ -88,10 +88,10 @@ _IN_NETNS = (
 # ------------------------------------------------------------------------------ availability
 
 
-def _which(tool: str) -> str | None:
+def _which(name: str) -> str | None:
     """A system tool, also where a non-root PATH does not look (/usr/sbin, /sbin)."""
-    return shutil.which(tool) or next(
-        (f"{d}/{tool}" for d in ("/usr/sbin", "/sbin") if os.access(f"{d}/{tool}", os.X_OK)),
+    return shutil.which(name) or next(
+        (f"{d}/{name}" for d in ("/usr/sbin", "/sbin") if os.access(f"{d}/{name}", os.X_OK)),
         None,
     )
 
@@ -306,25 +306,19 @@ class Lab:
     # ---------------------------------------------------------------- building
 
     @classmethod
-    def create(
-        cls,
-        robots: int | Sequence[str],
-        *,
-        timeline: Timeline | None = None,
-        lab_id: str | None = None,
-    ) -> Lab:
+    def create(cls, robots: int | Sequence[str], *, timeline: Timeline | None = None) -> Lab:
         """Build a lab with ``robots`` (a count: robot1..robotN, or names) on access point 0,
         links clean. Raises LabUnavailable when the machine cannot, LabError when a step
         failed (after removing what was built)."""
         check_available()
-        names = list(robots) if not isinstance(robots, int) else []
         if isinstance(robots, int):
-            names = [f"robot{i}" for i in range(1, robots + 1)]
+            robots = [f"robot{i}" for i in range(1, robots + 1)]
+        names = list(robots)
         try:
             check_robot_names(names)
         except ValueError as exc:
             raise LabError(str(exc)) from None
-        lab = cls(LabNames(lab_id or new_lab_id()), names, timeline or Timeline())
+        lab = cls(LabNames(new_lab_id()), names, timeline or Timeline())
         try:
             lab._build()
         except BaseException as exc:
@@ -591,7 +585,13 @@ class Lab:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        self.close()
+        if exc is None:
+            self.close()
+            return
+        try:
+            self.close()
+        except LabError as problem:  # the body's own exception stays the one raised
+            exc.add_note(str(problem))
 
 
 def tbf_burst_bytes(kbit: int) -> int:

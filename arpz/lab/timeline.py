@@ -74,13 +74,15 @@ def load(path: Path) -> list[Entry]:
     return [json.loads(line) for line in path.read_text(encoding="utf-8").splitlines() if line]
 
 
+def state_of(entry: Entry) -> LinkState:
+    """The ``LinkState`` a ``link`` entry applied."""
+    return LinkState(**{name: entry[name] for name in LinkState.__dataclass_fields__})
+
+
 def link_states(entries: list[Entry], robot: str) -> list[tuple[float, LinkState]]:
     """The states applied to ``robot``'s link, in order, with their ``t``."""
-    names = LinkState.__dataclass_fields__
     return [
-        (e["t"], LinkState(**{k: v for k, v in e.items() if k in names}))
-        for e in entries
-        if e["event"] == "link" and e.get("robot") == robot
+        (e["t"], state_of(e)) for e in entries if e["event"] == "link" and e.get("robot") == robot
     ]
 
 
@@ -95,10 +97,10 @@ def spans(
     for entry in entries:
         if entry["event"] != "link" or entry.get("robot") != robot:
             continue
-        state = LinkState(**{k: v for k, v in entry.items() if k in LinkState.__dataclass_fields__})
-        if when(state) and start is None:
-            start = entry[clock]
-        elif not when(state) and start is not None:
+        if when(state_of(entry)):
+            if start is None:
+                start = entry[clock]
+        elif start is not None:
             found.append((start, entry[clock]))
             start = None
     if start is not None:
