@@ -17,7 +17,7 @@ with Lab.create(2) as lab:  # robot1, robot2; everything removed on the way out
 ```
 """
 
-from arpz.lab.fleet import LabRunOptions, LabRunResult, run_lab
+from arpz.lab.fleet import LabRunOptions, LabRunResult, lab_spec, run_fleet_in_lab, run_lab
 from arpz.lab.impair import ProfileRunner
 from arpz.lab.names import LabError, LabInterrupted, LabUnavailable
 from arpz.lab.net import (
@@ -66,12 +66,14 @@ __all__ = [
     "dead_zone",
     "flapping",
     "interrupt_on_signals",
+    "lab_spec",
     "load",
     "loss",
     "missing",
     "parse_profile",
     "rate",
     "roam",
+    "run_fleet_in_lab",
     "run_lab",
     "spans",
 ]

@@ -13,7 +13,7 @@ import json
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, TextIO
@@ -24,7 +24,7 @@ from arpz.demo import DemoOptions, check_summary, demo_spec
 from arpz.lab.impair import ProfileRunner
 from arpz.lab.names import LabError
 from arpz.lab.net import Lab, LinkCounters
-from arpz.lab.profiles import LinkState, parse_assignments
+from arpz.lab.profiles import LinkState, Profile, parse_assignments
 from arpz.lab.timeline import TIMELINE_FILE, Entry, Timeline, state_of
 from arpz.launch import FleetSpec, LaunchError, Proc
 
@@ -62,7 +62,8 @@ class LabRunOptions:
 @dataclass
 class LabRunResult:
     summary: dict[str, Any]
-    timeline: Path
+    #: the lab's timeline file (None: the timeline was kept in memory only)
+    timeline: Path | None
     #: what ``arpz.demo.check_summary`` finds (reconciliation, robots that never reported)
     problems: list[str]
     counters: dict[str, LinkCounters]
@@ -128,10 +129,8 @@ def run_lab(
     progress: TextIO = sys.stderr,
     stop_requested: Callable[[], bool] = lambda: False,
 ) -> LabRunResult:
-    """Build the lab, start the CEDDP and the robots in it, run the profiles for
-    ``duration_s`` (or until ``stop_requested()``), clean the links so the final reports
-    arrive, stop robots then CEDDP with SIGINT, tear the lab down. LabError names what
-    failed."""
+    """``python -m arpz lab run``: build the lab, run the demo's fleet in it with the
+    profiles (``run_fleet_in_lab``), tear the lab down. LabError names what failed."""
     profiles = parse_assignments(list(options.profiles), options.robot_names)
     workdir.mkdir(parents=True, exist_ok=True)
 
@@ -142,67 +141,88 @@ def run_lab(
 
     timeline = Timeline(workdir / TIMELINE_FILE, on_event=say)
     with Lab.create(options.robot_names, timeline=timeline) as lab:
-        spec = lab_spec(options, lab, workdir)
-        ceddp_conf = dict(spec.ceddp, summary_json=str(workdir / "summary.json"))
-        ceddp_path = _write(workdir / "ceddp.toml", ceddp_conf)
-        ceddp = lab.spawn(
-            "ceddp", lab.ceddp_namespace, ["-m", "arpz.ceddp", "--config", str(ceddp_path)], workdir
+        return run_fleet_in_lab(
+            lab,
+            lab_spec(options, lab, workdir),
+            workdir,
+            profiles=profiles,
+            duration_s=options.duration_s,
+            seed=options.seed,
+            progress=progress,
+            stop_requested=stop_requested,
         )
-        ceddp.wait_line("ready on", timeout_s=60)
-        robots: list[Proc] = []
-        order = [r for r in spec.first if r in spec.robots]
-        order += [r for r in spec.robots if r not in order]
-        for group in (
-            [r for r in order if r in spec.first],
-            [r for r in order if r not in spec.first],
-        ):
-            started = [
-                lab.spawn(
-                    robot,
-                    lab.robot(robot).namespace,
-                    [
-                        "-m",
-                        "arpz.robot",
-                        "--config",
-                        str(_write(workdir / f"{robot}.toml", spec.robots[robot])),
-                    ],
-                    workdir,
-                )
-                for robot in group
-            ]
-            robots += started
-            for proc in started:
-                proc.wait_line("running", timeout_s=60)
-        print(
-            f"lab {lab.lab_id}: CEDDP on {options.link}/{lab.ceddp_address}:{PORT} and "
-            f"{len(robots)} robots running; logs in {workdir}",
-            file=progress,
-            flush=True,
-        )
-        runner = ProfileRunner(lab, profiles, seed=options.seed, horizon_s=options.duration_s)
-        failures: list[str] = []
-        runner.start()
+
+
+def run_fleet_in_lab(
+    lab: Lab,
+    spec: FleetSpec,
+    workdir: Path,
+    *,
+    profiles: Mapping[str, Profile],
+    duration_s: float,
+    seed: int = 0,
+    progress: TextIO = sys.stderr,
+    stop_requested: Callable[[], bool] = lambda: False,
+) -> LabRunResult:
+    """Start ``spec``'s CEDDP and robots (named as the lab's robots, their endpoints on
+    ``lab.ceddp_address``) in their namespaces, as ``arpz.launch.run_fleet`` does on loopback;
+    run the profiles for ``duration_s`` (or until ``stop_requested()``); clean the links so
+    the final reports arrive; stop robots then CEDDP with SIGINT; return the summary. The
+    caller owns the lab (and tears it down)."""
+    ceddp_conf = dict(spec.ceddp, summary_json=str(workdir / "summary.json"))
+    ceddp = lab.spawn(
+        "ceddp",
+        lab.ceddp_namespace,
+        ["-m", "arpz.ceddp", "--config", str(_write(workdir / "ceddp.toml", ceddp_conf))],
+        workdir,
+    )
+    ceddp.wait_line("ready on", timeout_s=60)
+    robots: list[Proc] = []
+    first = [r for r in spec.first if r in spec.robots]
+    for group in (first, [r for r in spec.robots if r not in first]):
+        started = [
+            lab.spawn(
+                robot,
+                lab.robot(robot).namespace,
+                ["-m", "arpz.robot", "--config", str(_write(workdir / f"{robot}.toml", conf))],
+                workdir,
+            )
+            for robot, conf in ((r, spec.robots[r]) for r in group)
+        ]
+        robots += started
+        for proc in started:
+            proc.wait_line("running", timeout_s=60)
+    print(
+        f"lab {lab.lab_id}: CEDDP on {', '.join(spec.ceddp.get('listen', []))} and "
+        f"{len(robots)} robots running; logs in {workdir}",
+        file=progress,
+        flush=True,
+    )
+    runner = ProfileRunner(lab, profiles, seed=seed, horizon_s=duration_s)
+    failures: list[str] = []
+    runner.start()
+    try:
+        _watch(lab, [ceddp, *robots], duration_s, progress, stop_requested)
+    finally:
         try:
-            _watch(lab, [ceddp, *robots], options.duration_s, progress, stop_requested)
-        finally:
-            try:
-                runner.stop()
-            except LabError as exc:
-                failures.append(str(exc))
-        for name, link in lab.robots.items():
-            lab.apply(name, LinkState(subnet=link.state.subnet), "end of the run: clean links")
-        counters = {name: lab.counters(name) for name in lab.robots}
-        for proc in reversed(robots):
-            failures += _stop(proc, 20)
-        failures += _stop(ceddp, 30)
-        summary_path = workdir / "summary.json"
-        if not summary_path.exists():
-            failures.append(f"the CEDDP wrote no summary ({summary_path})")
-        if failures:
-            raise LabError("; ".join(failures))
+            runner.stop()
+        except LabError as exc:
+            failures.append(str(exc))
+    for name, link in lab.robots.items():
+        lab.apply(name, LinkState(subnet=link.state.subnet), "end of the run: clean links")
+    counters = {name: lab.counters(name) for name in lab.robots}
+    for proc in reversed(robots):
+        failures += _stop(proc, 20)
+    failures += _stop(ceddp, 30)
+    summary_path = workdir / "summary.json"
+    if not summary_path.exists():
+        failures.append(f"the CEDDP wrote no summary ({summary_path})")
+    if failures:
+        raise LabError("; ".join(failures))
     summary: dict[str, Any] = json.loads(summary_path.read_text(encoding="utf-8"))
-    problems = check_summary(summary, options.robots)
-    return LabRunResult(summary, workdir / TIMELINE_FILE, problems, counters)
+    hello = bool(spec.robots.get("robot1", {}).get("hello", {}).get("enabled"))
+    problems = check_summary(summary, len(spec.robots), hello=hello)
+    return LabRunResult(summary, lab.timeline.path, problems, counters)
 
 
 def _watch(
