@@ -7,8 +7,12 @@ callback thread so that nothing but the reply's encoding sits between the two st
 ``ClockWatch`` takes each robot's estimate from its reports (``RobotStats.clock``,
 ``Announce.clock``; on the control worker, under the ingest lock), hands the offset to the
 ingest so that every latency and staleness of the robot is measured on this CEDDP's clock, and
-flags a robot whose |offset| exceeds ``[clock] max_offset_ms``: one WARN event when it crosses
-the bound, one INFO event when it comes back. The summary, the dashboard's frames and
+flags a robot whose |offset| exceeds ``[clock] max_offset_ms`` whatever the exchange's asymmetry
+(|offset| - delay / 2 beyond the bound): one WARN event when it crosses the bound, one INFO event
+when it is back (|offset| + delay / 2 within it). The estimates come from the robot's filter,
+which never takes a queued exchange over a fast one (arpz/protocol/clock.py); the error bound
+keeps a robot's one slow first exchange, or an older robot's unfiltered estimate, from telling
+the user to set up NTP on a robot whose clock is right. The summary, the dashboard's frames and
 ``CeddpStats`` say which offset was used for whom.
 """
 
@@ -73,7 +77,7 @@ class RobotClock:
     samples: int = 0
     requests: int = 0
     replies: int = 0
-    #: |offset| exceeds the bound now
+    #: |offset| exceeds the bound now, whatever the asymmetry (until it is certainly back)
     flagged: bool = False
 
 
@@ -105,9 +109,15 @@ class ClockWatch:
         )
         if self.config.correct:
             self.ingest.set_clock_offset(robot, clock.offset_ns)
-        over = abs(clock.offset_ns) > self.bound_ns
-        if over != entry.flagged:
-            entry.flagged = over
+        # the truth is within offset +/- delay / 2 (the whole asymmetry on one side): flag
+        # only a robot certainly beyond the bound, lower the flag once it is certainly within
+        error_ns = (clock.delay_ns + 1) // 2
+        if entry.flagged:
+            change = abs(clock.offset_ns) + error_ns <= self.bound_ns
+        else:
+            change = abs(clock.offset_ns) - error_ns > self.bound_ns
+        if change:
+            entry.flagged = not entry.flagged
             self._event(*self._bound_event(robot, entry))
 
     def _bound_event(self, robot: str, entry: RobotClock) -> tuple[str, str]:

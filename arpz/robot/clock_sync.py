@@ -3,8 +3,11 @@
 Every ``[clock] period_s`` the scheduler runs ``ClockSync.exchange``: a burst of requests on
 ``ceddp/clock``, each stamped t1 on the robot's clock; the CEDDP's reply carries t2 and t3 on
 its own, and the reply's arrival is t4 (arpz/protocol/clock.py has the arithmetic). The estimate
-is the fastest exchange of the last ``window``; it travels in every ``RobotStats`` and
-``Announce`` (``clock``), and the CEDDP corrects this robot's latencies by it.
+is the fastest exchange of the last ``window`` among those whose delay was near the least seen
+since start (``MinDelayFilter``: a queued or retransmitted exchange never becomes the estimate;
+the previous one is held meanwhile); it travels in every ``RobotStats`` and ``Announce``
+(``clock``), and the CEDDP corrects this robot's latencies by it. The floor's slow rise is timed
+on the monotonic clock, so that a step of the wall clock does not move it.
 
 Replies arrive on a Zenoh thread: ``_on_reply`` stamps t4 first and only records, under a lock.
 
@@ -91,7 +94,7 @@ class ClockSync:
         """A burst, and wait (bounded) until every one of its replies came: whether they did.
         For a caller that knows the link is calm now (``RobotAgent.settle_clock``): the
         estimate is then the fastest of this burst's exchanges and the earlier ones of the
-        filter's window."""
+        filter's window, when they are near the least delay seen (a calm link's are)."""
         with self._lock:
             self._settle_from_ns = self.wall_ns()
             self._settle_replies = 0
@@ -108,10 +111,11 @@ class ClockSync:
                 self.bad_replies += 1
             throttled.warning("clock reply", "undecodable clock reply: %s", exc)
             return
+        now_ns = time.monotonic_ns()
         exchange = Exchange(reply.t1_ns, reply.t2_ns, reply.t3_ns, t4_ns)
         with self._lock:
             self.replies += 1
-            if not self._filter.add(exchange):
+            if not self._filter.add(exchange, now_ns):
                 self.bad_replies += 1
                 return
             if reply.t1_ns >= self._settle_from_ns:
@@ -119,6 +123,12 @@ class ClockSync:
                 if self._settle_replies >= self.config.burst:
                     self._settled.set()
         self._first.set()
+
+    @property
+    def rejected(self) -> int:
+        """Plausible replies whose delay was too far above the least seen to be used."""
+        with self._lock:
+            return self._filter.rejected
 
     def stats(self) -> ClockStats:
         """The estimate now, for the robot's reports."""

@@ -34,8 +34,8 @@ def watch(**config: object) -> tuple[Ingest, ClockWatch, list[tuple[str, str]]]:
     return ingest, clock, events
 
 
-def estimate(offset_ns: int) -> ClockStats:
-    return ClockStats(offset_ns=offset_ns, delay_ns=400_000, samples=4, requests=4, replies=4)
+def estimate(offset_ns: int, delay_ns: int = 400_000) -> ClockStats:
+    return ClockStats(offset_ns=offset_ns, delay_ns=delay_ns, samples=4, requests=4, replies=4)
 
 
 def test_latencies_after_the_estimate_are_on_the_ceddp_clock() -> None:
@@ -90,3 +90,21 @@ def test_a_report_without_an_estimate_changes_nothing_but_the_counts() -> None:
     clock.observe("r1", ClockStats(requests=8, replies=0))
     assert clock.frame_row("r1") == {} and not clock.corrected("r1")
     assert clock.summary("r1")["requests"] == 8 and events == []
+
+
+def test_an_offset_within_its_error_of_the_bound_is_not_flagged() -> None:
+    """Issue 39: an estimate of +120 ms from an exchange of 300 ms (a queued one: the truth is
+    anywhere within +/- 150 ms of it) does not tell the user to set up NTP; an offset beyond
+    the bound by more than its error does. The flag is lowered only once the robot is
+    certainly within the bound."""
+    _ingest, clock, events = watch(max_offset_ms=50)
+    clock.observe("r1", estimate(120_000_000, delay_ns=300_000_000))
+    clock.observe("r1", estimate(-170_000_000, delay_ns=240_000_000))
+    assert events == [] and clock.flagged() == []
+    clock.observe("r1", estimate(120_000_000, delay_ns=100_000_000))  # 70 ms at least
+    assert [level for _, level in events] == ["WARN"] and clock.flagged() == ["r1"]
+    assert "+120.0 ms (within 50.0 ms)" in events[0][0]
+    clock.observe("r1", estimate(40_000_000, delay_ns=30_000_000))  # 25..55 ms: maybe over
+    assert clock.flagged() == ["r1"] and len(events) == 1
+    clock.observe("r1", estimate(40_000_000, delay_ns=10_000_000))  # 35..45 ms: within
+    assert [level for _, level in events] == ["WARN", "INFO"] and clock.flagged() == []

@@ -91,7 +91,9 @@ def test_settling_in_calm_replaces_a_first_estimate_taken_in_congestion() -> Non
     assert sync.settle(1.0)
     stats = sync.stats()
     assert stats.offset_ns is not None and abs(stats.offset_ns) < 2_000_000, stats
-    assert stats.samples == 6
+    # the accepted exchanges of the window: the calm burst's, and those of the congested one
+    # within the margin of its fastest (timers' jitter decides how many)
+    assert 1 <= stats.samples <= 6, stats
 
 
 def test_settling_without_a_clock_service_gives_up_in_time() -> None:
@@ -99,3 +101,28 @@ def test_settling_without_a_clock_service_gives_up_in_time() -> None:
     started = time.monotonic()
     assert not sync.settle(0.05)
     assert time.monotonic() - started < 1.0
+
+
+def test_replies_queued_for_good_never_become_the_estimate() -> None:
+    """Issue 39 on the in-memory bus: after a calm start every reply comes 60 ms late (a
+    saturated link back to the robot: its exchanges say about -30 ms, though both clocks are
+    one). Many windows of them later the estimate is still the calm one, and they are
+    counted as rejected, not as bad replies."""
+    bus = MemoryBus()
+    ClockService(MemoryTransport(bus), "f").start()
+    link = _SlowReplies(bus)
+    sync = ClockSync(RobotClockConfig(burst=4, window=4), link, "f")
+    assert sync.first_estimate(1.0)
+    wait_until(lambda: sync.replies == 4, what="the calm burst's replies")
+    calm = sync.stats()
+    assert calm.offset_ns is not None and abs(calm.offset_ns) < 2_000_000, calm
+    assert calm.samples == 4
+    link.reply_delay_s = 0.06
+    for _ in range(3):
+        sync.exchange()
+    wait_until(lambda: sync.replies == 16, what="the slow bursts' replies")
+    stats = sync.stats()
+    # the last calm exchange of the window when it slid past the others (held since)
+    assert stats.offset_ns is not None and abs(stats.offset_ns) < 2_000_000, stats
+    assert stats.delay_ns is not None and stats.delay_ns < 4_000_000, stats
+    assert sync.rejected == 12 and sync.bad_replies == 0

@@ -169,6 +169,19 @@ def test_clock_offsets_against_the_bound() -> None:
     assert strict["clock near"].level == FAIL
 
 
+def test_a_clock_offset_within_its_error_of_the_bound_is_not_a_failure() -> None:
+    """Issue 39: +120 ms from an exchange of 300 ms (the truth anywhere within +/- 150 ms of
+    it) may be beyond the bound, not certainly: a WARN, not the FAIL that asks for NTP."""
+    queued = ClockStats(offset_ns=120_000_000, delay_ns=300_000_000, samples=1)
+    far = ClockStats(offset_ns=120_000_000, delay_ns=100_000_000, samples=1)
+    robots = [robot("queued", clock=queued), robot("far", clock=far)]
+    checks = by_name(diagnose(observe(robots, ceddp(clock_max_offset_ms=50.0))))
+    assert checks["clock queued"].level == WARN
+    assert "may exceed the bound of 50 ms" in checks["clock queued"].message
+    assert "up to 150.0 ms" in checks["clock queued"].message
+    assert checks["clock far"].level == FAIL
+
+
 def test_certificates_are_judged_by_their_expiry() -> None:
     ends = {
         "a.pem": NOW - datetime.timedelta(days=1),
