@@ -296,6 +296,10 @@ class TopicInfo(msgspec.Struct, frozen=True):
     #: (None: no limit); older robots leave them out
     priority: float = 1.0
     max_rate_hz: float | None = None
+    #: the rate the sensor is configured at (its TOML ``rate_hz``): an assignment never raises
+    #: a sensor above it (``rate_hz`` is the rate in force, which an assignment lowers); None:
+    #: an older robot
+    configured_rate_hz: float | None = None
 
 
 class Announce(msgspec.Struct, frozen=True):

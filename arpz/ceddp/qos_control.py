@@ -411,7 +411,7 @@ class QosController:
                         weight=info.priority,
                         change_hz=None if change is None else change.in_force_hz,
                         cost=cost,
-                        max_rate_hz=info.max_rate_hz,
+                        max_rate_hz=_rate_ceiling(info),
                     )
                 )
             for index in range(count - len(sensors)):
@@ -480,6 +480,13 @@ class QosController:
             },
             "measured_changes": [{"epoch": e, "reason": r} for e, r in self.measured_changes],
         }
+
+
+def _rate_ceiling(info: TopicInfo) -> float | None:
+    """The most a sensor may be assigned: what it can be read at and what it is configured at
+    (the robot never runs it faster, arpz/robot/qos.py); None: only Rmax bounds it."""
+    bounds = [b for b in (info.max_rate_hz, info.configured_rate_hz) if b is not None]
+    return min(bounds) if bounds else None
 
 
 def _link_dict(e: LinkEstimate) -> dict[str, float]:

@@ -6,12 +6,18 @@ every sensor, the assigned deadline, D as the writer depth and, when the assignm
 the writers' heartbeat period (the closed loop's, from the measured link). A per-topic assignment
 (``mode = "per_topic"``) gives each sensor its own R, deadline and D; a sensor it does not name
 keeps the robot's fleet-wide entry.
+
+**No sensor runs faster than its configured ``rate_hz``**: an assignment lowers a sensor's rate,
+never raises it (a 5 Hz camera on a thin link was assigned 30.25 Hz, issue 39). A sensor whose
+configured rate is below R runs at its own rate, its deadline stretched alike.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+import msgspec
 
 from arpz.config import SensorConfig
 from arpz.messages import QosAssignmentMsg, RobotQos
@@ -45,6 +51,16 @@ def _well_formed(qos: RobotQos) -> bool:
     )
 
 
+def capped(qos: RobotQos, rate_hz: float) -> RobotQos:
+    """``qos`` at no more than ``rate_hz`` (the sensor's configured rate), the deadline the same
+    number of periods."""
+    if qos.rate_hz <= rate_hz:
+        return qos
+    return msgspec.structs.replace(
+        qos, rate_hz=rate_hz, deadline_s=qos.deadline_s * qos.rate_hz / rate_hz
+    )
+
+
 def decide(robot: str, message: QosAssignmentMsg, sensors: list[SensorConfig]) -> QosDecision:
     qos = message.robots.get(robot)
     if qos is None:
@@ -54,6 +70,10 @@ def decide(robot: str, message: QosAssignmentMsg, sensors: list[SensorConfig]) -
     if not _well_formed(qos) or bad:
         what = f"topics {', '.join(sorted(bad))}" if bad else str(qos)
         return QosDecision(False, f"malformed assignment {what}", None)
+    for s in sensors:
+        own = per_topic.get(s.name, qos)
+        if own.rate_hz > s.rate_hz:
+            per_topic[s.name] = capped(own, s.rate_hz)
     too_slow = []
     for s in sensors:
         rate = per_topic.get(s.name, qos).rate_hz

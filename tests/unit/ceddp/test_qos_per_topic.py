@@ -140,6 +140,29 @@ def test_a_robot_applies_its_own_topics() -> None:
     assert "malformed" in decide("r", bad, sensors).reason
 
 
+def test_an_assignment_never_raises_a_sensor_above_its_configured_rate() -> None:
+    """Issue 39: a 5 Hz camera on a thin link was assigned 30.25 Hz. The robot runs it at its
+    own 5 Hz (deadline the same number of periods), and the per-topic optimiser never offers
+    it more, so the budget goes where it is used."""
+    message = _assignment({"r": RobotQos(rate_hz=30.25, deadline_s=2 / 30.25, depth=9)})
+    camera = SensorConfig(name="camera", kind="lidar", rate_hz=5.0)
+    imu = SensorConfig(name="imu", kind="imu", rate_hz=100.0)
+    decision = decide("r", message, [camera, imu])
+    assert decision.applies
+    own = decision.for_topic("camera")
+    assert own is not None and own.rate_hz == 5.0 and own.deadline_s == pytest.approx(0.4)
+    assert decision.for_topic("imu") == message.robots["r"]
+    qos = _controller()
+    infos = _infos(5)
+    infos[0] = msgspec.structs.replace(infos[0], rate_hz=30.0, configured_rate_hz=5.0)
+    qos.set_sensors("robot1", infos)
+    assignment = qos.update(PAPER, "start")
+    assert assignment is not None
+    assert assignment.topics["robot1"]["s0"].rate_hz == pytest.approx(5.0)
+    seed = 300 / 19 - 1
+    assert assignment.topics["robot1"]["s1"].rate_hz > seed  # s0's share went to the others
+
+
 # ------------------------------------------------------------------ the link, measured
 
 
