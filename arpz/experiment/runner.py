@@ -2,7 +2,11 @@
 
 Per cell: one ``arpz.netem`` proxy per robot in front of the CEDDP's UDP endpoint (clean while
 the sessions open and the readers match, impaired from the moment every robot runs), then
-``arpz.launch.run_fleet`` with the cell's configs, then the row. Cells already in results.csv
+``arpz.launch.run_fleet`` with the cell's configs, then the row. A ``lab:PROFILE`` network runs
+the cell in the kernel lab instead (``arpz.lab``: CEDDP and robots in their own network
+namespaces, the profile applied by nftables and tbf to each robot's real link, over
+``lab_link``), for what a user-space UDP proxy cannot impair: TCP, TLS and QUIC links, dead
+zones longer than the lease, roaming. Cells already in results.csv
 are skipped, so an interrupted run resumes where it stopped; Ctrl-C (or SIGTERM) ends the cell
 in progress without writing it, and ``run_fleet`` ends its processes.
 """
@@ -25,7 +29,7 @@ import msgspec
 from arpz.errors import ArpzError
 from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
-from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile
+from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile, lab_profile_name
 from arpz.launch import LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 from arpz.netem import GilbertElliott, Impairments, NetemProxy
 
@@ -125,10 +129,7 @@ def _run_on_fresh_ports(
     whatever happens."""
     udp_port, tcp_port = free_port(socket.SOCK_DGRAM), free_port()
     forward = f"udp/127.0.0.1:{udp_port}"
-    profiles = {
-        robot: spec.profile(spec.robot_networks.get(robot, cell.network))
-        for robot in spec.robot_names
-    }
+    profiles = {robot: spec.profile(spec.robot_network(cell, robot)) for robot in spec.robot_names}
     links = Links.start(forward, profiles, spec.seed + cell.repeat)
     try:
         fleet = cell_fleet(
@@ -170,6 +171,69 @@ def _run_on_fresh_ports(
     return summary, links, link_totals
 
 
+def _run_in_lab(
+    spec: ExperimentSpec, cell: Cell, workdir: Path, rrd: Path
+) -> tuple[dict[str, Any], dict[str, int], float]:
+    """The cell in a kernel lab of its own: (the CEDDP's summary, the links' frames seen and
+    dropped over the run, the seconds measured). Raises LaunchError when the lab cannot run it
+    (no root or nft: the reason says what is missing)."""
+    # imported here: arpz.lab brings pyroute2 and needs root, which proxy cells do not
+    from arpz.lab import Lab, LabError, Timeline, parse_profile
+    from arpz.lab.fleet import PORT, make_certs, run_fleet_in_lab
+    from arpz.lab.timeline import TIMELINE_FILE
+
+    names = {robot: lab_profile_name(spec.robot_network(cell, robot)) for robot in spec.robot_names}
+    proxy_nets = [robot for robot, name in names.items() if name is None]
+    if proxy_nets:
+        raise LaunchError(
+            f"{cell.slug}: a lab cell's robots all need lab profiles; {', '.join(proxy_nets)} "
+            "have proxy ones (robot_networks)"
+        )
+    profiles = {robot: parse_profile(name or "") for robot, name in names.items()}
+    workdir.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    try:
+        with (
+            open(workdir / "lab.log", "w", encoding="utf-8") as progress,
+            Lab.create(spec.robot_names, timeline=Timeline(workdir / TIMELINE_FILE)) as lab,
+        ):
+            endpoint = f"{spec.lab_link}/{lab.ceddp_address}:{PORT}"
+            fleet = cell_fleet(
+                spec,
+                cell,
+                listen=[endpoint],
+                robot_connect=dict.fromkeys(spec.robot_names, endpoint),
+                rrd=str(rrd),
+            )
+            if spec.lab_link in ("tls", "quic"):
+                tls = make_certs(
+                    workdir / "tls", fleet.ceddp["fleet"], list(fleet.robots), lab.ceddp_address
+                )
+                fleet.ceddp["zenoh_config"] = str(tls / "zenoh" / "ceddp-router.json5")
+                for robot, conf in fleet.robots.items():
+                    conf["zenoh_config"] = str(tls / "zenoh" / f"{robot}-client.json5")
+            duration = (
+                spec.mission.time_limit_s + MISSION_MARGIN_S / 3
+                if spec.mission is not None
+                else spec.duration_s
+            )
+            result = run_fleet_in_lab(
+                lab,
+                fleet,
+                workdir,
+                profiles=profiles,
+                duration_s=duration,
+                seed=spec.seed + cell.repeat,
+                progress=progress,
+            )
+    except LabError as exc:
+        raise LaunchError(f"{cell.slug}: the lab: {exc}") from exc
+    counters = result.counters.values()
+    seen = sum(c.up_seen + c.down_seen for c in counters)
+    dropped = sum(c.up_dropped + c.down_dropped for c in counters)
+    return result.summary, {"received": seen, "dropped": dropped}, time.monotonic() - started
+
+
 def run_cell(
     spec: ExperimentSpec, cell: Cell, out: Path, *, keep_logs: bool = False
 ) -> dict[str, Any]:
@@ -182,15 +246,18 @@ def run_cell(
     rrd_dir.mkdir(parents=True, exist_ok=True)
     rrd = rrd_dir / f"{cell.slug}.rrd"
     try:
-        summary, links, link_totals = on_fresh_ports(
-            lambda: _run_on_fresh_ports(spec, cell, workdir, rrd),
-            lambda why: print(f"{cell.slug}: {why}", file=sys.stderr),
-        )
+        if lab_profile_name(cell.network) is not None:
+            summary, link_totals, measured = _run_in_lab(spec, cell, workdir, rrd)
+        else:
+            summary, links, link_totals = on_fresh_ports(
+                lambda: _run_on_fresh_ports(spec, cell, workdir, rrd),
+                lambda why: print(f"{cell.slug}: {why}", file=sys.stderr),
+            )
+            measured = (links.last_seen or started) - (links.impaired_at or started)
     except LaunchError as exc:
         return error_row(
             cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
         )
-    measured = (links.last_seen or started) - (links.impaired_at or started)
     row = row_from_summary(
         cell,
         summary,
@@ -204,7 +271,11 @@ def run_cell(
     if not keep_logs:
         # keep the summary (small) and drop the logs and configs of a successful cell
         for path in workdir.iterdir():
-            if path.name not in ("summary.json", "ceddp.toml", "robot1.toml"):
+            if path.name in ("summary.json", "ceddp.toml", "robot1.toml", "lab_timeline.jsonl"):
+                continue
+            if path.is_dir():
+                shutil.rmtree(path)
+            else:
                 path.unlink()
     return row
 

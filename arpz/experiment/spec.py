@@ -25,6 +25,26 @@ FEATURES: tuple[str, ...] = ("lc", "cc", "opt", "optr", "optd")
 OPT_VARIANTS: tuple[str, ...] = ("opt", "optr", "optd")
 #: the depth label of cells whose DEPTH comes from the QoS optimiser: Opt(D) of Table 2
 OPT_DEPTH = "opt"
+#: a network named ``lab:PROFILE`` runs the cell in the kernel lab (arpz.lab, root only) with
+#: that lab profile on every robot's link, instead of behind ``arpz.netem`` proxies
+LAB_PREFIX = "lab:"
+#: the Zenoh links a lab cell's robots may use (``lab_link``)
+LAB_LINKS = ("tcp", "udp", "tls", "quic")
+
+
+def lab_profile_name(network: str) -> str | None:
+    """The lab profile of a ``lab:PROFILE`` network, None for a proxy (arpz.netem) network."""
+    return network[len(LAB_PREFIX) :] if network.startswith(LAB_PREFIX) else None
+
+
+def _check_lab_profile(name: str) -> None:
+    # imported here: arpz.lab brings pyroute2 (the server extra), needed by lab cells only
+    from arpz.lab.profiles import parse_profile
+
+    try:
+        parse_profile(name)
+    except ValueError as exc:
+        raise ValueError(f"network 'lab:{name}': {exc}") from None
 
 
 class SpecError(ArpzError, ValueError):
@@ -109,8 +129,11 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
     configs: list[str]
     #: network profile names (built-in or from [profiles]); every cell runs on each
     networks: list[str] = msgspec.field(default_factory=lambda: ["wifi-bad"])
-    #: per-robot override of the cell's network (e.g. one robot on a worse link)
+    #: per-robot override of the cell's network (e.g. one robot on a worse link); in a lab cell
+    #: the override must be a lab profile too
     robot_networks: dict[str, str] = msgspec.field(default_factory=dict)
+    #: the robots' Zenoh link in ``lab:`` cells (tls and quic with the fleet's mutual TLS)
+    lab_link: str = "udp"
     profiles: dict[str, NetworkProfile] = msgspec.field(default_factory=dict)
     repeats: int = 1
     #: seconds of measurement per cell (the sensor fleet; a mission runs to its verdict)
@@ -151,7 +174,15 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
         if not self.presets:
             raise ValueError("presets must list one preset per robot (machine1..3)")
         known = set(PROFILES) | set(self.profiles)
+        if self.lab_link not in LAB_LINKS:
+            raise ValueError(
+                f"lab_link must be one of {', '.join(LAB_LINKS)}, got {self.lab_link!r}"
+            )
         for net in [*self.networks, *self.robot_networks.values()]:
+            lab = lab_profile_name(net)
+            if lab is not None:
+                _check_lab_profile(lab)
+                continue
             if net not in known:
                 raise ValueError(
                     f"unknown network profile {net!r}: use one of {', '.join(sorted(known))} "
@@ -162,6 +193,10 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
 
     def profile(self, name: str) -> NetworkProfile:
         return self.profiles.get(name) or PROFILES[name]
+
+    def robot_network(self, cell: Cell, robot: str) -> str:
+        """The network of ``robot`` in ``cell``: its override, else the cell's."""
+        return self.robot_networks.get(robot, cell.network)
 
     @property
     def robot_names(self) -> list[str]:
@@ -211,7 +246,7 @@ class Cell:
     def slug(self) -> str:
         return (
             f"r{format_rate(self.rmax_hz)}_d{self.depth}_{self.config.replace('+', '-')}_"
-            f"{self.network}_{self.repeat}"
+            f"{self.network.replace(':', '-')}_{self.repeat}"
         )
 
 

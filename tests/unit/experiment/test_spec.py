@@ -273,3 +273,15 @@ def test_traffic_reaches_both_sides_configs() -> None:
 def test_traffic_errors_name_the_key(traffic: dict[str, object], message: str) -> None:
     with pytest.raises(SpecError, match=message):
         check_cells(_spec(traffic=traffic))
+
+
+def test_lab_networks_name_a_lab_profile_and_a_link() -> None:
+    spec = _spec(networks=["lab:wifi-bad", "lab:dead-zone-12s", "wifi-good"], lab_link="quic")
+    cells = spec.cells()
+    assert {c.network for c in cells} == {"lab:wifi-bad", "lab:dead-zone-12s", "wifi-good"}
+    lab_cell = next(c for c in cells if c.network == "lab:dead-zone-12s")
+    assert ":" not in lab_cell.slug and "lab-dead-zone-12s" in lab_cell.slug
+    with pytest.raises(SpecError, match="network 'lab:wifi-awful'"):
+        _spec(networks=["lab:wifi-awful"])
+    with pytest.raises(SpecError, match="lab_link must be one of tcp, udp, tls, quic"):
+        _spec(networks=["lab:wifi-bad"], lab_link="sctp")
