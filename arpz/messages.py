@@ -142,6 +142,11 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     history_offered: int = 0
     #: heartbeats the channel writer sent: what its recovery pacing cost in small messages
     heartbeats: int = 0
+    #: of ``write_failures``: frames of a large sensor replaced by a newer one while the link
+    #: was still taking the previous (arpz.robot.sensing.FrameSender)
+    frames_skipped: int = 0
+    #: sensing periods the scheduler could not run on time and skipped (it re-aligns when late)
+    late_periods: int = 0
 
 
 class InboundCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):

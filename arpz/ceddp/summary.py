@@ -27,6 +27,8 @@ TOTALS = (
     "sent",
     "held_back",
     "write_failures",
+    "frames_skipped",
+    "late_periods",
     "retransmitted",
     "history_offered",
     "heartbeats",
@@ -209,6 +211,10 @@ def topic_summary(
         "sent": counters.sent if counters else 0,
         "held_back": counters.held_back if counters else 0,
         "write_failures": counters.write_failures if counters else 0,
+        # of write_failures: a camera's frames replaced by newer ones while its link was busy
+        "frames_skipped": counters.frames_skipped if counters else 0,
+        # sensing periods the robot's scheduler ran late and skipped
+        "late_periods": counters.late_periods if counters else 0,
         "retransmitted": counters.retransmitted if counters else 0,
         "history_offered": counters.history_offered if counters else 0,
         "heartbeats": counters.heartbeats if counters else 0,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import collections
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,6 +40,90 @@ def effective_sensors(config: RobotConfig) -> list[SensorConfig]:
     return merged + [s for s in config.sensors if s.name in explicit]
 
 
+class FrameSender:
+    """A large sensor's frames (camera, point cloud) go out on a thread of their own, so that a
+    link slower than the frames never holds up the robot's scheduler and its other sensors.
+
+    Issue 39: on a 20 Mbit/s link a 5 Hz camera got 2.8 frames/s through, and every other
+    sensor of its robot fell to the same tick rate (IMU 238 readings in 60 s instead of about
+    1 500): the scheduler's thread waited in the camera's write. Now ``offer`` only hands the
+    frame over. While a frame is going out, a newer one waits in a single slot (the newest
+    wins: a robot wants the latest picture, not a queue of old ones); the frame it replaces is
+    skipped and counted (``skipped``). Memory: one frame in flight and one waiting.
+
+    The seq is given when the frame goes out, by this thread (``SensorChannel.seq`` is its own
+    for a large sensor), so a skipped or refused frame never leaves a hole in the seqs the
+    CEDDP counts lost."""
+
+    def __init__(self, sensor: SensorChannel) -> None:
+        self._sensor = sensor
+        self._cond = threading.Condition()
+        #: (writer, value, stamp_ns, changed_ns, since_ns) of the frame waiting its turn
+        self._waiting: tuple[str, bytes, int, int, int] | None = None
+        self._sending = False
+        self._closed = False
+        #: frames replaced in the slot by a newer one before they could go out
+        self.skipped = 0
+        #: a write was refused (a full history): the local cache must not hold the next back
+        self.refused_since_sense = False
+        self._thread = threading.Thread(
+            target=self._run, name=f"arpz-frames-{sensor.config.name}", daemon=True
+        )
+        self._thread.start()
+
+    def offer(
+        self, writer: str, value: bytes, stamp_ns: int, changed_ns: int, since_ns: int
+    ) -> None:
+        with self._cond:
+            if self._closed:
+                self.skipped += 1
+                return
+            if self._waiting is not None:
+                self.skipped += 1
+            self._waiting = (writer, value, stamp_ns, changed_ns, since_ns)
+            self._cond.notify()
+
+    @property
+    def busy(self) -> bool:
+        with self._cond:
+            return self._sending or self._waiting is not None
+
+    def _run(self) -> None:
+        sensor = self._sensor
+        while True:
+            with self._cond:
+                while self._waiting is None and not self._closed:
+                    self._cond.wait()
+                if self._waiting is None:
+                    return
+                writer, value, stamp_ns, changed_ns, since_ns = self._waiting
+                self._waiting = None
+                self._sending = True
+            try:
+                seq = sensor.seq + 1
+                payload = encode(LargeSample(writer, seq, stamp_ns, value, changed_ns, since_ns))
+                if sensor.output.send(payload, stamp_ns):
+                    sensor.seq = seq
+                    sensor.bytes_sent += len(payload)
+                else:
+                    self.refused_since_sense = True
+            except Exception:  # the thread must go on: the next frame may go out
+                log.exception("sensor %s: sending a frame failed", sensor.config.name)
+                self.refused_since_sense = True
+            finally:
+                with self._cond:
+                    self._sending = False
+                    self._cond.notify_all()
+
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Send what waits, then stop (bounded: a frame that cannot go out within ``timeout_s``
+        is left to the channel's own close)."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join(timeout_s)
+
+
 @dataclass
 class SensorChannel:
     config: SensorConfig
@@ -65,18 +150,25 @@ class SensorChannel:
     )
     #: the robot's wall clock for stamps (the agent's, which ``[clock] shift_s`` can shift)
     wall_ns: Callable[[], int] = time.time_ns
+    #: a large sensor's sending thread (None: small samples go out from the scheduler's tick)
+    sender: FrameSender | None = None
 
     def counters(self) -> TopicCounters:
         c = self.cache.counters
         channel = self.output.totals()
+        skipped = self.sender.skipped if self.sender is not None else 0
+        # a reading the cache passed but a full KEEP_ALL history refused, or a frame a newer
+        # one replaced while the link was busy, was not sent
+        not_sent = channel["write_failures"] + skipped
         return TopicCounters(
             produced=c.produced,
-            # a reading the cache passed but a full KEEP_ALL history refused was not sent
-            sent=c.sent - channel["write_failures"],
+            sent=c.sent - not_sent,
             held_back=c.held_back,
             last_seq=self.seq,
             bytes_sent=self.bytes_sent,
-            write_failures=channel["write_failures"],
+            write_failures=not_sent,
+            frames_skipped=skipped,
+            late_periods=self.late_ticks,
             retransmitted=channel["retransmitted"],
             history_offered=channel["history_offered"],
             heartbeats=channel["heartbeats"],
@@ -86,8 +178,14 @@ class SensorChannel:
             cache_forgets=self.cache_forgets,
         )
 
+    def stop_sending(self) -> None:
+        """A large sensor's last frame goes out, and its thread ends (before the final count)."""
+        if self.sender is not None:
+            self.sender.close()
+
     def close(self, wait_s: float = 0.5) -> None:
         """Close the driver and the channel, waiting up to ``wait_s`` for acknowledgements."""
+        self.stop_sending()
         self.driver.close()
         self.output.close(wait_s)
 
@@ -112,19 +210,20 @@ def build_sensors(
                 sensor, robot_id=config.robot_id, robot_seed=config.seed, base_dir=base_dir
             )
         )
-        sensors.append(
-            SensorChannel(
-                config=sensor,
-                driver=driver,
-                cache=LocalCache(
-                    enabled=config.local_cache.enabled,
-                    tolerance=sensor.tolerance,
-                    max_silence_s=silence,
-                ),
-                output=sensor_outlet(config, sensor, transport),
-                rate_hz=sensor.rate_hz,
-            )
+        channel = SensorChannel(
+            config=sensor,
+            driver=driver,
+            cache=LocalCache(
+                enabled=config.local_cache.enabled,
+                tolerance=sensor.tolerance,
+                max_silence_s=silence,
+            ),
+            output=sensor_outlet(config, sensor, transport),
+            rate_hz=sensor.rate_hz,
         )
+        if isinstance(channel.output, FrameOutlet):
+            channel.sender = FrameSender(channel)
+        sensors.append(channel)
     return sensors
 
 
@@ -173,6 +272,10 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
         sensor.config.tolerance,
     ):
         sensor.last_read, sensor.changed_ns = value, stamp_ns
+    sender = sensor.sender
+    if sender is not None and sender.refused_since_sense:
+        sender.refused_since_sense = False
+        sensor.cache.forget()  # the last frame was refused: this one is not "unchanged"
     if sensor.cache.holding and sensor.output.latest_undeliverable():
         # the last value sent can never arrive (it expired unacknowledged): the CEDDP still
         # holds the one before, so this reading must not be held back as "unchanged"
@@ -180,6 +283,9 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
         sensor.cache_forgets += 1
     if not sensor.cache.offer(value, now_s):
         sensor.output.unchanged()
+        return
+    if sender is not None and isinstance(value, bytes):
+        sender.offer(writer, value, stamp_ns, sensor.changed_ns, sensor.changed_ns)
         return
     unacked = sensor.unacked
     acked = sensor.output.acknowledged_through()
