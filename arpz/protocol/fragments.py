@@ -324,3 +324,74 @@ class Reassembler:
     def _discard(self, key: tuple[str, int]) -> None:
         partial = self._partials.pop(key)
         self._assembly_bytes -= partial.total
+
+
+class SampleParts:
+    """The fragments of one channel sample (``arpz.protocol.wire.DATA_FRAG``) received so far:
+    the sample's bytes in place, which fragments arrived, and what the reader knows of the rest.
+    The reader machine keeps one per sample seq still incomplete, within its byte bound."""
+
+    __slots__ = (
+        "asked_high",
+        "asked_s",
+        "buffer",
+        "chunk",
+        "closed_s",
+        "count",
+        "flags",
+        "gap_s",
+        "have",
+        "high",
+        "missing",
+        "stamp_ns",
+        "total",
+    )
+
+    def __init__(self, total: int, chunk: int, stamp_ns: int) -> None:
+        self.total, self.chunk, self.stamp_ns = total, chunk, stamp_ns
+        self.count = fragment_count(total, chunk)
+        self.buffer = bytearray(total)
+        self.have = bytearray(self.count)
+        self.missing = self.count
+        #: the highest index received (-1: none yet)
+        self.high = -1
+        #: flags to apply when the sample completes (ACK_REQUEST)
+        self.flags = 0
+        #: when a fragment below ``high`` was first seen missing (inf: none), and when the
+        #: writer was known to have sent them all (its last fragment, a later sample, a
+        #: heartbeat past it): the reader asks for what is missing once that is old enough
+        self.gap_s = math.inf
+        self.closed_s = math.inf
+        #: the last request for fragments of this sample: when, and the highest index asked
+        self.asked_s = -math.inf
+        self.asked_high = -1
+
+    def add(self, index: int, data: bytes) -> bool | None:
+        """Store fragment ``index``: True if new, False if a duplicate, None if its length
+        disagrees with the sample's (refused)."""
+        start = index * self.chunk
+        if index >= self.count or len(data) != min(self.chunk, self.total - start):
+            return None
+        if self.have[index]:
+            return False
+        self.have[index] = 1
+        self.missing -= 1
+        self.buffer[start : start + len(data)] = data
+        if index > self.high:
+            self.high = index
+        return True
+
+    def missing_runs(self, first: int, last: int) -> list[tuple[int, int]]:
+        """Inclusive runs of the indices ``first .. last`` not received yet."""
+        runs: list[tuple[int, int]] = []
+        have = self.have
+        at = first
+        while at <= last:
+            lo = have.find(0, at, last + 1)
+            if lo < 0:
+                break
+            hi = have.find(1, lo, last + 1)
+            hi = last if hi < 0 else hi - 1
+            runs.append((lo, hi))
+            at = hi + 1
+        return runs

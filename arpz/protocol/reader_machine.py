@@ -28,6 +28,7 @@ from arpz.protocol.events import (
     MessageLostStatus,
     UnchangedStatus,
 )
+from arpz.protocol.fragments import SampleParts
 from arpz.protocol.qos import (
     HistoryPolicy,
     QosPolicyKind,
@@ -58,6 +59,13 @@ QUEUED_HOLD_FACTOR = 4
 #: doublings of the NACK hold at most (x2): more stretches recovery at 50 % loss past the 3 s
 #: the property tests of tests/unit/reliability/test_machines.py allow (x8 failed them)
 MAX_NACK_BACKOFF = 1
+#: the largest sample a reader reassembles from fragments by default; a larger one is refused at
+#: its first fragment and counted lost (``ReaderStats.samples_too_large``)
+DEFAULT_MAX_SAMPLE_BYTES = 16 * 2**20
+#: the most bytes a reader reserves for samples being reassembled, over all its writers; a
+#: fragment that would start one more beyond it is refused (counted), and its sample is asked
+#: for again once there is room, or given up as any missing sample is
+DEFAULT_MAX_ASSEMBLY_BYTES = 64 * 2**20
 
 
 class ReaderStats(msgspec.Struct, frozen=True):
@@ -97,6 +105,20 @@ class ReaderStats(msgspec.Struct, frozen=True):
     resumed: int = 0
     #: writers away now: token gone, state kept for AWAY_RETENTION_S in case they come back
     away: int = 0
+    #: fragments of samples larger than the writer's fragment size (DATA_FRAG): each sample is
+    #: counted once above (``delivered`` once whole, or ``lost``), these count its pieces
+    fragments_received: int = 0
+    #: a fragment received already, or of a sample already delivered or given up
+    fragments_duplicate: int = 0
+    #: refused: beyond ``max_assembly_bytes``, of a sample too large, or malformed (bad_input)
+    fragments_refused: int = 0
+    #: samples announcing more than ``max_sample_bytes``: counted lost, never reassembled
+    samples_too_large: int = 0
+    #: fragments asked for by ACKNACK_FRAG (only the missing pieces of a partly received sample)
+    fragments_nacked: int = 0
+    #: samples being reassembled now, and the bytes reserved for them
+    in_assembly: int = 0
+    assembly_bytes: int = 0
 
 
 class _WriterProxy:
@@ -126,6 +148,7 @@ class _WriterProxy:
         "nack_high",
         "nack_high_s",
         "nack_sent",
+        "partials",
         "srtt_s",
         "start",
         "synced",
@@ -189,6 +212,8 @@ class _WriterProxy:
         self.expired = 0
         self.delivered = 0
         self.lost = 0
+        #: samples received in part (DATA_FRAG), by seq: all at or above ``expected``
+        self.partials: dict[int, SampleParts] = {}
         self.deadline = DeadlineTimer(deadline_s, now)
         self.lease = LeaseTimer(lease_s, now)
 
@@ -215,8 +240,18 @@ class ReaderMachine:
         *,
         max_writers: int = DEFAULT_MAX_WRITERS,
         away_retention_s: float = AWAY_RETENTION_S,
+        max_sample_bytes: int = DEFAULT_MAX_SAMPLE_BYTES,
+        max_assembly_bytes: int = DEFAULT_MAX_ASSEMBLY_BYTES,
     ) -> None:
         self.key_expr = wire.check_key_expr(key_expr)
+        if max_sample_bytes < 1 or max_assembly_bytes < 1:
+            raise ValueError("max_sample_bytes and max_assembly_bytes must be >= 1")
+        self.max_sample_bytes = max_sample_bytes
+        self.max_assembly_bytes = max_assembly_bytes
+        #: bytes reserved by every writer's samples in assembly (``_WriterProxy.partials``)
+        self._assembly_bytes = 0
+        self.fragments_received = self.fragments_duplicate = self.fragments_refused = 0
+        self.samples_too_large = self.fragments_nacked = 0
         self.max_writers = max_writers
         self.away_retention_s = away_retention_s
         #: writers whose token vanished, by (key, guid), with when their state expires (in that
@@ -402,6 +437,8 @@ class ReaderMachine:
         del self.writers[(p.topic, p.guid)]
         self._suspects.discard(p)
         self._drain_waiters.pop(p, None)
+        if p.partials:  # what was in assembly is asked for again if the match resumes
+            self._drop_samples_below(p, wire.MAX_SEQ + 1)
         if p.lease.alive:
             self.alive_count -= 1
             actions.append(self._liveliness(-1, 0, p.hex))
@@ -518,6 +555,8 @@ class ReaderMachine:
     def _on_batch(self, key: str, payload: bytes, attachment: bytes) -> list[Action]:
         """Consecutive samples in one message (the writer's batching): each is handled exactly
         as if it had come alone; only the last carries the batch's ACK_REQUEST."""
+        if len(attachment) == wire.DATA_FRAG.size:
+            return self._on_fragment(key, payload, attachment, "fragment")
         batch = wire.decode_batch(payload, attachment)
         if batch is None:
             self.bad("sample with a malformed DATA header or batch", key)
@@ -556,6 +595,175 @@ class ReaderMachine:
             self.bad(f"{what} with the guid of another key's writer", f"{topic} {guid.hex()}")
             return
         self.bad(f"{what} from an unmatched writer", guid.hex(), race=True)
+
+    # ------------------------------------------------------------------ fragments
+    def _on_fragment(
+        self, topic: str, payload: bytes, attachment: bytes, what: str
+    ) -> list[Action]:
+        """A DATA_FRAG (on the topic key) or a resent fragment (on our directed key)."""
+        h = wire.decode_frag(attachment)
+        if h is None:
+            self.fragments_refused += 1
+            self.bad(f"malformed {what} header", topic)
+            return []
+        p = self._known_writer(topic, h.writer, what)
+        return self._fragment(p, h, payload) if p is not None else []
+
+    def _fragment(self, p: _WriterProxy, h: wire.FragHeader, data: bytes) -> list[Action]:
+        """One fragment of sample ``h.seq``. The sample is a sample like any other for every
+        rule of the channel (order, NACKs, losses, accounting) once it is whole; until then it
+        is "missing" for them, and the reader asks for the missing fragments only."""
+        seq = h.seq
+        heard = self._heard(p, seq, h.echo, "fragment")
+        if heard is None:
+            return []
+        now, actions = heard
+        self.fragments_received += 1
+        if (p.synced and seq < p.expected) or seq in p.buffer:
+            self.fragments_duplicate += 1
+            return actions
+        parts = p.partials.get(seq)
+        if parts is None:
+            parts = self._start_sample(p, h, now, actions)
+            if parts is None:
+                return actions
+        elif parts.total != h.total or parts.chunk != h.chunk:
+            self.fragments_refused += 1
+            self.bad("fragment disagreeing with its sample's others", f"{p.topic} {seq}")
+            return actions
+        high = parts.high
+        added = parts.add(h.fragment, data)
+        if added is None:
+            self.fragments_refused += 1
+            self.bad("fragment of the wrong length", f"{p.topic} {seq}")
+            return actions
+        if not added:
+            self.fragments_duplicate += 1
+            return actions
+        if seq > p.confirmed_high:
+            p.confirmed_high = seq
+        parts.flags |= h.flags & wire.F_ACK_REQUEST
+        if parts.missing:
+            if h.fragment > high + 1 and parts.gap_s == math.inf:
+                parts.gap_s = now  # fragments between were lost (or overtaken)
+                self._fragments_due(p, now)
+            if h.fragment == parts.count - 1:
+                self._close_sample(p, parts, now)  # the writer sent them all
+            return actions
+        del p.partials[seq]
+        self._assembly_bytes -= parts.total
+        flags = (h.flags & wire.F_RETRANSMIT) | parts.flags
+        actions.extend(self._one(p, flags, seq, parts.stamp_ns, bytes(parts.buffer)))
+        return actions
+
+    def _start_sample(
+        self, p: _WriterProxy, h: wire.FragHeader, now: float, actions: list[Action]
+    ) -> SampleParts | None:
+        """The first fragment seen of sample ``h.seq``: room is reserved for all of it, or the
+        fragment is refused (too large a sample is settled as lost at once)."""
+        seq = h.seq
+        if p.synced and seq > p.highest + 1:
+            p.detect.append((seq - 1, now))
+            p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
+        if seq > p.highest:
+            p.highest = seq
+        if p.partials:  # a later sample began: the ones before were sent whole
+            self._close_samples_before(p, seq, now)
+        if h.total > self.max_sample_bytes:
+            self.fragments_refused += 1
+            self._refuse_sample(p, seq, actions)
+            return None
+        if self._assembly_bytes + h.total > self.max_assembly_bytes:
+            self.fragments_refused += 1  # asked for again, whole, once there is room
+            if p.synced and (not p.detect or p.detect[-1][0] < seq):
+                p.detect.append((seq, now))  # missing now: NACKed as any missing seq
+                p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
+            return None
+        parts = SampleParts(h.total, h.chunk, h.stamp_ns)
+        p.partials[seq] = parts
+        self._assembly_bytes += h.total
+        return parts
+
+    def _refuse_sample(self, p: _WriterProxy, seq: int, actions: list[Action]) -> None:
+        """A sample larger than ``max_sample_bytes``: settled as lost (once), never NACKed."""
+        if not (self._reliable and p.synced):
+            return  # a best-effort reader counts it lost when a later sample passes it
+        if any(lo <= seq <= hi for lo, hi in p.gaps):
+            return
+        self.samples_too_large += 1
+        if seq > p.confirmed_high:
+            p.confirmed_high = seq
+        if seq == p.expected:
+            self._skip_to(p, seq + 1, actions)
+        elif len(p.gaps) < wire.MAX_RANGES:
+            bisect.insort(p.gaps, (seq, seq))
+
+    def _close_sample(self, p: _WriterProxy, parts: SampleParts, at: float) -> None:
+        """The writer sent every fragment of ``parts`` by ``at``: what is still missing then
+        is asked for ``nack_delay_s`` later."""
+        if at < parts.closed_s:
+            parts.closed_s = at
+            self._fragments_due(p, at)
+
+    def _fragments_due(self, p: _WriterProxy, at: float) -> None:
+        self._suspects.add(p)
+        p.an_due_s = min(p.an_due_s, at + self.qos.nack_delay_s)
+
+    def _close_samples_before(self, p: _WriterProxy, seq: int, at: float) -> None:
+        """Data of ``seq`` arrived: the samples before it in assembly were sent whole."""
+        for other_seq, other in p.partials.items():
+            if other_seq < seq:
+                self._close_sample(p, other, at)
+
+    def _drop_samples_below(self, p: _WriterProxy, below: int) -> None:
+        """Samples in assembly below ``below`` were given up (or passed): free their room."""
+        parts = p.partials
+        for seq in [s for s in parts if s < below]:
+            self._assembly_bytes -= parts.pop(seq).total
+
+    def _fragment_nacks(
+        self, p: _WriterProxy, now: float
+    ) -> tuple[list[tuple[int, int, int]], float]:
+        """(seq, first index, last index) of the fragments to ask for now, and when the next
+        request may be due. A sample's missing fragments are asked for ``nack_delay_s`` after
+        they were seen missing (below a later fragment) or after the writer was known to have
+        sent them all; not again within the NACK hold, as seqs are not (only new ones)."""
+        ripe = now - self.qos.nack_delay_s
+        hold = self._nack_hold_s(p) * (QUEUED_HOLD_FACTOR if self.queued else 1)
+        asks: list[tuple[int, int, int]] = []
+        next_s = math.inf
+        for seq in sorted(p.partials):
+            parts = p.partials[seq]
+            if parts.closed_s <= ripe:
+                last, seen_s = parts.count - 1, parts.closed_s
+            elif parts.gap_s <= ripe:
+                last, seen_s = parts.high - 1, parts.gap_s
+            else:
+                next_s = min(next_s, min(parts.closed_s, parts.gap_s) + self.qos.nack_delay_s)
+                continue
+            if self.fifo_behind and seen_s > self.drained_s:
+                # its fragments may still be queued before us: asked once the FIFO drained
+                self._drain_waiters[p] = max(self._drain_waiters.get(p, seen_s), seen_s)
+                next_s = min(next_s, now + self.qos.heartbeat_period_s)
+                continue
+            first = 0
+            if now - parts.asked_s < hold:
+                first = parts.asked_high + 1  # asked for too recently: only what is new
+                next_s = min(next_s, parts.asked_s + hold)
+            runs = parts.missing_runs(first, last) if first <= last else []
+            if not runs:
+                continue
+            room = wire.MAX_FRAG_RANGES - len(asks)
+            if len(runs) > room:
+                runs, last = runs[:room], runs[room - 1][1]
+            asks.extend((seq, lo, hi) for lo, hi in runs)
+            if first == 0:
+                parts.asked_s = now
+            parts.asked_high = max(parts.asked_high, last)
+            self.fragments_nacked += sum(hi - lo + 1 for lo, hi in runs)
+            if len(asks) >= wire.MAX_FRAG_RANGES:
+                break
+        return asks, next_s
 
     def _in_order(self, p: _WriterProxy) -> bool:
         """Nothing pending for ``p``: the next expected samples can be delivered at once."""
@@ -608,6 +816,8 @@ class ReaderMachine:
             self.bad("directed message on a malformed key", key)
             return []
         topic = split[0]
+        if attachment is not None and len(attachment) == wire.RESEND_FRAG.size:
+            return self._on_fragment(topic, payload, attachment, "resent fragment")
         if attachment is not None:
             header = wire.decode_data(attachment)
             if header is None:
@@ -629,17 +839,11 @@ class ReaderMachine:
         return []
 
     def _sample(self, p: _WriterProxy, h: wire.DataHeader, payload: bytes) -> list[Action]:
-        self._suspects.add(p)
-        now = self.clock.monotonic_s()
-        actions: list[Action] = []
         seq = h.seq
-        if p.synced and seq > self._seq_limit(p, now):  # before _alive: it resets the silence
-            self.implausible += 1
-            self.bad("sample with an implausible seq", f"{p.topic} {seq}")
-            return actions
-        if h.echo >= 0:
-            self._measure_rtt(p, now, h.echo)
-        self._alive(p, now, actions)
+        heard = self._heard(p, seq, h.echo, "sample")
+        if heard is None:
+            return []
+        now, actions = heard
         if seq > p.confirmed_high:
             p.confirmed_high = seq
         if not self._reliable:
@@ -652,6 +856,8 @@ class ReaderMachine:
             if seq > p.expected:
                 self._add_lost(p, seq - p.expected, actions)
             p.expected = seq + 1
+            if p.partials:
+                self._drop_samples_below(p, seq + 1)
             p.highest = max(p.highest, seq)
             self._deliver(p, seq, payload, h.stamp_ns, h.flags, now, actions)
             return actions
@@ -673,6 +879,8 @@ class ReaderMachine:
                 self._drain(p, actions)
         else:
             p.buffer[seq] = (payload, h.stamp_ns, h.flags)
+            if p.partials:
+                self._close_samples_before(p, seq, now)
             if seq > p.highest + 1:
                 p.detect.append((seq - 1, now))
                 p.an_due_s = min(p.an_due_s, now + self.qos.nack_delay_s)
@@ -683,6 +891,24 @@ class ReaderMachine:
         if h.flags & wire.F_ACK_REQUEST:
             actions.append(self._acknack(p, now))
         return actions
+
+    def _heard(
+        self, p: _WriterProxy, seq: int, echo: int, what: str
+    ) -> tuple[float, list[Action]] | None:
+        """Writer ``p`` sent ``what`` (a sample or a fragment) of ``seq``: None when the seq is
+        beyond its reach (refused, counted); else (now, actions) with the writer alive and the
+        NACK its resend answers (``echo``) timed."""
+        self._suspects.add(p)
+        now = self.clock.monotonic_s()
+        if p.synced and seq > self._seq_limit(p, now):  # before _alive: it resets the silence
+            self.implausible += 1
+            self.bad(f"{what} with an implausible seq", f"{p.topic} {seq}")
+            return None
+        if echo >= 0:
+            self._measure_rtt(p, now, echo)
+        actions: list[Action] = []
+        self._alive(p, now, actions)
+        return now, actions
 
     def _seq_limit(self, p: _WriterProxy, now: float) -> int:
         """The highest seq writer ``p`` can have written by now: one window past the highest seq
@@ -745,6 +971,8 @@ class ReaderMachine:
             break
         while p.detect and p.detect[0][0] < p.expected:
             p.detect.pop(0)
+        if p.partials:
+            self._drop_samples_below(p, p.expected)
 
     def _skip_to(self, p: _WriterProxy, target: int, actions: list[Action]) -> None:
         """Give up everything below ``target``: deliver what is buffered there, count the rest."""
@@ -843,6 +1071,10 @@ class ReaderMachine:
             self._defer_loss(p, hb.first, now)
         if hb.first > p.held_from:
             p.held_from = hb.first
+        if p.partials:  # the writer sent every sample up to hb.last: theirs are all out
+            for seq, parts in p.partials.items():
+                if seq <= hb.last:
+                    self._close_sample(p, parts, now + self.qos.nack_period_s / 4)
         if hb.last > p.highest:
             # A heartbeat may overtake its data through a router: give the data a head start.
             p.detect.append((hb.last, now + self.qos.nack_period_s / 4))
@@ -924,7 +1156,8 @@ class ReaderMachine:
     def _missing(self, p: _WriterProxy, upto: int) -> list[tuple[int, int]]:
         ranges: list[tuple[int, int]] = []
         cur = p.expected
-        for seq in [*sorted(p.buffer), p.highest + 1]:
+        held = sorted(p.buffer) if not p.partials else sorted({*p.buffer, *p.partials})
+        for seq in [*held, p.highest + 1]:
             if cur > upto:
                 break
             if seq > cur:
@@ -973,6 +1206,10 @@ class ReaderMachine:
         self._suspects.add(p)  # it sets the next ACKNACK's time
         upto, next_s = self._nack_limit(p, now)
         missing = self._missing(p, upto) if upto >= p.expected else []
+        frags: Sequence[tuple[int, int, int]] = ()
+        frags_next_s = math.inf
+        if p.partials and self._reliable:
+            frags, frags_next_s = self._fragment_nacks(p, now)
         held_until = math.inf
         if missing:
             hold = self._nack_hold_s(p)
@@ -986,17 +1223,17 @@ class ReaderMachine:
                 p.nack_high, p.nack_high_s = missing[-1][1], now
                 p.unanswered += 1
         p.an_count += 1
-        if missing:
+        if missing or frags:
             self.nacks += 1
             sent = p.nack_sent
             sent[p.an_count & 0xFFFFFFFF] = now
             if len(sent) > MAX_NACKS_TIMED:
                 del sent[next(iter(sent))]
-            p.an_due_s = now + self._nack_repeat_s(p)
+            p.an_due_s = min(now + self._nack_repeat_s(p), frags_next_s)
         else:
             self.acks += 1
-            p.an_due_s = min(next_s, held_until)
-        payload = wire.encode_acknack(self.guid, p.guid, p.expected, p.an_count, missing)
+            p.an_due_s = min(next_s, held_until, frags_next_s)
+        payload = wire.encode_acknack(self.guid, p.guid, p.expected, p.an_count, missing, frags)
         return Send(p.an_key, payload)
 
     def tick(self, backlog: int = 0) -> list[Action]:
@@ -1073,6 +1310,8 @@ class ReaderMachine:
         else:
             self._add_lost(p, below - p.expected, actions)
             p.expected = below
+            if p.partials:
+                self._drop_samples_below(p, below)
 
     def busy(self) -> bool:
         """Something is pending that needs the fine timer (a NACK, a loss to settle).
@@ -1093,8 +1332,18 @@ class ReaderMachine:
         return any(_pending(p) for p in self.writers.values())
 
     def _give_up(self, p: _WriterProxy, now: float, actions: list[Action]) -> None:
-        """Bound head-of-line blocking: a run missing for reorder_timeout_s is declared lost."""
+        """Bound head-of-line blocking: a run missing for reorder_timeout_s is declared lost,
+        and so is a sample in assembly at the head whose fragments were all sent that long ago
+        with later samples waiting behind it (KEEP_ALL: only once the writer no longer holds
+        it, as for any sample)."""
         limit = now - self.qos.reorder_timeout_s
+        while p.partials and p.highest > p.expected:
+            parts = p.partials.get(p.expected)
+            if parts is None or min(parts.closed_s, parts.gap_s) > limit:
+                break
+            if self._keep_all and p.expected >= p.held_from:
+                break
+            self._skip_to(p, p.expected + 1, actions)
         while p.highest >= p.expected and p.detect and p.detect[0][1] <= limit:
             run_end = p.detect[0][0]
             nxt = min(p.buffer) if p.buffer else p.highest + 1
@@ -1133,6 +1382,13 @@ class ReaderMachine:
             writers_refused=self.writers_refused,
             resumed=self.resumed,
             away=len(self._away),
+            fragments_received=self.fragments_received,
+            fragments_duplicate=self.fragments_duplicate,
+            fragments_refused=self.fragments_refused,
+            samples_too_large=self.samples_too_large,
+            fragments_nacked=self.fragments_nacked,
+            in_assembly=sum(len(p.partials) for p in self.writers.values()),
+            assembly_bytes=self._assembly_bytes,
         )
 
     def accounted(self) -> dict[str, tuple[int, int, int, int, int]]:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import functools
 import itertools
 import struct
+from collections.abc import Sequence
 from typing import Final, NamedTuple
 
 VERSION: Final = 1
@@ -25,6 +26,17 @@ RESEND: Final = struct.Struct("!BB8sQqI")
 F_RETRANSMIT: Final = 0x01
 F_ACK_REQUEST: Final = 0x02
 F_BATCH: Final = 0x04
+#: a fragment of a sample larger than the writer's fragment size (DATA_FRAG; never batched)
+F_FRAGMENT: Final = 0x08
+
+# DATA_FRAG (as RTPS's): the DATA header, then the fragment's index, the sample's total length
+# and the fragment size (u32 each); the payload is bytes ``[index * chunk, (index + 1) * chunk)``
+# of the sample. The sample keeps ONE seq: it is delivered whole or counted lost once, and only
+# the fragments a reader misses are resent (ACKNACK_FRAG). 38 bytes, and its resend's 42 (with
+# the ACKNACK count it answers): never the length of a DATA (26), a resend (30) or a batch's
+# attachment (20 + 12 n).
+DATA_FRAG: Final = struct.Struct("!BB8sQqIII")
+RESEND_FRAG: Final = struct.Struct("!BB8sQqIIII")
 
 # DATA batch header, in the attachment of a message carrying consecutive samples (first .. first
 # + n - 1) whose payloads are concatenated: version, flags (F_BATCH set), writer, first seq, n;
@@ -40,6 +52,8 @@ MAX_BATCH: Final = 1024
 KIND_HEARTBEAT: Final = 1
 KIND_ACKNACK: Final = 2
 KIND_GAP: Final = 3
+#: an ACKNACK followed by the fragments missing from samples partly received
+KIND_ACKNACK_FRAG: Final = 4
 
 # HEARTBEAT: version, kind, flags, writer guid, first seq held, last seq written, count.
 HEARTBEAT: Final = struct.Struct("!BBB8sQQI")
@@ -53,6 +67,13 @@ ACKNACK: Final = struct.Struct("!BB8s8sQIH")
 # GAP: version, kind, writer guid, reader guid, number of ranges; then ranges.
 GAP: Final = struct.Struct("!BB8s8sH")
 RANGE: Final = struct.Struct("!QQ")
+# ACKNACK_FRAG's tail, after the ACKNACK's ranges: the number of fragment ranges, then each as
+# (seq, first index, last index), inclusive
+FRAG_COUNT: Final = struct.Struct("!H")
+FRAG_RANGE: Final = struct.Struct("!QII")
+#: fragment ranges per ACKNACK_FRAG: with 64 seq ranges the message still fits one datagram
+#: in most cases, and a forged one asks for a bounded amount of work
+MAX_FRAG_RANGES: Final = 32
 #: ranges per ACKNACK or GAP: bounds the work a forged message can cause
 MAX_RANGES: Final = 64
 MAX_SEQ: Final = (1 << 63) - 1
@@ -89,6 +110,21 @@ class AckNack(NamedTuple):
     base: int
     counter: int
     missing: list[tuple[int, int]]
+    #: (seq, first index, last index): fragments missing from samples received in part
+    frags: tuple[tuple[int, int, int], ...] = ()
+
+
+class FragHeader(NamedTuple):
+    flags: int
+    writer: bytes
+    seq: int
+    stamp_ns: int
+    #: the fragment's index in its sample (0, 1, ...)
+    fragment: int
+    total: int
+    chunk: int
+    #: the count of the ACKNACK a resent fragment answers; -1 in a DATA_FRAG
+    echo: int = -1
 
 
 class Gap(NamedTuple):
@@ -103,6 +139,42 @@ def encode_data(flags: int, writer: bytes, seq: int, stamp_ns: int) -> bytes:
 
 def encode_resend(writer: bytes, seq: int, stamp_ns: int, echo: int) -> bytes:
     return RESEND.pack(VERSION, F_RETRANSMIT, writer, seq, stamp_ns, echo & 0xFFFFFFFF)
+
+
+def encode_data_frag(
+    flags: int, writer: bytes, seq: int, stamp_ns: int, index: int, total: int, chunk: int
+) -> bytes:
+    return DATA_FRAG.pack(VERSION, flags | F_FRAGMENT, writer, seq, stamp_ns, index, total, chunk)
+
+
+def encode_resend_frag(
+    writer: bytes, seq: int, stamp_ns: int, index: int, total: int, chunk: int, echo: int
+) -> bytes:
+    flags = F_RETRANSMIT | F_FRAGMENT
+    return RESEND_FRAG.pack(
+        VERSION, flags, writer, seq, stamp_ns, index, total, chunk, echo & 0xFFFFFFFF
+    )
+
+
+def decode_frag(attachment: bytes) -> FragHeader | None:
+    """A DATA_FRAG header or a resent fragment's; None unless it describes a sample of at least
+    two fragments and an index within it (the payload's length is the reader's to check)."""
+    echo = -1
+    if len(attachment) == DATA_FRAG.size:
+        version, flags, writer, seq, stamp, index, total, chunk = DATA_FRAG.unpack(attachment)
+    elif len(attachment) == RESEND_FRAG.size:
+        version, flags, writer, seq, stamp, index, total, chunk, echo = RESEND_FRAG.unpack(
+            attachment
+        )
+        if not flags & F_RETRANSMIT:
+            return None
+    else:
+        return None
+    if version != VERSION or not flags & F_FRAGMENT or seq < 1 or seq > MAX_SEQ:
+        return None
+    if chunk < 1 or total <= chunk or index * chunk >= total:
+        return None
+    return FragHeader(flags, writer, seq, stamp, index, total, chunk, echo)
 
 
 def decode_data(attachment: bytes | None) -> DataHeader | None:
@@ -212,23 +284,56 @@ def _unpack_ranges(payload: bytes, offset: int, n: int) -> list[tuple[int, int]]
 
 
 def encode_acknack(
-    reader: bytes, writer: bytes, base: int, count: int, missing: list[tuple[int, int]]
+    reader: bytes,
+    writer: bytes,
+    base: int,
+    count: int,
+    missing: list[tuple[int, int]],
+    frags: Sequence[tuple[int, int, int]] = (),
 ) -> bytes:
+    """An ACKNACK; with ``frags`` (seq, first index, last index) an ACKNACK_FRAG, which asks
+    for those fragments too."""
     n = min(len(missing), MAX_RANGES)
-    head = ACKNACK.pack(VERSION, KIND_ACKNACK, reader, writer, base, count & 0xFFFFFFFF, n)
-    return head + _pack_ranges(missing)
+    kind = KIND_ACKNACK_FRAG if frags else KIND_ACKNACK
+    head = ACKNACK.pack(VERSION, kind, reader, writer, base, count & 0xFFFFFFFF, n)
+    if not frags:
+        return head + _pack_ranges(missing)
+    frags = frags[:MAX_FRAG_RANGES]
+    tail = b"".join(FRAG_RANGE.pack(*f) for f in frags)
+    return head + _pack_ranges(missing) + FRAG_COUNT.pack(len(frags)) + tail
 
 
 def decode_acknack(payload: bytes) -> AckNack | None:
     if len(payload) < ACKNACK.size:
         return None
     version, kind, reader, writer, base, count, n = ACKNACK.unpack_from(payload)
-    if version != VERSION or kind != KIND_ACKNACK or base < 1 or base > MAX_SEQ:
+    if version != VERSION or base < 1 or base > MAX_SEQ:
+        return None
+    if kind == KIND_ACKNACK_FRAG:
+        return _decode_acknack_frag(payload, reader, writer, base, count, n)
+    if kind != KIND_ACKNACK:
         return None
     ranges = _unpack_ranges(payload, ACKNACK.size, n)
     if ranges is None:
         return None
     return AckNack(reader, writer, base, count, ranges)
+
+
+def _decode_acknack_frag(
+    payload: bytes, reader: bytes, writer: bytes, base: int, count: int, n: int
+) -> AckNack | None:
+    at = ACKNACK.size + n * RANGE.size
+    if n > MAX_RANGES or len(payload) < at + FRAG_COUNT.size:
+        return None
+    ranges = _unpack_ranges(payload[:at], ACKNACK.size, n)
+    (m,) = FRAG_COUNT.unpack_from(payload, at)
+    at += FRAG_COUNT.size
+    if ranges is None or not 1 <= m <= MAX_FRAG_RANGES or len(payload) != at + m * FRAG_RANGE.size:
+        return None
+    frags = tuple(FRAG_RANGE.unpack_from(payload, at + i * FRAG_RANGE.size) for i in range(m))
+    if any(seq < 1 or seq > MAX_SEQ or hi < lo for seq, lo, hi in frags):
+        return None
+    return AckNack(reader, writer, base, count, ranges, frags)
 
 
 def encode_gap(writer: bytes, reader: bytes, lost: list[tuple[int, int]]) -> bytes:

@@ -8,7 +8,7 @@ resend request is answered by index and everything below ``first`` is answered w
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import msgspec
 
@@ -23,6 +23,7 @@ from arpz.protocol.events import (
     MatchedStatus,
     MessageLostStatus,
 )
+from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, fragment_count
 from arpz.protocol.qos import (
     HistoryPolicy,
     LivelinessPolicy,
@@ -46,6 +47,10 @@ RESEND_HOLDOFF_S = 0.01
 #: 10 ms, the first 256 of each topic's history went out twice: the resends printed by
 #: ``python -m pytest tests/integration/test_faults.py -s -k high_rate``)
 RESEND_FIRST_HOLDOFF_S = 0.05
+#: fragments resent per ACKNACK (a whole sample's when none of it arrived, or the ones an
+#: ACKNACK_FRAG names), in bytes: 2 MiB, so a 921 600-byte camera frame lost whole goes out again
+#: in one answer; the reader asks again for the rest
+FRAGMENT_RESEND_BYTES = 2 * 2**20
 #: without reliable readers, acknowledged-by-nobody samples are dropped in batches of this size
 _PURGE_EVERY = 64
 #: what ``write`` returns when it has no actions (most writes): nothing allocated per write
@@ -106,6 +111,14 @@ class WriterStats(msgspec.Struct, frozen=True):
     #: periodic heartbeats left out because a DATA asking for an acknowledgement had done their
     #: work since the previous one (a streaming topic; see ``WriterMachine.tick``)
     heartbeats_piggybacked: int = 0
+    #: samples larger than the fragment size, sent as fragments (each still one seq in ``sent``)
+    fragmented: int = 0
+    #: their fragments as first sent, and the fragments resent (a lost whole sample's, or the
+    #: ones an ACKNACK_FRAG asked for; also in ``retransmitted``, one per fragment)
+    fragments_sent: int = 0
+    fragments_retransmitted: int = 0
+    #: fragments readers asked for by ACKNACK_FRAG
+    fragments_nacked: int = 0
 
 
 class _ReaderProxy:
@@ -121,6 +134,7 @@ class _ReaderProxy:
         "requested_deadline_s",
         "resend_confirmed",
         "resent",
+        "resent_frags",
         "rx_key",
         "start",
         "synced",
@@ -139,6 +153,8 @@ class _ReaderProxy:
         self.requested_deadline_s = 0.0
         #: seq -> (when it was first resent to this reader, when last), unacknowledged seqs only
         self.resent: dict[int, tuple[float, float]] = {}
+        #: (seq, fragment index) -> when last resent to this reader, unacknowledged seqs only
+        self.resent_frags: dict[tuple[int, int], float] = {}
         #: a resend to this reader was acknowledged: it has an answer time of its own now
         self.resend_confirmed = False
 
@@ -152,6 +168,9 @@ class _ReaderProxy:
             del self.resent[seq]
         if done:
             self.resend_confirmed = True
+        if self.resent_frags:
+            for key in [k for k in self.resent_frags if k[0] < floor]:
+                del self.resent_frags[key]
 
 
 #: readers whose state a writer keeps while they are away (the oldest forgotten first)
@@ -167,8 +186,19 @@ class WriterMachine:
         clock: Clock,
         *,
         away_retention_s: float = AWAY_RETENTION_S,
+        fragment_bytes: int = DEFAULT_FRAGMENT_BYTES,
     ) -> None:
         self.topic = wire.check_topic_key(topic)
+        if fragment_bytes < 1:
+            raise ValueError(f"fragment_bytes must be >= 1, got {fragment_bytes}")
+        #: a sample longer than this goes as fragments of this size (``write_large``)
+        self.fragment_bytes = fragment_bytes
+        #: the seq whose fragments the driver is putting now (0: none): heartbeats announce
+        #: only the seqs before it, so that no reader asks for fragments still on their way
+        self.fragmenting = 0
+        self.fragmented = self.fragments_sent = self.fragments_retransmitted = 0
+        self.fragments_nacked = 0
+        self._frag_budget = max(1, FRAGMENT_RESEND_BYTES // fragment_bytes)
         self.away_retention_s = away_retention_s
         #: readers whose token vanished, by guid, with when their state expires (insertion
         #: order is expiry order). A reader whose session was lost comes back with the same
@@ -418,6 +448,55 @@ class WriterMachine:
             return seq, self._take_batch(now), actions
         return seq, None, actions
 
+    def write_large(
+        self, payload: bytes, stamp_ns: int | None = None
+    ) -> tuple[int, list[tuple[bytes, bytes]], Sequence[Action]]:
+        """``write`` for a sample longer than ``fragment_bytes``: it is kept whole in the
+        history under one seq, as any other, and published as DATA_FRAG fragments of
+        ``fragment_bytes`` (never batched: each fits one datagram). Returns (seq, messages to put
+        on the topic key in order: the open batch first, if any, then every fragment, actions).
+        Every fragment asks for an acknowledgement, which the reader gives once the sample is
+        whole: one ACKNACK a large sample. Raises HistoryFullError as ``write`` does."""
+        batch_max, self._batch_max = self._batch_max, 1
+        try:  # the write itself, unbatched; the open batch (older seqs) leaves first
+            seq, whole, actions = self.write(payload, stamp_ns)
+        finally:
+            self._batch_max = batch_max
+        assert whole is not None
+        flags = whole[1][1] | (wire.F_ACK_REQUEST if self.n_reliable else 0)
+        now = self._mono()
+        messages = [self._take_batch(now, held_back=1)] if self.batch else []
+        self._last_put_s = now
+        fragments = list(self._fragments(seq, payload, self.history[seq][1], flags))
+        self.fragmented += 1
+        self.fragments_sent += len(fragments)
+        messages += fragments
+        return seq, messages, actions
+
+    def _fragments(
+        self,
+        seq: int,
+        payload: bytes,
+        stamp_ns: int,
+        flags: int,
+        first: int = 0,
+        last: int | None = None,
+        echo: int = -1,
+    ) -> Iterator[tuple[bytes, bytes]]:
+        """(payload, attachment) of fragments ``first .. last`` of sample ``seq`` (a resend's
+        when ``echo`` >= 0, the count of the ACKNACK it answers)."""
+        chunk, total, guid = self.fragment_bytes, len(payload), self.guid
+        count = fragment_count(total, chunk)
+        end = count - 1 if last is None else min(last, count - 1)
+        for index in range(first, end + 1):
+            start = index * chunk
+            data = payload[start : start + chunk]
+            if echo < 0:
+                att = wire.encode_data_frag(flags, guid, seq, stamp_ns, index, total, chunk)
+            else:
+                att = wire.encode_resend_frag(guid, seq, stamp_ns, index, total, chunk, echo)
+            yield data, att
+
     def flush_batch(self, force: bool) -> tuple[bytes, bytes] | None:
         """The open batch as (payload, attachment) if it is due (or ``force``), else None."""
         if not self.batch:
@@ -450,6 +529,8 @@ class WriterMachine:
         the publisher, are not)."""
         last = self.last_seq - len(self.batch)
         held = self.held_from
+        if self.fragmenting:
+            held = min(held, self.fragmenting) if held else self.fragmenting
         return last if not held else min(last, held - 1)
 
     def retune(
@@ -593,7 +674,9 @@ class WriterMachine:
         self._asserted_since_hb = False
         if self._min_acked() > self.last_seq:
             flags |= wire.HB_FINAL
-        final = flags & wire.HB_FINAL and not self.batch and not self.held_from
+        final = (
+            flags & wire.HB_FINAL and not self.batch and not self.held_from and not self.fragmenting
+        )
         self._final_hb_at = self.last_seq if final else -1
         self._hb_count += 1
         self.heartbeats += 1
@@ -672,6 +755,7 @@ class WriterMachine:
         NACKs then get what the history still holds and a GAP for the rest."""
         p.synced = False
         p.resent.clear()
+        p.resent_frags.clear()
         self.proxies[p.guid] = p
         self._rearm(now)
         self.n_reliable += p.reliable
@@ -751,12 +835,18 @@ class WriterMachine:
                     seq += 1
                     continue
                 data, stamp = self.history[seq]
-                att = wire.encode_resend(self.guid, seq, stamp, an.counter)
-                actions.append(Send(p.rx_key, data, att))
+                if len(data) > self.fragment_bytes:  # none of it arrived: every fragment again
+                    sent = self._resend_fragments(p, seq, 0, None, an.counter, now, actions)
+                    budget -= max(1, sent * RESEND_BUDGET // self._frag_budget)
+                else:
+                    att = wire.encode_resend(self.guid, seq, stamp, an.counter)
+                    actions.append(Send(p.rx_key, data, att))
+                    self.retransmitted += 1
+                    budget -= 1
                 resent[seq] = (times[0] if times is not None else now, now)
-                self.retransmitted += 1
-                budget -= 1
                 seq += 1
+        if an.frags:
+            self._answer_fragments(p, an, base, now, actions, lost_ranges)
         if lost_ranges:
             n_lost = sum(hi - lo + 1 for lo, hi in lost_ranges)
             self.gaps += n_lost
@@ -766,6 +856,70 @@ class WriterMachine:
             actions.append(Notify("message_lost", MessageLostStatus(self.lost, n_lost, p.hex)))
         self._purge()
         return actions
+
+    def _answer_fragments(
+        self,
+        p: _ReaderProxy,
+        an: wire.AckNack,
+        base: int,
+        now: float,
+        actions: list[Action],
+        lost_ranges: list[tuple[int, int]],
+    ) -> None:
+        """An ACKNACK_FRAG's fragment requests: the fragments still held are resent (up to
+        ``FRAGMENT_RESEND_BYTES``), a sample no longer held is GAPed (once per request)."""
+        budget = self._frag_budget
+        gapped: set[int] = set()
+        for seq, lo, hi in an.frags:
+            if seq < base or seq > self.last_seq:
+                continue  # acknowledged meanwhile, or never written (forged)
+            self.fragments_nacked += hi - lo + 1
+            self._last_nack_s = now
+            self._heartbeat_now_lossy(now)
+            if seq < p.start or seq < self.first:
+                if seq not in gapped:
+                    gapped.add(seq)
+                    lost_ranges.append((seq, seq))
+                continue
+            if budget <= 0:
+                continue
+            if len(self.history[seq][0]) <= self.fragment_bytes:
+                continue  # not sent as fragments: the reader's ACKNACK asks for it whole
+            budget -= self._resend_fragments(p, seq, lo, hi, an.counter, now, actions, budget)
+
+    def _resend_fragments(
+        self,
+        p: _ReaderProxy,
+        seq: int,
+        first: int,
+        last: int | None,
+        counter: int,
+        now: float,
+        actions: list[Action],
+        budget: int | None = None,
+    ) -> int:
+        """Resend fragments ``first .. last`` of ``seq`` to reader ``p`` but those resent to it
+        within its holdoff (still on their way); returns how many went."""
+        data, stamp = self.history[seq]
+        holdoff = now - p.holdoff_s()
+        resent = p.resent_frags
+        sent = 0
+        end = fragment_count(len(data), self.fragment_bytes) - 1
+        end = end if last is None else min(last, end)
+        for index in range(first, end + 1):
+            if budget is not None and sent >= budget:
+                break
+            at = resent.get((seq, index))
+            if at is not None and at > holdoff:
+                self.resends_held_off += 1
+                continue
+            for frag, att in self._fragments(seq, data, stamp, 0, index, index, counter):
+                actions.append(Send(p.rx_key, frag, att))
+            resent[(seq, index)] = now
+            sent += 1
+        self.retransmitted += sent
+        self.fragments_retransmitted += sent
+        return sent
 
     def tick(self, backlog: int = 0) -> list[Action]:
         now = self.clock.monotonic_s()
@@ -923,4 +1077,8 @@ class WriterMachine:
             bad_input=self.bad.total(),
             resumed=self.resumed,
             away=len(self._away),
+            fragmented=self.fragmented,
+            fragments_sent=self.fragments_sent,
+            fragments_retransmitted=self.fragments_retransmitted,
+            fragments_nacked=self.fragments_nacked,
         )

@@ -27,6 +27,7 @@ from arpz.protocol.events import (
 )
 from arpz.protocol.fragments import (
     DEFAULT_FRAGMENT_BYTES,
+    HEADER_BYTES,
     FragmentError,
     Reassembler,
     ReassemblyStats,
@@ -128,6 +129,8 @@ class FrameWriter:
             events=events,
             block=block,
             clock=clock,
+            # a frame fragment (header included) is never cut again by the channel
+            fragment_bytes=fragment_bytes + HEADER_BYTES,
         )
         #: held for a whole frame, so that its fragments get consecutive seqs
         self._write_lock = threading.Lock()

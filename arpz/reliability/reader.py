@@ -7,7 +7,13 @@ from collections.abc import Callable, Sequence
 from arpz.protocol._common import new_guid
 from arpz.protocol.events import DataInfo, ReaderEventCallbacks
 from arpz.protocol.qos import QosProfile
-from arpz.protocol.reader_machine import DEFAULT_MAX_WRITERS, ReaderMachine, ReaderStats
+from arpz.protocol.reader_machine import (
+    DEFAULT_MAX_ASSEMBLY_BYTES,
+    DEFAULT_MAX_SAMPLE_BYTES,
+    DEFAULT_MAX_WRITERS,
+    ReaderMachine,
+    ReaderStats,
+)
 from arpz.protocol.timers import Clock, SystemClock
 from arpz.reliability._channel import Channel, Endpoint
 from arpz.transport import Transport
@@ -28,7 +34,13 @@ class Reader(Endpoint):
     ``on_data_run(key, payloads)``, when given, takes every delivery instead of ``on_data``
     (which may then be None): a whole in-order run of one writer's samples at once (a batch the
     writer sent), without a ``DataInfo`` per sample. For a consumer that needs neither seq,
-    stamp nor writer, such as the CEDDP's ingest (``benchmarks/ceddp_ingest.py``, issue 17)."""
+    stamp nor writer, such as the CEDDP's ingest (``benchmarks/ceddp_ingest.py``, issue 17).
+
+    A sample its writer sent as fragments (longer than the writer's ``fragment_bytes``) is
+    reassembled here and delivered whole, once, like any other; the reader asks for the
+    fragments it misses only. ``max_sample_bytes``: a longer sample is refused and counted
+    lost (``ReaderStats.samples_too_large``); ``max_assembly_bytes``: the most reserved at once
+    for samples in assembly, over all writers (a fragment beyond it waits to be resent)."""
 
     def __init__(
         self,
@@ -42,12 +54,20 @@ class Reader(Endpoint):
         inline_delivery: bool = False,
         max_writers: int = DEFAULT_MAX_WRITERS,
         on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
+        max_sample_bytes: int = DEFAULT_MAX_SAMPLE_BYTES,
+        max_assembly_bytes: int = DEFAULT_MAX_ASSEMBLY_BYTES,
     ) -> None:
         if on_data is None and on_data_run is None:
             raise ValueError("a Reader needs on_data or on_data_run")
         self.key_expr = key_expr
         self._machine = ReaderMachine(
-            key_expr, qos, new_guid(), clock or SystemClock(), max_writers=max_writers
+            key_expr,
+            qos,
+            new_guid(),
+            clock or SystemClock(),
+            max_writers=max_writers,
+            max_sample_bytes=max_sample_bytes,
+            max_assembly_bytes=max_assembly_bytes,
         )
         self.guid = self._machine.hex
         self._channel = Channel(

@@ -9,6 +9,7 @@ from typing import TypeVar
 
 import msgspec
 
+from arpz.link_sizes import writer_fragment_bytes
 from arpz.protocol._common import new_guid
 from arpz.protocol.events import WriterEventCallbacks
 from arpz.protocol.qos import QosProfile
@@ -37,6 +38,14 @@ class Writer(Endpoint):
     arpz (``batch_max_samples`` is taken as 1): the choice for latency. Adaptive write batching
     only batches samples written less than ``batch_max_delay_s`` apart, but at 1 kHz a scheduling
     hiccup does that often enough to add its delay to the p99 round trip.
+
+    ``fragment_bytes``: a sample longer than this is sent as fragments of this size, each its
+    own Zenoh message (DATA_FRAG), reassembled by the readers; only the fragments a reader
+    misses are resent, and the sample is still one seq, delivered whole or counted lost once.
+    None: the transport's ``fragment_bytes`` if it has one (its link's:
+    ``arpz.link_sizes.link_sizes``), else one UDP datagram's worth, safe on every link; on a
+    datagram link it is cut down so that a fragment resent on this writer's key still fits one
+    datagram (``arpz.link_sizes.writer_fragment_bytes``).
     """
 
     def __init__(
@@ -49,11 +58,19 @@ class Writer(Endpoint):
         express: bool = False,
         block: bool = True,
         clock: Clock | None = None,
+        fragment_bytes: int | None = None,
     ) -> None:
         if express and qos.batching:
             qos = msgspec.structs.replace(qos, batch_max_samples=1)
         self.key = key
-        self._machine = WriterMachine(key, qos, new_guid(), clock or SystemClock())
+        if fragment_bytes is None:
+            link: int | None = getattr(transport, "fragment_bytes", None)
+            fragment_bytes = writer_fragment_bytes(key, link)
+        #: a sample longer than this is sent as fragments
+        self.fragment_bytes = fragment_bytes
+        self._machine = WriterMachine(
+            key, qos, new_guid(), clock or SystemClock(), fragment_bytes=fragment_bytes
+        )
         self.guid = self._machine.hex
         self._channel = Channel(
             transport,
@@ -99,6 +116,8 @@ class Writer(Endpoint):
         """
         if self._closed:
             raise RuntimeError(f"write on closed writer {self.key}")
+        if len(payload) > self.fragment_bytes:
+            return self._write_large(payload, stamp_ns)
         # bound acquire/release rather than ``with``: fewer lookups on the hottest path
         self._acquire()
         try:
@@ -139,6 +158,38 @@ class Writer(Endpoint):
                 self._put(ready[0], attachment=ready[1])
             finally:
                 self._send_lock.release()
+        if actions:
+            self._channel.post(actions)
+        return seq
+
+    def _write_large(self, payload: bytes, stamp_ns: int | None) -> int:
+        """``write`` of a sample longer than ``fragment_bytes``: its fragments are put one by
+        one, in order, after the open batch; heartbeats announce the sample only once all of
+        them are out (``WriterMachine.fragmenting``), so no reader asks for one on its way."""
+        machine, holding = self._machine, self._holding
+        self._acquire()
+        try:
+            try:
+                seq, messages, actions = machine.write_large(payload, stamp_ns)
+            except HistoryFullError:
+                self._send_due_batch(force=True)
+                if holding is not None:
+                    holding.release_held()
+                seq, messages, actions = self._wait_for_room(
+                    lambda: machine.write_large(payload, stamp_ns)
+                )
+            machine.fragmenting = seq
+            self._send_lock.acquire()
+        finally:
+            self._release()
+        try:
+            for data, attachment in messages:
+                self._put(data, attachment=attachment)
+            if holding is not None:  # a robot's tick holds puts: these leave now
+                holding.release_held()
+        finally:
+            machine.fragmenting = 0  # a plain store, read by the worker's heartbeat
+            self._send_lock.release()
         if actions:
             self._channel.post(actions)
         return seq

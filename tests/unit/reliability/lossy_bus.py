@@ -10,7 +10,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +51,8 @@ class LossyBus:
         #: nodes whose session is lost (a dead zone): nothing reaches them or leaves them, and
         #: the tokens on each side of the cut vanish for the other, as when Zenoh's lease ends
         self.cut: set[int] = set()
+        #: a message for which this returns True is lost (on top of the link's random loss)
+        self.drop: Callable[[Send], bool] | None = None
 
     def add(self, machine: Machine) -> Node:
         node = Node(machine)
@@ -139,6 +141,9 @@ class LossyBus:
                     self._token(action.key, action.declare)
 
     def send(self, msg: Send) -> None:
+        if self.drop is not None and self.drop(msg):
+            self.dropped += 1
+            return
         for node in self.nodes:
             if id(node) in self.cut:
                 continue
@@ -184,6 +189,13 @@ class LossyBus:
     def write(self, node: Node, payload: bytes) -> int:
         w = node.machine
         assert isinstance(w, WriterMachine)
+        if len(payload) > w.fragment_bytes:  # as the Writer does: DATA_FRAG fragments
+            seq, messages, actions = w.write_large(payload)
+            self.run(node, actions)
+            if id(node) not in self.cut:
+                for data, attachment in messages:
+                    self.send(Send(w.topic, data, attachment))
+            return seq
         seq, ready, actions = w.write(payload)
         self.run(node, actions)
         if ready is not None and id(node) not in self.cut:  # else a later write or tick

@@ -34,7 +34,7 @@ def test_roundtrips_and_sizes() -> None:
     assert len(hb) == 31 and wire.decode_heartbeat(hb) == (wire.HB_FINAL, G1, 3, 9, 7)
     assert wire.control_kind(hb) == wire.KIND_HEARTBEAT
     an = wire.encode_acknack(G2, G1, 4, 1, [(5, 6), (9, 9)])
-    assert len(an) == 32 + 32 and wire.decode_acknack(an) == (G2, G1, 4, 1, [(5, 6), (9, 9)])
+    assert len(an) == 32 + 32 and wire.decode_acknack(an) == (G2, G1, 4, 1, [(5, 6), (9, 9)], ())
     assert wire.control_kind(an) == wire.KIND_ACKNACK
     gap = wire.encode_gap(G1, G2, [(1, 3)])
     assert len(gap) == 20 + 16 and wire.decode_gap(gap) == (G1, G2, [(1, 3)])
