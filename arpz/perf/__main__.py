@@ -26,6 +26,7 @@ import numpy as np
 
 from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.config import ConfigError
+from arpz.link_sizes import link_sizes
 from arpz.perf import fleet
 from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
 from arpz.perf.fleet import add_fleet_parser
@@ -174,7 +175,8 @@ def _transport(args: argparse.Namespace) -> ZenohTransport:
 
 def make_pub(args: argparse.Namespace, key: str) -> Pub:
     if args.transport == "arpz":
-        return ArpzPub(_transport(args), key, qos_from_args(args), args.express)
+        link = link_sizes(_endpoints(args.connect)).fragment_bytes
+        return ArpzPub(_transport(args), key, qos_from_args(args), args.express, link)
     session = open_session(_settings(args, connect=_endpoints(args.connect)))
     if args.transport == "zenoh":
         return ZenohPub(session, key, args.express)

@@ -8,6 +8,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from arpz.link_sizes import writer_fragment_bytes
 from arpz.protocol.events import DataInfo, MessageLostStatus
 from arpz.reliability import (
     HistoryFullError,
@@ -43,9 +44,21 @@ class Sub(Protocol):
 
 # ------------------------------------------------------------------------------------ arpz
 class ArpzPub:
-    def __init__(self, transport: ZenohTransport, key: str, qos: QosProfile, express: bool) -> None:
+    """A plain ``Writer``: a sample larger than one fragment (``link_fragment_bytes``, the
+    connect endpoints' per ``arpz.link_sizes.link_sizes``) goes as fragments, as every arpz
+    writer's does."""
+
+    def __init__(
+        self,
+        transport: ZenohTransport,
+        key: str,
+        qos: QosProfile,
+        express: bool,
+        link_fragment_bytes: int | None = None,
+    ) -> None:
         self.transport = transport
-        self.writer = Writer(transport, key, qos, express=express)
+        fragment_bytes = writer_fragment_bytes(key, link_fragment_bytes)
+        self.writer = Writer(transport, key, qos, express=express, fragment_bytes=fragment_bytes)
         self.blocked = 0
 
     def wait_matched(self, timeout_s: float) -> bool:

@@ -10,7 +10,18 @@ from contextlib import ExitStack
 
 import pytest
 
-from arpz.reliability import QOS_FRAMES_ALL, FrameInfo, FrameReader, FrameWriter
+from arpz.link_sizes import link_sizes
+from arpz.protocol.events import DataInfo
+from arpz.reliability import (
+    QOS_FRAMES_ALL,
+    FrameInfo,
+    FrameReader,
+    FrameWriter,
+    HistoryPolicy,
+    QosProfile,
+    Reader,
+    Writer,
+)
 from tests.integration.lossy_link import lossy_link
 from tests.support import wait_until
 
@@ -74,3 +85,61 @@ def test_camera_frames_arrive_intact_over_a_link_losing_10_percent_of_frames() -
     assert up["bytes_out"] >= 5 * SIZE
     assert up["largest_datagram"] <= 1472
     assert up["dropped_loss"] > 0.05 * up["received"]
+
+
+def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_frames() -> None:
+    """Issue 39: no manual setting. A plain Writer/Reader pair (what every Outlet/Inlet and the
+    perf tool use) over UDP through netem losing 1 % of 1500-byte frames, with the batch size
+    arpz.link_sizes gives for the writer's endpoint: every 921 600-byte sample arrives whole,
+    once, and only lost fragments are resent."""
+    sizes = link_sizes(["udp/127.0.0.1:7447"])
+    assert sizes.batch_size == 1472
+    rng = random.Random(6)
+    payloads = [rng.randbytes(SIZE) for _ in range(10)]
+    got: list[tuple[bytes, DataInfo]] = []
+    lock = threading.Lock()
+
+    def on_data(payload: bytes, info: DataInfo) -> None:
+        with lock:
+            got.append((payload, info))
+
+    qos = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=20)
+    with ExitStack() as stack:
+        link = stack.enter_context(
+            lossy_link(
+                *("--loss", "1", "--per-frame", "--seed", "4"),
+                every_session=NO_SHM,
+                writer_session={"transport/link/tx/batch_size": sizes.batch_size},
+            )
+        )
+        a, b, netem, lossy_from = link.writer_side, link.reader_side, link.netem, link.lossy_from
+        reader = stack.enter_context(Reader(b, "cam/*", qos, on_data))
+        writer = stack.enter_context(Writer(a, "cam/front", qos))
+        assert writer.fragment_bytes == sizes.fragment_bytes
+        wait_until(
+            lambda: writer.matched_count == 1 and writer.wait_for_acknowledgments(0.01),
+            what="match",
+        )
+        time.sleep(max(0.0, lossy_from - time.monotonic()))
+        for p in payloads:  # 10 Hz
+            writer.write(p)
+            time.sleep(0.1)
+        wait_until(lambda: len(got) == len(payloads), timeout_s=20, what="every sample")
+        assert [p for p, _ in got] == payloads  # whole, in order, once
+        assert [info.seq for _, info in got] == list(range(1, 11))
+        assert writer.wait_for_acknowledgments(5.0)
+        ws, rs = writer.stats(), reader.stats()
+        assert ws.sent == ws.fragmented == rs.delivered == 10 and rs.lost == 0
+        ((first, last, delivered, lost, expired),) = reader.accounted().values()
+        assert (first, last, delivered, lost, expired) == (1, 10, 10, 0, 0)
+        assert ws.fragments_sent == 10 * -(-SIZE // sizes.fragment_bytes)
+        # the link lost fragments and only those were resent, never a whole sample's worth
+        assert 0 < ws.fragments_retransmitted < ws.fragments_sent // 10
+        assert rs.in_assembly == 0 and rs.assembly_bytes == 0
+        report = netem.stop()
+    assert report is not None
+    up = report["up"]
+    # the bytes crossed the emulated link (not Zenoh's shared memory), one frame per datagram
+    assert up["bytes_out"] >= 10 * SIZE
+    assert up["largest_datagram"] <= 1472
+    assert up["dropped_loss"] > 0
