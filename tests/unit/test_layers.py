@@ -21,6 +21,7 @@ PURE = [
     "arpz.memory_transport",
     "arpz.mission",
     "arpz.channel_io",
+    "arpz.link_sizes",
 ]
 
 
