@@ -392,8 +392,8 @@ class ControlWorker:
             )
         else:
             self._event(
-                f"robot {robot} rejoined after {away_s:.1f} s as a new incarnation "
-                f"{incarnation} (restarted; was {record.away_incarnation or 'unknown'})",
+                f"robot {robot} joined as a new incarnation {incarnation} after {away_s:.1f} s "
+                f"away (restarted; was {record.away_incarnation or 'unknown'})",
                 "INFO",
             )
 

@@ -62,7 +62,7 @@ def test_a_restarted_robot_is_a_new_incarnation(tmp_path: Path) -> None:
             )
             first.popen.send_signal(signal.SIGKILL)
             wait_until(
-                lambda: "robot robot1 left" in server.output(),
+                lambda: "robot robot1 unreachable" in server.output(),
                 timeout_s=15,
                 what="the CEDDP to see robot1 gone",
             )

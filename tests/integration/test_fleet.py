@@ -200,7 +200,7 @@ def test_bad_bytes_are_counted_and_a_killed_robot_is_seen_gone(tmp_path: Path) -
             raw.put("arpz/itest/robot/robot1/bogus", b"\x00")
             procs[1].kill()  # SIGKILL: no goodbye, only the router sees the session drop
             wait_until(
-                lambda: "robot robot2 left" in server.output(),
+                lambda: "robot robot2 unreachable" in server.output(),
                 timeout_s=15,
                 what="the CEDDP to see robot2 gone",
             )
