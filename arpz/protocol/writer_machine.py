@@ -169,8 +169,11 @@ class _ReaderProxy:
         if done:
             self.resend_confirmed = True
         if self.resent_frags:
-            for key in [k for k in self.resent_frags if k[0] < floor]:
+            frags = [k for k in self.resent_frags if k[0] < floor]
+            for key in frags:
                 del self.resent_frags[key]
+            if frags:  # a resent fragment's sample was acknowledged: the holdoff is the short one
+                self.resend_confirmed = True
 
 
 #: readers whose state a writer keeps while they are away (the oldest forgotten first)

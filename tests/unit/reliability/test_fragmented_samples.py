@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from arpz.channel_io import Inlet, Outlet
 from arpz.link_sizes import (
     MIN_FRAGMENT_BYTES,
     UDP_BATCH_BYTES,
@@ -324,7 +325,10 @@ def test_writer_fragments_by_its_transports_link_and_the_reader_reassembles() ->
     ):
         assert w_udp.fragment_bytes == DEFAULT_FRAGMENT_BYTES  # no property: safe for UDP
         assert w_tcp.fragment_bytes == STREAM_FRAGMENT_BYTES
-        wait_until(lambda: reader.matched_count == 2, what="match")
+        wait_until(
+            lambda: reader.matched_count == 2 and w_udp.matched_count == w_tcp.matched_count == 1,
+            what="match",
+        )
         for p in payloads:
             w_udp.write(p)
             w_tcp.write(p)
@@ -362,3 +366,25 @@ def test_large_samples_arrive_over_a_lossy_transport(loss: float) -> None:
         assert ws.fragmented == 5 and lossy.dropped > 0
         # the resends were fragments, not whole samples: far fewer than one sample's worth
         assert 0 < ws.fragments_retransmitted < 5 * 50
+
+
+def test_an_outlet_and_an_inlet_carry_a_large_message_whole_and_count_it_once() -> None:
+    bus = MemoryBus()
+    a, b = LossyTransport(bus, 0.05, seed=9), MemoryTransport(bus)
+    got: list[tuple[str, bytes]] = []
+    qos = QosProfile(depth=10)
+    big = payload_of(7, 300_000)
+    with closing(a), closing(b):
+        inlet = Inlet(b, "k/*", qos, lambda key, payload: got.append((key, payload)))
+        outlet = Outlet(a, "k/x", qos)
+        try:
+            wait_until(lambda: outlet.matched, what="match")
+            assert outlet.send(big, 1) and outlet.send(b"small", 2)
+            wait_until(lambda: len(got) == 2, timeout_s=10, what="both messages")
+            assert got == [("k/x", big), ("k/x", b"small")]
+            stats = inlet.stats()
+            assert stats is not None and (stats.delivered, stats.lost) == (2, 0)
+            assert stats.fragments_received >= 235  # 300 000 B in 1280-byte fragments
+        finally:
+            outlet.close()
+            inlet.close()
