@@ -18,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final, NamedTuple
 
-from arpz.endpoints import frame_fragment_bytes
+from arpz.endpoints import STREAM_PROTOCOLS, frame_fragment_bytes
 from arpz.protocol import wire
 from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
 
@@ -75,3 +75,18 @@ def writer_fragment_bytes(key: str, link_fragment_bytes: int | None) -> int:
     if size <= DEFAULT_FRAGMENT_BYTES:
         return min(size, datagram_fragment_bytes(key))
     return size
+
+
+def session_batch_size(connect: Sequence[str], listen: Sequence[str] = ()) -> int | None:
+    """``transport/link/tx/batch_size`` for a session (None: leave Zenoh's default). Its
+    connect endpoints decide when it has any (``link_sizes``: one radio frame when any is UDP).
+    A session that only listens sets it only when every listen endpoint is UDP: Zenoh takes the
+    smaller of the two ends' batch sizes when a link opens (checked through ``arpz.netem``: a
+    UDP client's 1472 alone kept the router's datagrams to it at 1 361 bytes at most), so a
+    router that also listens on TCP leaves its UDP clients to shrink their own links and keeps
+    full batches on TCP. Nothing known (scouting only): None."""
+    if connect:
+        return link_sizes(connect).batch_size
+    if listen and not any(e.partition("/")[0] in STREAM_PROTOCOLS for e in listen):
+        return UDP_BATCH_BYTES
+    return None

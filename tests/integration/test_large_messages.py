@@ -10,7 +10,7 @@ from contextlib import ExitStack
 
 import pytest
 
-from arpz.link_sizes import link_sizes
+from arpz.link_sizes import link_sizes, session_batch_size
 from arpz.protocol.events import DataInfo
 from arpz.reliability import (
     QOS_FRAMES_ALL,
@@ -93,7 +93,8 @@ def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_fra
     arpz.link_sizes gives for the writer's endpoint: every 921 600-byte sample arrives whole,
     once, and only lost fragments are resent."""
     sizes = link_sizes(["udp/127.0.0.1:7447"])
-    assert sizes.batch_size == 1472
+    batch_size = session_batch_size(["udp/127.0.0.1:7447"])  # what the session sets
+    assert batch_size == sizes.batch_size == 1472
     rng = random.Random(6)
     payloads = [rng.randbytes(SIZE) for _ in range(10)]
     got: list[tuple[bytes, DataInfo]] = []
@@ -109,7 +110,7 @@ def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_fra
             lossy_link(
                 *("--loss", "1", "--per-frame", "--seed", "4"),
                 every_session=NO_SHM,
-                writer_session={"transport/link/tx/batch_size": sizes.batch_size},
+                writer_session={"transport/link/tx/batch_size": batch_size},
             )
         )
         a, b, netem, lossy_from = link.writer_side, link.reader_side, link.netem, link.lossy_from

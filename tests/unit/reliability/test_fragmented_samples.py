@@ -19,6 +19,7 @@ from arpz.link_sizes import (
     LinkSizes,
     datagram_fragment_bytes,
     link_sizes,
+    session_batch_size,
     writer_fragment_bytes,
 )
 from arpz.memory_transport import MemoryBus, MemoryTransport
@@ -87,6 +88,17 @@ def test_link_sizes_follow_the_endpoints() -> None:
     assert link_sizes(["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"]) == udp  # may go by UDP
     for streams in (["tcp/h:1"], ["tls/h:1", "quic/h:1"], ["ws/h:1", "unixsock-stream//tmp/s"]):
         assert link_sizes(streams) == (None, STREAM_FRAGMENT_BYTES)
+
+
+def test_a_session_sets_the_batch_of_its_links() -> None:
+    assert session_batch_size(["udp/10.0.0.1:7447"]) == 1472  # a robot over UDP
+    assert session_batch_size(["tcp/10.0.0.1:7447"]) is None  # over TCP: Zenoh's batch
+    assert session_batch_size(["tcp/10.0.0.1:7447", "udp/10.0.0.1:7447"]) == 1472
+    # a router: its UDP clients shrink their own links; its TCP ones keep full batches
+    assert session_batch_size([], ["tcp/0.0.0.0:7447", "udp/0.0.0.0:7447"]) is None
+    assert session_batch_size([], ["udp/0.0.0.0:7447"]) == 1472
+    assert session_batch_size(["tcp/10.0.0.2:7447"], ["udp/0.0.0.0:7447"]) is None  # a mesh
+    assert session_batch_size([], []) is None
 
 
 def test_a_fragment_resent_on_the_writers_key_fits_one_datagram() -> None:
