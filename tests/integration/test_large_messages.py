@@ -134,8 +134,13 @@ def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_fra
         ((first, last, delivered, lost, expired),) = reader.accounted().values()
         assert (first, last, delivered, lost, expired) == (1, 10, 10, 0, 0)
         assert ws.fragments_sent == 10 * -(-SIZE // sizes.fragment_bytes)
-        # the link lost fragments and only those were resent, never a whole sample's worth
-        assert 0 < ws.fragments_retransmitted < ws.fragments_sent // 10
+        # the link lost fragments and only those were resent: resending whole samples would
+        # send about all of them again (1 - 0.99^720 of the samples lose a frame), and asking
+        # for fragments not lost would bring duplicates. Here: 79-2 083 resent for about 75
+        # datagrams netem dropped; on a loaded host the router's own UDP socket loses bursts
+        # of fragments too (not netem's doing, recovered the same way)
+        assert 0 < ws.fragments_retransmitted < ws.fragments_sent // 2, (ws, rs)
+        assert rs.fragments_duplicate <= max(10, ws.fragments_retransmitted // 4), (ws, rs)
         assert rs.in_assembly == 0 and rs.assembly_bytes == 0
         report = netem.stop()
     assert report is not None
