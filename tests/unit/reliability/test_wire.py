@@ -59,6 +59,15 @@ def decoded_again(data: bytes) -> dict[str, bytes]:
             if h.echo == -1
             else wire.RESEND.pack(wire.VERSION, h.flags, h.writer, h.seq, h.stamp_ns, h.echo)
         )
+    if len(data) in (wire.DATA_FRAG.size, wire.RESEND_FRAG.size):
+        f = wire.decode_frag(data)
+        if f is not None:
+            head = (wire.VERSION, f.flags, f.writer, f.seq, f.stamp_ns, f.fragment, f.total)
+            out["fragment"] = (
+                wire.DATA_FRAG.pack(*head, f.chunk)
+                if f.echo == -1
+                else wire.RESEND_FRAG.pack(*head, f.chunk, f.echo)
+            )
     return out
 
 
@@ -82,6 +91,15 @@ def _ranged(draw: st.DrawFn, head: Callable[[int], bytes]) -> bytes:
     return head(max(n, 0)) + b"".join(wire.RANGE.pack(lo, hi) for lo, hi in ranges)
 
 
+@st.composite
+def _frag_ranged(draw: st.DrawFn, head: Callable[[int], bytes]) -> bytes:
+    """An ACKNACK_FRAG's shape: ACKNACK ranges, then fragment ranges with a count that may lie."""
+    frags = draw(st.lists(st.tuples(_u64, _u32, _u32), max_size=4))
+    m = len(frags) + draw(st.sampled_from([0, 0, 0, -1, 1]))
+    tail = wire.FRAG_COUNT.pack(max(m, 0)) + b"".join(wire.FRAG_RANGE.pack(*f) for f in frags)
+    return draw(_ranged(head)) + tail
+
+
 _SHAPED = st.one_of(
     st.binary(max_size=200),
     st.builds(wire.HEARTBEAT.pack, _version, _kind, _u8, _guid, _u64, _u64, _u32),
@@ -92,6 +110,32 @@ _SHAPED = st.one_of(
     ),
     st.tuples(_version, _kind, _guid, _guid).flatmap(
         lambda f: _ranged(lambda n: wire.GAP.pack(*f, n))
+    ),
+    st.tuples(_version, _kind, _guid, _guid, _u64, _u32).flatmap(
+        lambda f: _frag_ranged(lambda n: wire.ACKNACK.pack(*f, n))
+    ),
+    st.builds(
+        wire.DATA_FRAG.pack,
+        _version,
+        _u8,
+        _guid,
+        _u64,
+        st.integers(-(2**63), 2**63 - 1),
+        _u32,
+        _u32,
+        _u32,
+    ),
+    st.builds(
+        wire.RESEND_FRAG.pack,
+        _version,
+        _u8,
+        _guid,
+        _u64,
+        st.integers(-(2**63), 2**63 - 1),
+        _u32,
+        _u32,
+        _u32,
+        _u32,
     ),
 )
 
