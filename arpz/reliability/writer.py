@@ -183,9 +183,11 @@ class Writer(Endpoint):
         finally:
             self._release()
         try:
+            if holding is not None:  # what the tick holds (older seqs) leaves first
+                holding.release_held()
             for data, attachment in messages:
                 self._put(data, attachment=attachment)
-            if holding is not None:  # a robot's tick holds puts: these leave now
+            if holding is not None:  # and the fragments leave now, not at the tick's end
                 holding.release_held()
         finally:
             machine.fragmenting = 0  # a plain store, read by the worker's heartbeat

@@ -11,6 +11,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from arpz.bundling import Bundler
 from arpz.channel_io import Inlet, Outlet
 from arpz.link_sizes import (
     MIN_FRAGMENT_BYTES,
@@ -400,3 +401,36 @@ def test_an_outlet_and_an_inlet_carry_a_large_message_whole_and_count_it_once() 
         finally:
             outlet.close()
             inlet.close()
+
+
+def test_a_large_sample_written_inside_a_robots_tick_leaves_in_order_with_the_bundle() -> None:
+    """A robot's sensor writers put through a Bundler inside the tick: what the tick holds
+    leaves before the fragments (older seqs first), and the fragments leave at once."""
+    bus = MemoryBus()
+    robot, server = MemoryTransport(bus), MemoryTransport(bus)
+    bundler = Bundler(robot, max_bytes=DEFAULT_FRAGMENT_BYTES)
+    sink = Collect()
+    qos = QosProfile(depth=10)
+    big = payload_of(8, 20_000)
+    with (
+        closing(robot),
+        closing(server),
+        Reader(server, "f/robot/r1/sensor/*", qos, sink) as reader,
+        Writer(bundler, "f/robot/r1/sensor/a", qos, block=False) as a,
+        Writer(bundler, "f/robot/r1/sensor/b", qos, block=False) as b,
+    ):
+        wait_until(
+            lambda: reader.matched_count == 2 and a.matched_count == b.matched_count == 1,
+            what="match",
+        )
+        with bundler.collect():
+            a.write(b"small 1")
+            b.write(big)
+            a.write(b"small 2")
+        wait_until(lambda: len(sink) == 3, what="all three")
+        assert [(i.key, p) for p, i in sink.frames] == [
+            ("f/robot/r1/sensor/a", b"small 1"),
+            ("f/robot/r1/sensor/b", big),
+            ("f/robot/r1/sensor/a", b"small 2"),
+        ]
+        assert reader.stats().lost == 0 and b.stats().fragmented == 1
