@@ -217,6 +217,49 @@ class RobotClockConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, 
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
 
 
+class LinkConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """How a robot notices its link to the CEDDP died and gets it back (``[link]`` of a robot;
+    ``arpz.robot.link_monitor``; docs/operations.md, "Drops and reconnection"). The defaults
+    were chosen in the namespace lab of issue 39 (docs/deploy.md, "Link timing")."""
+
+    #: watch the link and reopen the session when it died (false: Zenoh's own reconnection
+    #: only, which over TLS may take 15 minutes after a roam)
+    reopen: bool = True
+    #: nothing heard from the CEDDP (acknowledgements, clock replies, commands, its presence)
+    #: this long while something sent waits for it: the link is lost
+    silence_s: float = 3.0
+    #: after silence or the CEDDP's presence vanishing, how long Zenoh's own session gets to
+    #: come back before the robot reopens it (after a change of address: no wait)
+    zenoh_grace_s: float = 1.0
+    #: from the start of one reopen attempt to the next: doubles from the first figure to the
+    #: second while attempts fail (one that spent its whole connection timeout on a dead link
+    #: is followed at once)
+    reopen_backoff_s: float = 0.25
+    reopen_backoff_max_s: float = 1.5
+    #: how often the link is checked
+    check_period_s: float = 0.1
+    #: a change of the robot's source address towards the CEDDP (a roam) is a lost link at once
+    #: (never for ``quic/`` endpoints alone: QUIC moves its connection to the new address)
+    watch_address: bool = True
+
+    def __post_init__(self) -> None:
+        for name in (
+            "silence_s",
+            "reopen_backoff_s",
+            "reopen_backoff_max_s",
+            "check_period_s",
+        ):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0 seconds, got {getattr(self, name)}")
+        if self.zenoh_grace_s < 0:
+            raise ValueError(f"zenoh_grace_s must be >= 0 seconds, got {self.zenoh_grace_s}")
+        if self.reopen_backoff_max_s < self.reopen_backoff_s:
+            raise ValueError(
+                f"reopen_backoff_max_s ({self.reopen_backoff_max_s}) must be >= "
+                f"reopen_backoff_s ({self.reopen_backoff_s})"
+            )
+
+
 class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
@@ -235,6 +278,7 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     sim: SimConfig | None = None
     watchdog: WatchdogConfig = msgspec.field(default_factory=WatchdogConfig)
     clock: RobotClockConfig = msgspec.field(default_factory=RobotClockConfig)
+    link: LinkConfig = msgspec.field(default_factory=LinkConfig)
     seed: int = 0
     stats_period_s: float = 0.5
     announce_period_s: float = 2.0

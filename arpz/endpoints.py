@@ -30,6 +30,20 @@ def frame_fragment_bytes(endpoints: list[str]) -> int:
     return DEFAULT_FRAGMENT_BYTES
 
 
+def endpoint_address(endpoint: str) -> tuple[str, int] | None:
+    """(host, port) of an IP endpoint (``tcp/10.0.0.1:7447``, ``quic/[::1]:7447#...``), the
+    host as written (a name or an address, without brackets); None for the other kinds
+    (unix sockets, pipes, vsock) and for what does not parse."""
+    proto, sep, rest = endpoint.partition("/")
+    if not sep or proto not in ENDPOINT_PROTOCOLS or proto in _PATH_PROTOCOLS:
+        return None
+    address = rest.split("#", 1)[0].split("?", 1)[0]
+    host, colon, port = address.rpartition(":")
+    if not colon or not host or not port.isdigit():
+        return None
+    return host.removeprefix("[").removesuffix("]"), int(port)
+
+
 def check_endpoints(endpoints: list[str], *, field: str) -> None:
     """Raise ValueError naming ``field[i]`` when an endpoint is not ``proto/host:port`` with a
     known protocol and a port 0..65535 (Zenoh itself only says "Unable to connect")."""

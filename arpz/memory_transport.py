@@ -140,6 +140,35 @@ class MemoryTransport:
         self.bus = bus
         self._handles: list[_Handle] = []
         self.closed = False
+        #: this transport's liveliness watchers, for ``reopen``: (key expression, the caller's
+        #: callback, the bus's entry)
+        self._watchers: list[tuple[str, LivelinessCallback, tuple[str, LivelinessCallback]]] = []
+        self._reopens = 0
+        self._delivered = 0
+
+    @property
+    def delivered(self) -> int:
+        """Samples, liveliness changes and replies handed to this transport's callbacks."""
+        return self._delivered
+
+    @property
+    def reopens(self) -> int:
+        return self._reopens
+
+    def reopen(self) -> None:
+        """As ``ZenohTransport.reopen`` does for its callers: every watcher is told again that
+        the tokens alive are there (the new session's history); on an in-process bus nothing
+        vanishes meanwhile, and nothing else changes."""
+        if self.closed:
+            raise TransportError("reopen on a closed MemoryTransport")
+        with self.bus.lock:
+            watchers = [(e, cb) for e, cb, entry in self._watchers if entry in self.bus.watchers]
+            tokens = list(self.bus.tokens.values())
+        for expr, callback in watchers:
+            for key in sorted({key for key in tokens if key_matches(expr, key)}):
+                self._delivered += 1  # the new session's history
+                callback(key, True)
+        self._reopens += 1
 
     def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
         return _Publisher(self, key)
@@ -156,6 +185,7 @@ class MemoryTransport:
         expr, keep = bundle.subscription(key_expr)
 
         def deliver(key: str, payload: bytes, attachment: bytes | None) -> None:
+            self._delivered += 1
             for item in bundle.expand(key, payload, attachment, keep):
                 callback(*item)
 
@@ -195,7 +225,12 @@ class MemoryTransport:
         return self._track(_Handle(remove))
 
     def watch_liveliness(self, key_expr: str, callback: LivelinessCallback) -> Handle:
-        entry = (key_expr, callback)
+        def counted(key: str, alive: bool) -> None:
+            self._delivered += 1
+            callback(key, alive)
+
+        entry = (key_expr, counted)
+        self._watchers.append((key_expr, callback, entry))
         with self.bus.lock:
             self.bus.watchers.append(entry)
             present = [k for k in self.bus.tokens.values() if key_matches(key_expr, k)]
@@ -232,6 +267,7 @@ class MemoryTransport:
         for handler in handlers:
             answer = handler(payload)
             if answer is not None:
+                self._delivered += 1
                 on_reply(answer)
 
     def _track(self, handle: _Handle) -> _Handle:

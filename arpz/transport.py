@@ -14,7 +14,7 @@ callback subscriber hangs (see shared notes).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
@@ -115,6 +115,38 @@ class Transport(Protocol):
     def close(self) -> None: ...
 
 
+@runtime_checkable
+class Reopenable(Protocol):
+    """A transport that can replace its session in place (``ZenohTransport``, and
+    ``MemoryTransport`` for tests): what a robot does when its link to the CEDDP died and the
+    session did not come back by itself (docs/operations.md, "Drops and reconnection").
+
+    ``reopen`` closes the session (on a thread of its own: a dead link may hold the close) and
+    opens a new one with the same settings, then declares again everything handed out: the
+    publishers, subscribers, pull subscribers, tokens, liveliness watchers and queryables given
+    to callers keep working (the same objects). A liveliness watcher sees the tokens alive in
+    the new session again (history: ``alive`` once more for those it knew), and is told that
+    those it saw alive and that are gone vanished; a token alive throughout never vanishes (a
+    reliable writer keeps its reader's state across the reopen). While the
+    transport is down (from the close until a new session is open) puts and requests are
+    dropped as a congested link drops them, and pull subscribers wait. Raises
+    ``TransportError`` when no new session could be opened (the transport stays down: call
+    again later)."""
+
+    def reopen(self) -> None: ...
+
+    @property
+    def reopens(self) -> int:
+        """Sessions opened by ``reopen`` so far."""
+        ...
+
+    @property
+    def delivered(self) -> int:
+        """What the transport handed to callbacks so far (samples of callback subscribers,
+        liveliness changes, replies): grows while anything is heard from the other side."""
+        ...
+
+
 class TransportError(ArpzError, RuntimeError):
     """The session could not be opened or used (Zenoh's own errors are translated into this at
     the seam); the message says which endpoint and why."""
@@ -134,3 +166,23 @@ class SessionSettings:
     extra: dict[str, object] = field(default_factory=dict)
     #: a Zenoh JSON5 config file loaded first; the settings above are applied on top of it
     config_file: str | None = None
+    #: Zenoh config entries applied only where ``config_file`` leaves Zenoh's default (a robot's
+    #: link timing: ``CLIENT_LINK_DEFAULTS``); ``extra`` always applies
+    defaults: Mapping[str, object] = field(default_factory=dict)
+
+
+#: A robot's Zenoh link timing (issue 39, measured in the namespace lab: docs/deploy.md, "Link
+#: timing"). A connection attempt gives up after ``open_timeout``: Zenoh's 10 s let a UDP or
+#: QUIC handshake lost in a dead zone hold the next attempt back for 10 s; 1.5 s leaves room
+#: for one resend of a lost TCP SYN or QUIC Initial (both after 1 s) inside the attempt, which a
+#: timeout of 1 s cut off, and a QUIC router then stalled on the abandoned handshake. Zenoh
+#: retries a lost router every 0.25-0.5 s instead of 1-4 s. The lease stays Zenoh's (10 s,
+#: keep-alive every 2.5 s): it is what the router waits before it drops a silent robot, and the
+#: robot does not rely on it to notice a dead link (``arpz.robot.link_monitor``). A
+#: ``zenoh_config`` file that sets any of these keeps its own value.
+CLIENT_LINK_DEFAULTS: Mapping[str, object] = {
+    "transport/unicast/open_timeout": 1500,
+    "connect/retry": {"period_init_ms": 250, "period_max_ms": 500, "period_increase_factor": 2},
+    "transport/link/tx/lease": 10000,
+    "transport/link/tx/keep_alive": 4,
+}

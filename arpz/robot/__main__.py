@@ -7,6 +7,7 @@ configuration (the message names the file, the field and the problem).
 from __future__ import annotations
 
 import argparse
+import functools
 import logging
 import sys
 from pathlib import Path
@@ -18,9 +19,11 @@ from arpz.cli import add_version_option, configure_logging, stop_on_signals
 from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
 from arpz.endpoints import DEFAULT_CONNECT, resolve
 from arpz.robot.agent import RobotAgent
+from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
-from arpz.transport import SessionSettings, TransportError
+from arpz.robot.summary import RobotSummary
+from arpz.transport import CLIENT_LINK_DEFAULTS, SessionSettings, TransportError
 from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config
 
 log = logging.getLogger("arpz.robot")
@@ -41,6 +44,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--no-local-cache", action="store_true", help="send every reading")
     parser.add_argument(
         "--sim", metavar="WORLD", help="simulate the body in a 2-D world: 'hallway' or a map file"
+    )
+    parser.add_argument(
+        "--summary-json",
+        type=Path,
+        metavar="PATH",
+        help="write this robot's own summary here (its counts, its link's drops), atomically, "
+        "at exit and after each drop and reconnection",
     )
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)
@@ -118,7 +128,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         transport = ZenohTransport.open(
-            SessionSettings(mode="client", connect=config.connect, config_file=config.zenoh_config),
+            SessionSettings(
+                mode="client",
+                connect=config.connect,
+                config_file=config.zenoh_config,
+                defaults=CLIENT_LINK_DEFAULTS,
+            ),
             timeout_s=timeout_s,
         )
     except TransportError as exc:
@@ -134,10 +149,27 @@ def main(argv: list[str] | None = None) -> int:
                 file=sys.stderr,
             )
             return 2
-        agent.start()
-        print(f"arpz robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True)
-        agent.run(stop)
-        agent.shutdown()
+        summary = RobotSummary(args.summary_json, agent) if args.summary_json else None
+        watch: LinkWatch | None = None
+        try:
+            if config.link.reopen:
+                # from the session's first moment: a roam during start-up is one too
+                watch = agent.watch_link(transport)
+                if summary is not None:
+                    summary.watch = watch
+                    watch.on_change = functools.partial(summary.write, complete=False)
+                watch.start()
+            agent.start()
+            print(
+                f"arpz robot: {config.robot_id} running ({len(agent.sensors)} sensors)", flush=True
+            )
+            agent.run(stop)
+            agent.shutdown()
+        finally:
+            if watch is not None:
+                watch.stop()
+            if summary is not None:
+                summary.write(complete=agent.final_stats is not None)
     finally:
         transport.close()
     log.info("robot %s stopped", config.robot_id)

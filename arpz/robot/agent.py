@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import functools
 import logging
+import socket
 import threading
 import time
 from pathlib import Path
@@ -22,7 +23,7 @@ from arpz import keys
 from arpz.bundling import Bundler
 from arpz.channel_io import FrameOutlet, Outlet, drain
 from arpz.config import RobotConfig
-from arpz.endpoints import frame_fragment_bytes
+from arpz.endpoints import endpoint_address, frame_fragment_bytes
 from arpz.messages import (
     Announce,
     ClockStats,
@@ -44,6 +45,7 @@ from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
 from arpz.robot.configuration import ConfigurationHandler, robot_computations
 from arpz.robot.hello import HelloProbe
+from arpz.robot.link_monitor import LinkWatch, Signals, Waiting, route_sources
 from arpz.robot.process_cpu import PROCESS_CPU, cpu_percent
 from arpz.robot.qos import decide
 from arpz.robot.scheduler import Job, Scheduler
@@ -51,7 +53,7 @@ from arpz.robot.sensing import SensorChannel, build_sensors, effective_sensors, 
 from arpz.robot.sensors import value_type_of
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog
-from arpz.transport import Transport
+from arpz.transport import Reopenable, Transport
 from arpz.version import arpz_version, zenoh_version
 
 log = logging.getLogger(__name__)
@@ -174,6 +176,12 @@ class RobotAgent:
             on_applied=lambda: self._publish_announce(0.0),
         )
         self._started = False
+        #: the final report (``shutdown``) and whether the CEDDP acknowledged it
+        self.final_stats: RobotStats | None = None
+        self.final_acknowledged: bool | None = None
+        #: the CEDDP's presence token (``watch_link``): alive now (None: not seen yet)
+        self._ceddp_present: bool | None = None
+        self._waiting = Waiting()
 
     def _now_s(self) -> float:
         return time.monotonic() - self._start_s
@@ -229,6 +237,48 @@ class RobotAgent:
         settled = self.clock_sync.settle(timeout_s)
         self._publish_stats(final=False)
         return settled
+
+    # -- the link to the CEDDP (arpz/robot/link_monitor.py) --------------------------------------
+
+    def watch_link(self, transport: Reopenable) -> LinkWatch:
+        """A ``LinkWatch`` on this robot's link to the CEDDP, reopening ``transport`` (this
+        agent's transport, or the session under it) when it died; the caller starts and stops
+        it. It hears the CEDDP in what ``transport`` delivers (the reliable channel's ACKNACKs
+        and heartbeats, clock replies, liveliness) and in the commands, watches the CEDDP's
+        presence token, and (``[link] watch_address``) the robot's source address towards every
+        ``connect`` endpoint, unless all are ``quic/`` (QUIC moves to a new address itself)."""
+        cfg = self.config
+        self.transport.watch_liveliness(keys.ceddp_presence_key(cfg.fleet), self._on_ceddp)
+        targets: list[tuple[str, int]] = []
+        if cfg.link.watch_address and not all(e.startswith("quic/") for e in cfg.connect):
+            targets = _route_targets(cfg.connect)
+
+        def signals() -> Signals:
+            return self.link_signals(transport.delivered, targets)
+
+        return LinkWatch(cfg.link, transport, signals)
+
+    def _on_ceddp(self, _key: str, alive: bool) -> None:
+        self._ceddp_present = alive
+
+    def link_signals(self, delivered: int, targets: list[tuple[str, int]] | None = None) -> Signals:
+        """What this robot heard from the CEDDP (``delivered``: what its transport handed to
+        callbacks so far, and the commands) and what it asked of it (samples its reliable
+        writers wait to have acknowledged, clock requests), as ``Signals``; with ``targets``,
+        its source address towards each."""
+        readings: list[tuple[str, bool, int, int]] = []
+        for outlet in self._outlets():
+            stats = outlet.stats()
+            acked = outlet.acknowledged_through()
+            if stats is None or acked is None:
+                continue  # plain mode: nothing is acknowledged
+            readings.append((outlet.key, outlet.matched, acked, stats.sent))
+        return Signals(
+            heard=delivered + self.commands.received,
+            asked=self._waiting.update(readings) + self.clock_sync.requests,
+            present=self._ceddp_present,
+            route=route_sources(targets) if targets else None,
+        )
 
     def _outlets(self) -> list[Outlet | FrameOutlet]:
         outlets: list[Outlet | FrameOutlet] = [s.output for s in self.sensors]
@@ -334,7 +384,8 @@ class RobotAgent:
         # The final report carries the channel's last counters; through the channel the robot
         # waits (bounded) for the CEDDP's acknowledgement, so reconciliation never misses it.
         self._publish_stats(final=True)
-        if not self._stats_out.close(_FINAL_REPORT_WAIT_S):
+        self.final_acknowledged = self._stats_out.close(_FINAL_REPORT_WAIT_S)
+        if not self.final_acknowledged:
             log.warning(
                 "final report not acknowledged within %.1f s (is the CEDDP still running?)",
                 _FINAL_REPORT_WAIT_S,
@@ -472,17 +523,22 @@ class RobotAgent:
         """The downlink's counters per CEDDP -> robot key (see ``CommandWorker.inbound``)."""
         return self.commands.inbound()
 
-    def stats(self, *, final: bool) -> RobotStats:
-        reading = PROCESS_CPU.read()  # the process's, shared by the robots in it
-        percent = cpu_percent(self._last_cpu, reading)
-        if percent is not None:
-            self._last_cpu, self._cpu_percent = reading, percent
+    def stats(self, *, final: bool, rates: bool = True) -> RobotStats:
+        """This robot's report. ``rates=False``: the counters only, without measuring the
+        rates (and CPU) over the interval since the last report, which would shorten the next
+        report's interval (for a summary written between reports)."""
+        if rates:
+            reading = PROCESS_CPU.read()  # the process's, shared by the robots in it
+            percent = cpu_percent(self._last_cpu, reading)
+            if percent is not None:
+                self._last_cpu, self._cpu_percent = reading, percent
         now, last_now = time.monotonic(), self._last_report_s
-        self._last_report_s = now
         counters = self.counters()
-        rated: dict[str, TopicCounters] = {}
+        rated: dict[str, TopicCounters] = dict(counters)
         interval_s = max(now - last_now, 1e-9)
-        for sensor in self.sensors:
+        if rates:
+            self._last_report_s = now
+        for sensor in self.sensors if rates else ():
             c = counters[sensor.config.name]
             rate = (c.sent - sensor.sent_at_last_report) / interval_s
             produced_rate = (c.produced - sensor.produced_at_last_report) / interval_s
@@ -532,6 +588,8 @@ class RobotAgent:
 
     def _publish_stats(self, *, final: bool) -> None:
         stats = self.stats(final=final)
+        if final:
+            self.final_stats = stats
         self._stats_out.send(encode(stats), stats.stamp_ns)
 
     def _publish_announce(self, now_s: float) -> None:
@@ -555,3 +613,24 @@ class RobotAgent:
             clock=self._clock_stats(),
         )
         self._announce_out.send(encode(announce), self._wall_ns())
+
+
+def _route_targets(endpoints: list[str]) -> list[tuple[str, int]]:
+    """(address, port) of each IP endpoint, names resolved once (a name that does not resolve
+    now is left out: its route cannot be watched)."""
+    targets: list[tuple[str, int]] = []
+    for endpoint in endpoints:
+        address = endpoint_address(endpoint)
+        if address is None:
+            continue
+        host, port = address
+        try:
+            infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)
+        except OSError as exc:
+            log.warning(
+                "the route to %s is not watched: %s does not resolve (%s)", endpoint, host, exc
+            )
+            continue
+        if infos:
+            targets.append((str(infos[0][4][0]), port))
+    return targets

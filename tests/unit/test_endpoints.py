@@ -8,6 +8,7 @@ from arpz.config import CeddpConfig, ConfigError, RobotConfig, from_dict
 from arpz.endpoints import (
     DEFAULT_CONNECT,
     check_endpoints,
+    endpoint_address,
     frame_fragment_bytes,
     plain_tcp_beside_tls,
     resolve,
@@ -69,3 +70,21 @@ def test_resolution_never_replaces_the_json5_endpoints_with_a_default() -> None:
 )
 def test_frames_are_cut_for_the_link(endpoints: list[str], expected: int) -> None:
     assert frame_fragment_bytes(endpoints) == expected
+
+
+@pytest.mark.parametrize(
+    ("endpoint", "address"),
+    [
+        ("tcp/127.0.0.1:7447", ("127.0.0.1", 7447)),
+        ("tls/ceddp.local:7447", ("ceddp.local", 7447)),
+        ("udp/[::1]:7447#iface=eth0", ("::1", 7447)),
+        ("quic/10.0.0.1:7448?rel=1", ("10.0.0.1", 7448)),
+        ("unixsock-stream//tmp/zenoh.sock", None),
+        ("tcp/nohost", None),
+        ("bogus/1.2.3.4:5", None),
+    ],
+)
+def test_endpoint_address_is_the_host_and_port_of_ip_endpoints(
+    endpoint: str, address: tuple[str, int] | None
+) -> None:
+    assert endpoint_address(endpoint) == address

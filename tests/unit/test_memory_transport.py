@@ -1,4 +1,7 @@
+import pytest
+
 from arpz.memory_transport import MemoryBus, MemoryTransport, key_matches
+from arpz.transport import TransportError
 
 
 def test_key_matching_follows_zenoh_wildcards() -> None:
@@ -40,3 +43,18 @@ def test_a_publisher_matches_only_while_a_subscriber_covers_its_key() -> None:
     assert not publisher.matching
     robot.close()
     server.close()
+
+
+def test_reopen_tells_watchers_again_which_tokens_are_alive() -> None:
+    bus = MemoryBus()
+    robot, ceddp = MemoryTransport(bus), MemoryTransport(bus)
+    seen: list[tuple[str, bool]] = []
+    ceddp.declare_token("p/ceddp")
+    robot.watch_liveliness("p/*", lambda key, alive: seen.append((key, alive)))
+    delivered = robot.delivered
+    robot.reopen()
+    assert seen == [("p/ceddp", True), ("p/ceddp", True)]
+    assert robot.reopens == 1 and robot.delivered == delivered + 1
+    robot.close()
+    with pytest.raises(TransportError):
+        robot.reopen()
