@@ -128,6 +128,7 @@ class _WriterProxy:
         "an_count",
         "an_due_s",
         "an_key",
+        "announced",
         "buffer",
         "confirmed_high",
         "deadline",
@@ -185,6 +186,8 @@ class _WriterProxy:
         #: heartbeat alone can be forged (its key is public), so only this bounds how far time
         #: or a writer's departure may declare samples lost
         self.confirmed_high = 0
+        #: highest seq a heartbeat announced: the writer had put all of its fragments
+        self.announced = 0
         #: out-of-order samples: seq -> (payload, stamp_ns, flags)
         self.buffer: dict[int, tuple[bytes, int, int]] = {}
         #: (seq, when): a heartbeat said nothing below seq is held any more; settle at ``when``
@@ -682,6 +685,8 @@ class ReaderMachine:
         parts = SampleParts(h.total, h.chunk, h.stamp_ns)
         p.partials[seq] = parts
         self._assembly_bytes += h.total
+        if seq <= p.announced:  # a heartbeat said so before any of it came (a resent sample)
+            self._close_sample(p, parts, now + self.qos.nack_period_s / 4)
         return parts
 
     def _refuse_sample(self, p: _WriterProxy, seq: int, actions: list[Action]) -> None:
@@ -1071,6 +1076,8 @@ class ReaderMachine:
             self._defer_loss(p, hb.first, now)
         if hb.first > p.held_from:
             p.held_from = hb.first
+        if hb.last > p.announced:
+            p.announced = hb.last
         if p.partials:  # the writer sent every sample up to hb.last: theirs are all out
             for seq, parts in p.partials.items():
                 if seq <= hb.last:

@@ -29,7 +29,7 @@ from arpz.protocol._common import new_guid
 from arpz.protocol.actions import Send
 from arpz.protocol.events import DataInfo
 from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
-from arpz.protocol.qos import HistoryPolicy, QosProfile, ReliabilityPolicy
+from arpz.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
 from arpz.protocol.reader_machine import ReaderMachine
 from arpz.protocol.timers import FakeClock
 from arpz.protocol.writer_machine import WriterMachine
@@ -262,6 +262,27 @@ def test_assembly_memory_is_bounded_and_everything_still_arrives() -> None:
     assert reconciled(writer, reader) == (1, 4, 4, 0, 0)
 
 
+@pytest.mark.parametrize("seed", [2, 5, 29])
+def test_a_late_joiner_gets_a_transient_local_history_of_large_samples_whole(seed: int) -> None:
+    """The history is resent whole sample by sample, each as fragments; a lossy link loses some
+    of them, those are asked for again one by one. A resent sample whose last fragment is lost
+    is known complete from the SYNC heartbeat that came before any of it (seeds 5 and 29 lost
+    the last sample to the reorder timeout when only a later heartbeat could tell)."""
+    qos = QosProfile(durability=DurabilityPolicy.TRANSIENT_LOCAL, depth=3)
+    bus = LossyBus(random.Random(seed), Link(loss=0.1, jitter_s=0.003), FakeClock())
+    writer = bus.add(WriterMachine("t/a", qos, new_guid(), bus.clock, fragment_bytes=FRAG))
+    payloads = [payload_of(i, 2500) for i in range(4)]
+    for p in payloads:
+        bus.write(writer, p)
+    bus.run_for(0.1)
+    reader = bus.add(ReaderMachine("t/*", qos, new_guid(), bus.clock))
+    bus.run_for(2.0)
+    assert [p for p, _ in reader.delivered] == payloads[1:]  # the 3 the history holds
+    w, _ = machines(writer, reader)
+    assert w.stats().fragments_retransmitted >= 3 * 25
+    assert reconciled(writer, reader) == (2, 4, 3, 0, 0)
+
+
 FAST = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 qos_choices = st.sampled_from(
     [
@@ -270,6 +291,7 @@ qos_choices = st.sampled_from(
         QosProfile(depth=1),
         QosProfile(reliability=ReliabilityPolicy.BEST_EFFORT, depth=5),
         QosProfile(depth=8, batch_max_samples=8, batch_max_delay_s=0.003),
+        QosProfile(durability=DurabilityPolicy.TRANSIENT_LOCAL, depth=10),
     ]
 )
 
