@@ -33,6 +33,18 @@ ONE_FRAME: dict[str, object] = {"transport/link/tx/batch_size": 1472}
 SIZE = 921_600  # 640x480 RGB
 
 
+def write_at_10_hz(writer: FrameWriter | Writer, payloads: list[bytes], lossy_from: float) -> None:
+    """Once matched and the link lossy, one payload every 0.1 s."""
+    wait_until(
+        lambda: writer.matched_count == 1 and writer.wait_for_acknowledgments(0.01),
+        what="match",
+    )
+    time.sleep(max(0.0, lossy_from - time.monotonic()))
+    for p in payloads:
+        writer.write(p)
+        time.sleep(0.1)
+
+
 def test_camera_frames_arrive_intact_over_a_link_losing_10_percent_of_frames() -> None:
     rng = random.Random(5)
     payloads = [rng.randbytes(SIZE) for _ in range(5)]
@@ -58,14 +70,7 @@ def test_camera_frames_arrive_intact_over_a_link_losing_10_percent_of_frames() -
         writer = stack.enter_context(
             FrameWriter(a, "cam/front", QOS_FRAMES_ALL, max_frame_bytes=SIZE)
         )
-        wait_until(
-            lambda: writer.matched_count == 1 and writer.wait_for_acknowledgments(0.01),
-            what="match",
-        )
-        time.sleep(max(0.0, lossy_from - time.monotonic()))
-        for p in payloads:  # 10 Hz
-            writer.write(p)
-            time.sleep(0.1)
+        write_at_10_hz(writer, payloads, lossy_from)
         wait_until(lambda: len(got) == len(payloads), timeout_s=20, what="every frame")
         assert [p for p, _ in got] == payloads  # intact, in order
         assert [info.frame_id for _, info in got] == [1, 2, 3, 4, 5]
@@ -117,14 +122,7 @@ def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_fra
         reader = stack.enter_context(Reader(b, "cam/*", qos, on_data))
         writer = stack.enter_context(Writer(a, "cam/front", qos))
         assert writer.fragment_bytes == sizes.fragment_bytes
-        wait_until(
-            lambda: writer.matched_count == 1 and writer.wait_for_acknowledgments(0.01),
-            what="match",
-        )
-        time.sleep(max(0.0, lossy_from - time.monotonic()))
-        for p in payloads:  # 10 Hz
-            writer.write(p)
-            time.sleep(0.1)
+        write_at_10_hz(writer, payloads, lossy_from)
         wait_until(lambda: len(got) == len(payloads), timeout_s=20, what="every sample")
         assert [p for p, _ in got] == payloads  # whole, in order, once
         assert [info.seq for _, info in got] == list(range(1, 11))

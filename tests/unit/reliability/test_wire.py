@@ -100,6 +100,9 @@ def _frag_ranged(draw: st.DrawFn, head: Callable[[int], bytes]) -> bytes:
     return draw(_ranged(head)) + tail
 
 
+#: DATA_FRAG's fields: the DATA header's, then fragment index, total and chunk
+_FRAG_FIELDS = (_version, _u8, _guid, _u64, st.integers(-(2**63), 2**63 - 1), _u32, _u32, _u32)
+
 _SHAPED = st.one_of(
     st.binary(max_size=200),
     st.builds(wire.HEARTBEAT.pack, _version, _kind, _u8, _guid, _u64, _u64, _u32),
@@ -114,29 +117,8 @@ _SHAPED = st.one_of(
     st.tuples(_version, _kind, _guid, _guid, _u64, _u32).flatmap(
         lambda f: _frag_ranged(lambda n: wire.ACKNACK.pack(*f, n))
     ),
-    st.builds(
-        wire.DATA_FRAG.pack,
-        _version,
-        _u8,
-        _guid,
-        _u64,
-        st.integers(-(2**63), 2**63 - 1),
-        _u32,
-        _u32,
-        _u32,
-    ),
-    st.builds(
-        wire.RESEND_FRAG.pack,
-        _version,
-        _u8,
-        _guid,
-        _u64,
-        st.integers(-(2**63), 2**63 - 1),
-        _u32,
-        _u32,
-        _u32,
-        _u32,
-    ),
+    st.builds(wire.DATA_FRAG.pack, *_FRAG_FIELDS),
+    st.builds(wire.RESEND_FRAG.pack, *_FRAG_FIELDS, _u32),
 )
 
 
