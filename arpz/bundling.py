@@ -206,14 +206,21 @@ class Bundler:
 
     # -- Transport ------------------------------------------------------------------------------
 
-    def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
-        inner = self.transport.publisher(key, express=express, block=block)
-        if express or bundle.bundle_key(key) is None:
+    def publisher(
+        self, key: str, *, express: bool = False, block: bool = True, bulk: bool = False
+    ) -> Publisher:
+        inner = self.transport.publisher(key, express=express, block=block, bulk=bulk)
+        if express or bulk or bundle.bundle_key(key) is None:
             return inner
         return _BundledPublisher(self, key, inner)
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
-        self.transport.put(key, payload, attachment=attachment)
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
+        if bulk:
+            self.transport.put(key, payload, attachment=attachment, bulk=True)
+        else:
+            self.transport.put(key, payload, attachment=attachment)
 
     def subscribe(self, key_expr: str, callback: DataCallback) -> Handle:
         return self.transport.subscribe(key_expr, callback)

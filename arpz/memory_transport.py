@@ -170,10 +170,14 @@ class MemoryTransport:
                 callback(key, True)
         self._reopens += 1
 
-    def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
+    def publisher(
+        self, key: str, *, express: bool = False, block: bool = True, bulk: bool = False
+    ) -> Publisher:
         return _Publisher(self, key)
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         if self.closed:
             raise TransportError("put on a closed MemoryTransport")
         with self.bus.lock:

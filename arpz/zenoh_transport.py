@@ -23,6 +23,7 @@ import zenoh
 
 from arpz.endpoints import check_endpoints
 from arpz.errors import ConfigError
+from arpz.link_sizes import link_sizes, session_batch_size
 from arpz.protocol import bundle
 from arpz.transport import (
     DataCallback,
@@ -135,6 +136,10 @@ def config_endpoints(conf: zenoh.Config, section: str) -> list[str]:
     return [str(e) for e in endpoints] if isinstance(endpoints, list) else []
 
 
+#: Zenoh's batch size: one datagram on a UDP link (set by arpz from the endpoints)
+BATCH_SIZE_KEY = "transport/link/tx/batch_size"
+
+
 def build_config(settings: SessionSettings) -> zenoh.Config:
     if settings.mode not in ("client", "peer", "router"):
         raise TransportError(f"mode must be client, peer or router, not {settings.mode!r}")
@@ -148,9 +153,15 @@ def build_config(settings: SessionSettings) -> zenoh.Config:
             conf.insert_json5("listen/endpoints", json.dumps(list(settings.listen)))
         if settings.connect:
             conf.insert_json5("connect/endpoints", json.dumps(list(settings.connect)))
-        if settings.defaults:
+        defaults: dict[str, object] = dict(settings.defaults or {})
+        # one radio frame per UDP datagram (arpz.link_sizes): a lost frame costs one fragment,
+        # not a 64 KiB batch; a config file's own batch size wins, and so does ``extra``
+        batch_size = session_batch_size(settings.connect, settings.listen)
+        if batch_size is not None:
+            defaults.setdefault(BATCH_SIZE_KEY, batch_size)
+        if defaults:
             zenoh_default = zenoh.Config()
-            for key, value in settings.defaults.items():
+            for key, value in defaults.items():
                 # the file's own value wins; one equal to Zenoh's default cannot be told apart
                 # from no value at all, and is replaced
                 if config_value(conf, key) == config_value(zenoh_default, key):
@@ -532,6 +543,14 @@ class ZenohTransport:
                 conf = build_config(settings)
 
     @property
+    def fragment_bytes(self) -> int:
+        """The fragment size of this session's links (``arpz.link_sizes``): a ``Writer`` on
+        this transport sends a larger sample as fragments of this size (a UDP datagram's worth
+        over UDP, most of a Zenoh batch over a stream link)."""
+        endpoints = self.settings.connect or self.settings.listen
+        return link_sizes(list(endpoints)).fragment_bytes
+
+    @property
     def zid(self) -> str:
         return str(self._session.info.zid())
 
@@ -562,23 +581,34 @@ class ZenohTransport:
             with self._lock:
                 self._declared.append(handle)
 
-    def publisher(self, key: str, *, express: bool = False, block: bool = True) -> Publisher:
+    def publisher(
+        self, key: str, *, express: bool = False, block: bool = True, bulk: bool = False
+    ) -> Publisher:
         congestion = zenoh.CongestionControl.BLOCK if block else zenoh.CongestionControl.DROP
+        priority = zenoh.Priority.DATA_LOW if bulk else zenoh.Priority.DATA
 
         def declare(session: zenoh.Session, _current: Callable[[], bool]) -> Any:
-            return session.declare_publisher(key, congestion_control=congestion, express=express)
+            return session.declare_publisher(
+                key, congestion_control=congestion, express=express, priority=priority
+            )
 
         pub = _ZenohPublisher(declare, self._link)
         self._adopt(pub, f"declare a publisher on {key}")
         return pub
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         """Through the session, not a publisher kept per key: a kept publisher's put costs
         0.56-0.85x of this one (``python benchmarks/zenoh_put.py``), but with it the downlink
         over a lossy UDP link failed its test (tests/integration/test_downlink.py;
         benchmarks/RESULTS.md, stop 27)."""
         try:  # not ``_translated``: once per ACKNACK on the CEDDP's sensor path
-            if attachment is None:
+            if bulk:
+                self._session.put(
+                    key, payload, attachment=attachment, priority=zenoh.Priority.DATA_LOW
+                )
+            elif attachment is None:
                 self._session.put(key, payload)
             else:
                 self._session.put(key, payload, attachment=attachment)

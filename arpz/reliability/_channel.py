@@ -147,8 +147,11 @@ class Channel:
         inline: bool = False,
         before_tick: Callable[[], None] | None = None,
         on_data_run: Callable[[str, Sequence[bytes]], None] | None = None,
+        bulk: bool = False,
     ) -> None:
         self.transport = transport
+        #: what this end sends yields to the session's other traffic (``Transport.publisher``)
+        self.bulk = bulk
         self.inline = inline
         #: runs on the worker with the lock held before each ``machine.tick`` (the writer sends
         #: a due batch there, so that it goes out in order with the writes)
@@ -491,7 +494,15 @@ class Channel:
                         self._on_data_raised()
             elif kind is Send:
                 try:
-                    self.transport.put(action.key, action.payload, attachment=action.attachment)  # type: ignore[union-attr]
+                    if self.bulk:
+                        self.transport.put(
+                            action.key,  # type: ignore[union-attr]
+                            action.payload,  # type: ignore[union-attr]
+                            attachment=action.attachment,  # type: ignore[union-attr]
+                            bulk=True,
+                        )
+                    else:
+                        self.transport.put(action.key, action.payload, attachment=action.attachment)  # type: ignore[union-attr]
                 except TransportError as exc:  # a closed session during shutdown
                     log.debug("put on %s failed: %s", action.key, exc)  # type: ignore[union-attr]
             elif kind is Notify:

@@ -131,6 +131,8 @@ class FrameWriter:
             clock=clock,
             # a frame fragment (header included) is never cut again by the channel
             fragment_bytes=fragment_bytes + HEADER_BYTES,
+            # frames yield to the robot's other traffic on a busy link (issue 39)
+            bulk=True,
         )
         #: held for a whole frame, so that its fragments get consecutive seqs
         self._write_lock = threading.Lock()

@@ -34,6 +34,10 @@ class Writer(Endpoint):
     lost, or reported lost. Robots use False, so a stalled server never stalls their sensing
     (Zenoh blocks a BLOCK put up to 5 s and then closes the link).
 
+    ``bulk``: this writer's messages and resends yield to the session's other traffic on a busy
+    link (``Transport.publisher``): a camera's frames, so that a link the frames saturate
+    still carries the robot's small sensors, reports and clock exchanges (issue 39).
+
     ``express``: every sample leaves at once as its own message, batched neither by Zenoh nor by
     arpz (``batch_max_samples`` is taken as 1): the choice for latency. Adaptive write batching
     only batches samples written less than ``batch_max_delay_s`` apart, but at 1 kHz a scheduling
@@ -59,6 +63,7 @@ class Writer(Endpoint):
         block: bool = True,
         clock: Clock | None = None,
         fragment_bytes: int | None = None,
+        bulk: bool = False,
     ) -> None:
         if express and qos.batching:
             qos = msgspec.structs.replace(qos, batch_max_samples=1)
@@ -79,8 +84,9 @@ class Writer(Endpoint):
             None,
             f"arpz-writer-{key}",
             before_tick=self._send_due_batch if qos.batching else None,
+            bulk=bulk,
         )
-        self._publisher = transport.publisher(key, express=express, block=block)
+        self._publisher = transport.publisher(key, express=express, block=block, bulk=bulk)
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
         self._acquire, self._release = self._mutex.acquire, self._mutex.release

@@ -614,7 +614,9 @@ class _PutThreads(MemoryTransport):
         super().__init__(bus)
         self.put_threads: list[str] = []
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         self.put_threads.append(threading.current_thread().name)
         super().put(key, payload, attachment=attachment)
 

@@ -37,7 +37,9 @@ class LossyTransport(MemoryTransport):
         self.loss, self.rng, self.lock = loss, random.Random(seed), threading.Lock()
         self.dropped = 0
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         with self.lock:
             lose = self.rng.random() < self.loss
             self.dropped += lose

@@ -53,7 +53,9 @@ class LossyTransport(MemoryTransport):
         super().__init__(bus)
         self.every, self.n, self.lock = every, 0, threading.Lock()
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         if key == KEY:
             with self.lock:
                 self.n += 1
@@ -116,7 +118,9 @@ def test_best_effort_counts_losses_without_resends_and_reliable_recovers_them(
 class MuteTransport(MemoryTransport):
     """A reader's side whose puts (ACKNACKs) never arrive: a stalled or cut-off reader."""
 
-    def put(self, key: str, payload: bytes, *, attachment: bytes | None = None) -> None:
+    def put(
+        self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
+    ) -> None:
         pass
 
 
