@@ -72,7 +72,8 @@ def test_a_camera_that_saturates_its_link_does_not_starve_the_robots_other_senso
     # Zenoh batch, tbf's 50 ms), about 0.5-0.8 s: a camera rate that fits the link empties them
     assert imu["latency_ms_p99"] < (400 if mbit >= 20 else 1500), imu
     print(
-        f"\n{mbit} Mbit/s: camera: {camera['received']} frames received, {camera['frames_skipped']} skipped, "
+        f"\n{mbit} Mbit/s: camera: {camera['received']} frames received, "
+        f"{camera['frames_skipped']} skipped, "
         f"p99 {camera['latency_ms_p99']:.0f} ms; imu: {imu['produced']} produced, "
         f"{imu['received']} received, p99 {imu['latency_ms_p99']:.1f} ms, late periods "
         f"{imu['late_periods']}"
