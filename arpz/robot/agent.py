@@ -360,6 +360,8 @@ class RobotAgent:
         self.commands.close()
         self.configuration.close()
         self.actuator.stop()
+        for sensor in self.sensors:  # a camera's last frame goes out before the drain
+            sensor.stop_sending()
         # what the sensors sent and the CEDDP has not acknowledged yet: waited for while the
         # CEDDP makes progress on it (an overloaded one drains for seconds), so that it arrives
         # instead of being counted lost, and the final report is not queued behind it
@@ -605,6 +607,7 @@ class RobotAgent:
                     value_type=value_type_of(s.config.kind),
                     priority=s.config.priority,
                     max_rate_hz=s.config.max_rate_hz,
+                    configured_rate_hz=s.config.rate_hz,
                 )
                 for s in self.sensors
             ],
