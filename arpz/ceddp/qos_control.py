@@ -40,6 +40,7 @@ from dataclasses import dataclass
 
 import msgspec
 
+from arpz.ceddp.link_budget import LinkBudget, fit_rates
 from arpz.ceddp.link_meter import BurstMeter, LinkEstimate, LinkMeter
 from arpz.ceddp.optimiser import (
     LinkQuality,
@@ -119,6 +120,8 @@ class QosController:
         self.measured_changes: list[tuple[int, str]] = []
         #: each robot's sensor topics (from its announcement), for the per-topic problem
         self.sensors: dict[str, list[TopicInfo]] = {}
+        #: per_topic: each robot link's throughput once seen full, a budget in bytes/s
+        self.link_budget = LinkBudget()
 
     @property
     def per_topic(self) -> bool:
@@ -214,6 +217,9 @@ class QosController:
             moves += self._link_moved(stats.robot, estimate)
         if self.per_topic:
             moves += self._changes_moved(stats)
+            budget_moved = self.link_budget.observe(stats)
+            if budget_moved is not None:
+                moves.append((f"budget {stats.robot}", budget_moved, lambda: None))
         for move in moves:  # a newer move of the same subject replaces a deferred one
             self._deferred[move[0]] = move
         if not self._deferred:
@@ -329,6 +335,8 @@ class QosController:
             del self.links_in_force[robot]
             self._heartbeats.pop(robot, None)
             self.meter.forget(robot)
+        for robot in [r for r in self.sensors if r not in topics]:
+            self.link_budget.forget(robot)
         cap = (
             None
             if self.budget_hz is None
@@ -440,6 +448,8 @@ class QosController:
                     depth = max(depth, loss)
                 depth = min(limits.dmax, depth)
             per_topic[t.robot][t.topic] = self._robot_qos(t.robot, t.rate_hz, depth)
+        for robot, own in per_topic.items():
+            self._fit_link(robot, own)
         robots = {}
         for robot, own in per_topic.items():
             if not own:  # no sensor announced yet: seed 001's share of a received topic
@@ -452,6 +462,22 @@ class QosController:
             mean = sum(own_rates) / len(own_rates)
             robots[robot] = self._robot_qos(robot, mean, max(own_depths))
         return robots, per_topic, solution.t_avg
+
+    def _fit_link(self, robot: str, own: dict[str, RobotQos]) -> None:
+        """A robot whose link was seen full: its bulk topics' rates lowered to fit the budget
+        (``arpz.ceddp.link_budget``), each with its deadline the same number of periods."""
+        budget = self.link_budget.budget(robot)
+        if budget is None:
+            return
+        sizes = {
+            topic: size
+            for topic in own
+            if (size := self.link_budget.sample_bytes.get((robot, topic))) is not None
+        }
+        fitted = fit_rates({t: q.rate_hz for t, q in own.items()}, sizes, budget.bytes_per_s)
+        for topic, rate in fitted.items():
+            if rate != own[topic].rate_hz:
+                own[topic] = self._robot_qos(robot, rate, own[topic].depth)
 
     def on_ack(self, ack: QosAck) -> str:
         """Record a robot's answer; returns a line for the event log."""
@@ -479,6 +505,12 @@ class QosController:
                 "nack_delay_s": self.channel.nack_delay_s,
             },
             "measured_changes": [{"epoch": e, "reason": r} for e, r in self.measured_changes],
+            # per robot whose link was seen full: what the assignment plans on it, bytes/s
+            "link_budget_bytes_per_s": {
+                r: b.bytes_per_s
+                for r in self.sensors
+                if (b := self.link_budget.budget(r)) is not None
+            },
         }
 
 

@@ -78,3 +78,62 @@ def test_a_camera_that_saturates_its_link_does_not_starve_the_robots_other_senso
         f"{imu['received']} received, p99 {imu['latency_ms_p99']:.1f} ms, late periods "
         f"{imu['late_periods']}"
     )
+
+
+def test_the_per_topic_optimiser_fits_the_camera_to_what_its_link_carries(
+    tmp_path: Path,
+) -> None:
+    """With ``[qos]`` per topic, the camera's skipped frames tell the CEDDP its link is full:
+    the next assignment gives the camera the rate the link carries (less a headroom), where
+    seed 001's problem, which counts messages and not bytes, gave it Rmax's share."""
+    require_lab()
+    (tmp_path / "no-shm.json5").write_text(NO_SHM)
+    with Lab.create(["robot1"]) as lab:
+        endpoint = f"tcp/{lab.ceddp_address}:{PORT}"
+        ceddp = {
+            "fleet": "bw",
+            "listen": [endpoint],
+            "rrd": str(tmp_path / "ceddp.rrd"),
+            "zenoh_config": str(tmp_path / "no-shm.json5"),
+            "qos": {
+                "enabled": True,
+                "mode": "per_topic",
+                "rmax_hz": 100.0,
+                "min_resolve_interval_s": 1.0,
+            },
+        }
+        robot = {
+            "robot_id": "robot1",
+            "fleet": "bw",
+            "connect": [endpoint],
+            "zenoh_config": str(tmp_path / "no-shm.json5"),
+            "stats_period_s": 0.5,
+            "sensors": [
+                {"name": "front", "kind": "camera", "rate_hz": 5.0},
+                {"name": "imu", "kind": "imu", "rate_hz": IMU_HZ},
+            ],
+        }
+        result = run_fleet_in_lab(
+            lab,
+            FleetSpec(ceddp=ceddp, robots={"robot1": robot}),
+            tmp_path,
+            profiles={"robot1": parse_profile("rate-20mbit")},
+            duration_s=16.0,
+        )
+    summary = result.summary
+    qos = summary["qos"]
+    reasons = [c["reason"] for c in qos["links"]["measured_changes"]]
+    assert any("link robot1 full" in r for r in reasons), reasons
+    budget = qos["links"]["link_budget_bytes_per_s"]["robot1"]
+    assert 0.5e6 < budget < 2.5e6, budget  # 20 Mbit/s is 2.5 MB/s, less the headroom
+    fitted = [a for a in qos["assignments"] if "link robot1 full" in a["reason"]]
+    camera_hz = fitted[-1]["topics"]["robot1"]["front"]["rate_hz"]
+    assert camera_hz * 921_600 <= budget * 1.01, (camera_hz, budget)
+    row = summary["robots"]["robot1"]
+    for name, topic in row["topics"].items():
+        assert topic["sent"] == topic["received"] + topic["lost"], (name, topic)
+    print(
+        f"\nbudget {budget * 8 / 1e6:.1f} Mbit/s, camera assigned {camera_hz:.2f} Hz; "
+        f"camera {row['topics']['front']['received']} frames, "
+        f"{row['topics']['front']['frames_skipped']} skipped"
+    )
