@@ -348,6 +348,7 @@ class LinkWatch:
             if monitor.lost != was_lost:
                 self._changed()
             if reopen and not self._stop.is_set():
+                log.debug("reopening the session (attempt %d)", monitor.reopen_attempts + 1)
                 try:
                     self._transport.reopen()
                 except TransportError as exc:
