@@ -235,7 +235,7 @@ class LinkConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
     #: second while attempts fail (one that spent its whole connection timeout on a dead link
     #: is followed at once)
     reopen_backoff_s: float = 0.25
-    reopen_backoff_max_s: float = 1.5
+    reopen_backoff_max_s: float = 1.0
     #: how often the link is checked
     check_period_s: float = 0.1
     #: a change of the robot's source address towards the CEDDP (a roam) is a lost link at once

@@ -23,7 +23,7 @@ from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.summary import RobotSummary
-from arpz.transport import CLIENT_LINK_DEFAULTS, SessionSettings, TransportError
+from arpz.transport import SessionSettings, TransportError, client_link_defaults
 from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config
 
 log = logging.getLogger("arpz.robot")
@@ -132,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
                 mode="client",
                 connect=config.connect,
                 config_file=config.zenoh_config,
-                defaults=CLIENT_LINK_DEFAULTS,
+                defaults=client_link_defaults(config.connect),
             ),
             timeout_s=timeout_s,
         )

@@ -223,9 +223,9 @@ class LinkMonitor:
         ``silence_s`` to bring something from the CEDDP before the next attempt. Not: the next
         one starts the backoff after this one started (at once if this one took longer), and
         the backoff doubles up to its maximum. An attempt on a dead link takes Zenoh's whole
-        ``open_timeout`` (1.5 s): the next follows it at once, so that one starts within about
-        1.6 s of the link coming back; attempts that fail at once (refused, no route) are spaced
-        0.25, 0.5, 1 then 1.5 s apart, never a busy loop."""
+        ``open_timeout`` (1.5 s, 1 s on UDP): the next follows it at once, so that one starts
+        within about 1.6 s of the link coming back; attempts that fail at once (refused, no
+        route) are spaced 0.25, 0.5, then 1 s apart, never a busy loop."""
         self._attempts += 1
         self.reopen_attempts += 1
         if opened:

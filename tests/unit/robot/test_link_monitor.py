@@ -169,7 +169,7 @@ def test_failed_attempts_back_off_from_their_start_and_never_busy_loop() -> None
             run.monitor.attempt_done(run.now, False, "no route")
     gaps = [b - a for a, b in itertools.pairwise(starts)]
     # each at the first 0.1 s reading at or after the backoff: 0.25, 0.5, 1, then 1.5 s
-    for gap, backoff in zip(gaps, [0.25, 0.5, 1.0] + [1.5] * 20, strict=False):
+    for gap, backoff in zip(gaps, [0.25, 0.5, 1.0, *[1.5] * 20], strict=False):
         assert backoff - 1e-6 <= gap <= backoff + 0.1 + 1e-6, gaps
     assert run.monitor.reopen_attempts == len(starts) <= 20
 
