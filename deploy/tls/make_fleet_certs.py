@@ -16,7 +16,9 @@ writes into ``--out``:
   only ever speak as robot2.
 - ``zenoh/ceddp-router.json5`` and ``zenoh/{robot}-client.json5``: the router configuration
   (mutual TLS + access control, one subject per robot, because Zenoh cannot substitute the CN
-  into a key expression) and each robot's client configuration. ``--paths-on-hosts /etc/arpz/tls``
+  into a key expression; listening on ``quic/`` and ``tls/``) and each robot's client
+  configuration (connecting over ``quic/``, the link that holds latency on a lossy radio:
+  docs/deploy.md). ``--paths-on-hosts /etc/arpz/tls``
   writes the paths the files will have once installed instead of the ``--out`` paths.
 - with ``--usrpwd``: ``passwords.txt`` (the router's user:password dictionary, random passwords),
   ``zenoh/ceddp-router-usrpwd.json5`` (server-only TLS + user/password + the same access control
@@ -277,7 +279,10 @@ def router_config(
         transport["auth"] = {"usrpwd": {"dictionary_file": f"{tls}/passwords.txt"}}
     return {
         "mode": "router",
-        "listen": {"endpoints": ["tls/0.0.0.0:7447"]},
+        # QUIC first: on a lossy radio it holds latency where TLS over TCP stalls for seconds
+        # (benchmarks/RESULTS.md "Link types on a lossy radio"); TLS beside it for networks
+        # that block UDP. Both with the same certificates and access control.
+        "listen": {"endpoints": ["quic/0.0.0.0:7447", "tls/0.0.0.0:7447"]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": transport,
         "access_control": access_control(
@@ -301,7 +306,7 @@ def client_config(name: str, server: str, tls: str, *, password: str | None) -> 
         transport["auth"] = {"usrpwd": {"user": name, "password": password}}
     return {
         "mode": "client",
-        "connect": {"endpoints": [f"tls/{server}:7447"]},
+        "connect": {"endpoints": [f"quic/{server}:7447"]},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": transport,
     }

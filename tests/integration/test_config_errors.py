@@ -84,6 +84,7 @@ def test_the_ceddp_takes_the_json5s_tls_endpoint_and_refuses_plain_tcp_beside_it
         (tls / "zenoh" / "ceddp-router.json5")
         .read_text()
         .replace('"tls/0.0.0.0:7447"', f'"tls/127.0.0.1:{port}"')
+        .replace('"quic/0.0.0.0:7447"', f'"quic/127.0.0.1:{port}"')
     )
     assert f"tls/127.0.0.1:{port}" in router.read_text()
     config = tmp_path / "ceddp.toml"
@@ -101,7 +102,8 @@ def test_the_ceddp_takes_the_json5s_tls_endpoint_and_refuses_plain_tcp_beside_it
     )
     code, out = run("arpz.ceddp", config, timeout_s=60)
     assert code == 0, out
-    assert f"ready on tls/127.0.0.1:{port}" in out and "ready on tcp/" not in out, out
+    ready = f"ready on quic/127.0.0.1:{port},tls/127.0.0.1:{port}"
+    assert ready in out and "tcp/" not in out.split("ready on")[1].split(" ")[0], out
 
 
 def test_an_unreachable_server_names_endpoint_identity_and_time(tmp_path: Path) -> None:

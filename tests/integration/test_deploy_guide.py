@@ -86,7 +86,8 @@ def test_the_deploy_guide_works_when_followed_literally(tmp_path: Path) -> None:
     follow_the_guide(etc, port)
     server = Process("ceddp", ["-m", "arpz.ceddp", "--config", str(etc / "ceddp.toml")], tmp_path)
     try:
-        server.wait_for(f"ready on tls/0.0.0.0:{port}", timeout_s=60)
+        # robots over QUIC with mutual TLS (the recommended link), TLS over TCP beside it
+        server.wait_for(f"ready on quic/0.0.0.0:{port},tls/0.0.0.0:{port}", timeout_s=60)
         robots: list[Process] = []
         try:
             for robot in ("robot3", "robot1"):  # the Hello relay first
@@ -97,7 +98,7 @@ def test_the_deploy_guide_works_when_followed_literally(tmp_path: Path) -> None:
                 wait_until(
                     lambda robot=robot: f"robot {robot} joined" in server.output(),  # type: ignore[misc]
                     timeout_s=60,
-                    what=f"{robot} to join over mTLS",
+                    what=f"{robot} to join over QUIC with mutual TLS",
                 )
             for proc in robots:
                 assert proc.popen.wait(timeout=60) == 0, proc.output()
