@@ -153,7 +153,7 @@ class MissionRunner(Planner):
             return stop
         commands = self.planner.tick(now_s)
         for event in self.planner.pop_events():
-            level = "WARN" if event.kind in ("stale_stop", "obstacle_stop") else "INFO"
+            level = "WARN" if event.kind in ("stale_stop", "obstacle_stop", "off_lane") else "INFO"
             self.on_event(f"mission {event.kind}: {event.text}", level)
             verdict = self.judge.on_event(event)
             if verdict is not None:

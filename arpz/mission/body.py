@@ -106,6 +106,13 @@ class RobotBody:
             remaining_s -= sub_s
         return self._pose
 
+    def pause(self, dt_s: float) -> None:
+        """Let ``dt_s`` pass without moving, as for a robot whose process is stopped: the time
+        counts towards the command timeout, so the body does not drive on when it wakes up."""
+        if dt_s < 0.0:
+            raise ValueError(f"dt_s must be >= 0, got {dt_s}")
+        self._t_s += dt_s
+
     def scan(self) -> dict[int, float]:
         """One LIDAR reading per beam angle (degrees) from the true pose."""
         ranges = self.lidar.scan(self._pose)

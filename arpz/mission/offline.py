@@ -1,16 +1,18 @@
 """The closed loop without a network: three bodies, the hallway planner and the judge in one loop.
 
 The network is reduced to what matters to the mission: how often each robot's beams reach the
-planner (``beam_rate_hz``), how late (``latency_s``), and optionally which readings arrive wrong
-or not at all (``corrupt``). Time is simulated, so a 100 s mission runs in about a second and
-the same arguments give the same run.
+planner (``beam_rate_hz``), how late (``latency_s``), optionally which readings arrive wrong
+or not at all (``corrupt``), and when a robot's link is down or its process frozen
+(``outages``). Time is simulated, so a 100 s mission runs in about a second and the same
+arguments give the same run.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import msgspec
 import numpy as np
@@ -25,6 +27,33 @@ from arpz.mission.world import FloatArray, World
 #: ``corrupt(robot, beam_deg, t_s, range_m)`` returns the value the planner receives instead, or
 #: None to lose the reading: a way to inject a phantom obstacle or a dead beam.
 Corruption = Callable[[str, int, float, float], float | None]
+
+
+@dataclass(frozen=True)
+class Outage:
+    """One robot cut off from the CEDDP from ``start_s`` for ``duration_s`` (simulated seconds).
+
+    ``kind="link"``: its link is down both ways (a dead zone, a roam): what it measures and what
+    is sent to it are lost, and its body drives on its last command until its command timeout,
+    as a real robot's watchdog lets it; ``"uplink"`` or ``"downlink"``: one way only (its
+    readings, or the commands to it). ``kind="frozen"``: its process is stopped (SIGSTOP): it
+    measures, sends and moves nothing, and its last command has expired when it wakes up.
+    """
+
+    robot: str
+    start_s: float
+    duration_s: float
+    kind: Literal["link", "uplink", "downlink", "frozen"] = "link"
+
+    def __post_init__(self) -> None:
+        if not (self.start_s >= 0.0 and self.duration_s > 0.0):
+            raise ValueError(
+                f"Outage of {self.robot}: start_s must be >= 0 and duration_s > 0, "
+                f"got {self.start_s} and {self.duration_s}"
+            )
+
+    def covers(self, robot: str, t_s: float) -> bool:
+        return robot == self.robot and self.start_s <= t_s < self.start_s + self.duration_s
 
 
 @dataclass(frozen=True)
@@ -49,15 +78,27 @@ def run_offline(
     noise_std_m: float = 0.0,
     seed: int = 0,
     corrupt: Corruption | None = None,
+    outages: Sequence[Outage] = (),
 ) -> OfflineRun:
     """Run the hallway mission for at most ``duration_s`` simulated seconds (the time limit).
 
     Each robot scans all its beams every ``1 / beam_rate_hz`` seconds from a random phase (the
     robots' clocks are not aligned); readings reach the planner ``latency_s`` later, stamped with
     their measurement time, and commands reach the bodies ``latency_s`` after each planner tick.
+    A reading or command that would arrive while its robot is in an ``Outage`` is lost.
     """
     if beam_rate_hz <= 0.0 or tick_hz <= 0.0 or step_s <= 0.0 or duration_s <= 0.0:
         raise ValueError("beam_rate_hz, tick_hz, step_s and duration_s must all be > 0")
+    for outage in outages:
+        if outage.robot not in planner_settings.robots:
+            raise ValueError(f"Outage of {outage.robot!r}, which is not in the fleet")
+
+    def cut_off(robot: str, t_s: float, kinds: tuple[str, ...]) -> bool:
+        return any(o.kind in kinds and o.covers(robot, t_s) for o in outages)
+
+    readings_lost = ("link", "uplink", "frozen")
+    commands_lost = ("link", "downlink", "frozen")
+
     judge_settings = msgspec.structs.replace(
         judge_settings if judge_settings is not None else JudgeSettings(),
         time_limit_s=duration_s,
@@ -98,6 +139,11 @@ def run_offline(
     while judge.result is None:
         for robot, body in bodies.items():
             while next_scan_s[robot] <= now_s + eps:
+                if cut_off(robot, now_s, ("frozen",)) or cut_off(
+                    robot, now_s + latency_s, readings_lost
+                ):
+                    next_scan_s[robot] += beam_period_s  # not taken, or lost on the way
+                    continue
                 for beam_deg, range_m in body.scan().items():
                     value = range_m if corrupt is None else corrupt(robot, beam_deg, now_s, range_m)
                     if value is not None:
@@ -113,13 +159,17 @@ def run_offline(
             next_tick_s += tick_period_s
         while commands_in_flight and commands_in_flight[0][0] <= now_s + eps:
             for robot, command in commands_in_flight.popleft()[1].items():
-                bodies[robot].apply_command(command.v_m_s, command.omega_rad_s)
+                if not cut_off(robot, now_s, commands_lost):
+                    bodies[robot].apply_command(command.v_m_s, command.omega_rad_s)
         if judge.result is not None or judge.check(now_s) is not None:
             break
         step += 1
         now_s = step * step_s
         for robot, body in bodies.items():
-            body.step(step_s)
+            if cut_off(robot, now_s, ("frozen",)):
+                body.pause(step_s)
+            else:
+                body.step(step_s)
             judge.on_pose(robot, now_s, body.pose)
 
     return OfflineRun(

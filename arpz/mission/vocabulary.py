@@ -22,10 +22,12 @@ STOP: Final = VelocityCommand(0.0, 0.0)
 
 #: What the planner reports as the mission goes:
 #: ``started`` the fleet first moves; ``turn_started``/``turn_done`` a corner; ``obstacle_stop``
-#: and ``clear`` a follower saw something close ahead and later saw it gone; ``stale_stop`` and
-#: ``resumed`` the data the planner needs got too old, then fresh again (while held, ``stale_stop``
-#: is repeated, at most once a second, when another reading becomes the oldest); ``home`` the
-#: leader thinks it is home and the fleet stops.
+#: and ``clear`` a follower saw something close ahead (or any robot something within its
+#: clearance) and later saw it gone; ``stale_stop`` and ``resumed`` the data the planner needs got
+#: too old, then fresh again (while held, ``stale_stop`` is repeated, at most once a second, when
+#: another reading becomes the oldest); ``off_lane`` and ``in_lane`` a follower was seen out of
+#: its lane or turned away from the leader's heading (its own side beams against the leader's)
+#: and is steered back, then is back; ``home`` the leader thinks it is home and the fleet stops.
 EventKind = Literal[
     "started",
     "turn_started",
@@ -34,6 +36,8 @@ EventKind = Literal[
     "clear",
     "stale_stop",
     "resumed",
+    "off_lane",
+    "in_lane",
     "home",
 ]
 

@@ -36,6 +36,18 @@ def test_watchdog_stops_a_body_that_hears_nothing_for_the_timeout() -> None:
     assert body.command == (0.0, 0.0)
 
 
+def test_a_paused_body_does_not_move_and_its_command_expires_meanwhile() -> None:
+    body = RobotBody(HALLWAY, "robot1")  # a frozen process: time passes, the body does not move
+    body.apply_command(0.5, 0.0)
+    body.pause(0.4)
+    assert body.pose == HALLWAY.homes["robot1"]
+    body.step(0.2)  # 0.1 s of the 0.5 s timeout was left
+    assert body.pose.x_m == pytest.approx(10.0 - 0.05)
+    assert body.command == (0.0, 0.0)
+    with pytest.raises(ValueError, match="dt_s must be >= 0"):
+        body.pause(-1.0)
+
+
 def test_body_stops_dead_at_the_first_contact_with_a_wall() -> None:
     body = RobotBody(HALLWAY, "robot3", command_timeout_s=None, max_substep_s=0.01)
     # robot3 sits 1 m above the outer wall, facing west; turn it to face south and drive.

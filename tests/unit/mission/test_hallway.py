@@ -193,6 +193,79 @@ def test_home_after_the_last_corner_when_front_reaches_the_mark_parallel_to_the_
     assert set(planner.tick(5.0).values()) == {STOP}
 
 
+def test_a_stale_leader_holds_the_fleet_and_a_follower_it_left_turned_is_steered_back() -> None:
+    # Issue 39: robot1's link died in a corner. The planner held the fleet for its stale data,
+    # but robot1, cut off, drove on its last command until its watchdog stopped it, 0.2 s after
+    # robot2 had been stopped: when the data came back robot2 was turned 9 degrees from robot1.
+    # Steered with robot1's velocity alone, it kept that error and drove into the wall 10 m on.
+    planner = HallwayPlanner(SETTINGS)
+    see_fleet(planner, HOMES["robot1"], 0.0)
+    planner.tick(0.0)
+    assert kinds(planner) == ["started"]
+    for t_s in (0.1, 0.2, 0.3, 0.4):  # robot1 silent: its followers' beams keep coming
+        see(planner, "robot2", HOMES["robot2"], t_s)
+        see(planner, "robot3", HOMES["robot3"], t_s)
+        commands = planner.tick(t_s)
+    assert set(commands.values()) == {STOP}  # the whole fleet, not only the silent leader
+    (event,) = planner.pop_events()
+    assert (event.kind, event.robot) == ("stale_stop", "robot1")
+    assert event.age_s == pytest.approx(0.4)
+    turned = Pose(HOMES["robot2"].x_m, HOMES["robot2"].y_m, HOMES["robot2"].theta_rad + 0.16)
+    for t_s in (3.0, 3.05, 3.1):  # fresh again; robot2 is seen turned on three scans in a row
+        see(planner, "robot1", HOMES["robot1"], t_s)
+        see(planner, "robot2", turned, t_s)
+        see(planner, "robot3", HOMES["robot3"], t_s)
+        commands = planner.tick(t_s)
+    assert commands["robot1"] == commands["robot3"]
+    assert commands["robot1"].v_m_s == 0.8
+    assert commands["robot1"].omega_rad_s == pytest.approx(0.0, abs=1e-9)
+    # robot2 (in its lane, 0.16 rad to the left of robot1's heading) turns back right
+    assert commands["robot2"].v_m_s == 0.8
+    assert commands["robot2"].omega_rad_s == pytest.approx(1.5 * -0.16, abs=1e-6)
+    events = planner.pop_events()
+    assert [e.kind for e in events] == ["resumed", "off_lane"]
+    assert events[1].robot == "robot2"
+    assert events[1].text == "robot2 is in its lane, turned +9.2 deg from robot1: steered back"
+    # ... until it is parallel again: then every robot has the leader's velocity once more
+    see_fleet(planner, HOMES["robot1"], 3.15)
+    commands = planner.tick(3.15)
+    assert len(set(commands.values())) == 1
+    assert kinds(planner) == ["in_lane"]
+
+
+# The leader mid-leg on each of the four legs (clockwise from home), where both robots see walls.
+LEGS = [
+    Pose(10.0, 2.0, math.pi),
+    Pose(2.0, 5.5, math.pi / 2),
+    Pose(10.0, 10.0, 0.0),
+    Pose(18.0, 6.5, -math.pi / 2),
+]
+
+
+@pytest.mark.parametrize("leg", range(4))
+def test_a_followers_lane_turns_with_the_fleet_at_each_corner(leg: int) -> None:
+    # Each follower's path is the leader's shifted by its home offset, so on each leg its lane is
+    # on another side of the leader: robot2 (+1, +1) m is right of it, right, left, left.
+    planner = HallwayPlanner(SETTINGS)
+    planner._corners_done = leg
+    leader = LEGS[leg]
+    see(planner, "robot1", leader, 0.0)
+    for robot, shift_m in (("robot2", 1.0), ("robot3", -1.0)):
+        in_lane = Pose(leader.x_m + shift_m, leader.y_m + shift_m, leader.theta_rad)
+        see(planner, robot, in_lane, 0.0)
+        assert planner.lane_error(robot, 0.0) == pytest.approx((0.0, 0.0), abs=1e-6)
+        # 0.3 m to its left (the leader's left: the heading turned a quarter left)
+        left = leader.theta_rad + math.pi / 2
+        aside = Pose(in_lane.x_m + 0.3 * math.cos(left), in_lane.y_m + 0.3 * math.sin(left), 0.0)
+        see(planner, robot, aside._replace(theta_rad=leader.theta_rad), 0.1)
+        see(planner, "robot1", leader, 0.1)
+        assert planner.lane_error(robot, 0.1) == pytest.approx((0.3, 0.0), abs=1e-6)
+    assert SETTINGS.lanes_m == {
+        "robot2": pytest.approx((-1.0, -1.0)),
+        "robot3": pytest.approx((1.0, 1.0)),
+    }
+
+
 def test_inputs_the_planner_ignores() -> None:
     planner = HallwayPlanner(SETTINGS)
     assert planner.on_range("robot1", 0, 5.0, 1.0)
@@ -232,12 +305,15 @@ def test_the_fleet_never_moves_on_stale_data_or_with_an_obstacle_ahead(
         for robot, deg, range_m, age_s in batch:
             planner.on_range(robot, deg, range_m, now_s - age_s)
         commands = planner.tick(now_s)
-        assert len(set(commands.values())) == 1  # one velocity for the whole fleet
+        # one speed for the whole fleet (a follower out of its lane may turn differently)
+        assert len({c.v_m_s for c in commands.values()}) == 1
         if commands["robot1"] == STOP:
+            assert set(commands.values()) == {STOP}
             continue
         held = planner._latest  # what the planner holds, checked against the documented rules
         needed = [("robot1", d) for d in (0, 45, 90, 135, 225, 270, 315)]
-        needed += [("robot2", 0), ("robot3", 0)]
+        needed += [(robot, d) for robot in ("robot2", "robot3") for d in (0, 45, 315)]
         assert all(now_s - held[key][1] <= SETTINGS.max_age_s + 1e-9 for key in needed)
         assert held[("robot2", 0)][0] >= SETTINGS.obstacle_range_m
         assert held[("robot3", 0)][0] >= SETTINGS.obstacle_range_m
+        assert all(held[key][0] >= SETTINGS.clearance_m for key in needed if key[1] in (0, 45, 315))
