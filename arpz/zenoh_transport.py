@@ -496,6 +496,7 @@ def _reconcile(session: zenoh.Session, declared: list[_Declared]) -> None:
 
 #: (local, remote) address pair of a TCP connection
 _Pair = tuple[tuple[str, int], tuple[str, int]]
+_INET = (socket.AF_INET, socket.AF_INET6)
 
 
 def _stream_links(session: zenoh.Session) -> set[_Pair]:
@@ -532,8 +533,8 @@ def _abort_on_close(pairs: set[_Pair]) -> int:
             if not stat.S_ISSOCK(os.fstat(fd).st_mode):
                 continue
             with socket.socket(fileno=os.dup(fd)) as sock:
-                if sock.type != socket.SOCK_STREAM:
-                    continue
+                if sock.type != socket.SOCK_STREAM or sock.family not in _INET:
+                    continue  # a unix socket's name is a path, not an address
                 local, remote = sock.getsockname()[:2], sock.getpeername()[:2]
                 if ((str(local[0]), int(local[1])), (str(remote[0]), int(remote[1]))) in pairs:
                     sock.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))

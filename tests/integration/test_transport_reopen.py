@@ -3,7 +3,10 @@ handle given out before keeps working; a robot's link defaults apply under a zen
 
 from __future__ import annotations
 
+import contextlib
 import json
+import socket
+import struct
 import threading
 from pathlib import Path
 
@@ -11,7 +14,7 @@ import pytest
 
 from arpz.launch import free_port
 from arpz.transport import CLIENT_LINK_DEFAULTS, Received, SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport, build_config, config_value
+from arpz.zenoh_transport import ZenohTransport, _abort_on_close, build_config, config_value
 from tests.support import router, wait_until
 
 pytestmark = pytest.mark.integration
@@ -166,3 +169,20 @@ def test_link_defaults_apply_where_the_zenoh_config_is_silent(tmp_path: Path) ->
     }
     plain = build_config(SessionSettings(mode="client"))
     assert config_value(plain, "transport/unicast/open_timeout") == 10000  # Zenoh's own
+
+
+def test_the_old_sessions_connections_are_found_and_set_to_close_by_reset() -> None:
+    """``_abort_on_close`` finds a TCP connection of this process by its addresses, beside unix
+    sockets it must skip, and sets SO_LINGER {on, 0} on it (its close is then a reset)."""
+    with contextlib.ExitStack() as stack:
+        server = stack.enter_context(socket.create_server(("127.0.0.1", 0)))
+        client = stack.enter_context(socket.create_connection(server.getsockname()))
+        accepted = stack.enter_context(server.accept()[0])
+        for unix in socket.socketpair():
+            stack.enter_context(unix)
+        pair = (client.getsockname()[:2], client.getpeername()[:2])
+        assert _abort_on_close({pair}) == 1
+        linger = client.getsockopt(socket.SOL_SOCKET, socket.SO_LINGER, 8)
+        assert struct.unpack("ii", linger) == (1, 0)
+        assert accepted.getsockopt(socket.SOL_SOCKET, socket.SO_LINGER, 8) == bytes(8)
+        assert _abort_on_close(set()) == 0
