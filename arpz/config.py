@@ -231,9 +231,9 @@ class LinkConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
     #: after silence or the CEDDP's presence vanishing, how long Zenoh's own session gets to
     #: come back before the robot reopens it (after a change of address: no wait)
     zenoh_grace_s: float = 1.0
-    #: from the start of one reopen attempt to the next: doubles from the first figure to the
-    #: second while attempts fail (one that spent its whole connection timeout on a dead link
-    #: is followed at once)
+    #: from the start of one reopen attempt that failed at once (refused, no route) to the
+    #: next: doubles from the first figure to the second (one that waited for the link, at
+    #: least the first figure, is followed at once: it was the wait)
     reopen_backoff_s: float = 0.25
     reopen_backoff_max_s: float = 1.0
     #: how often the link is checked

@@ -220,12 +220,12 @@ class LinkMonitor:
 
     def attempt_done(self, now_s: float, opened: bool, error: str = "") -> None:
         """How the reopen ``observe`` asked for went. Opened: the new session gets
-        ``silence_s`` to bring something from the CEDDP before the next attempt. Not: the next
-        one starts the backoff after this one started (at once if this one took longer), and
-        the backoff doubles up to its maximum. An attempt on a dead link takes Zenoh's whole
-        ``open_timeout`` (1.5 s, 1 s on UDP): the next follows it at once, so that one starts
-        within about 1.6 s of the link coming back; attempts that fail at once (refused, no
-        route) are spaced 0.25, 0.5, then 1 s apart, never a busy loop."""
+        ``silence_s`` to bring something from the CEDDP before the next attempt. Failed after
+        waiting (a dead link: the attempt spent Zenoh's ``open_timeout``, 1.5 s, 0.5 s on UDP,
+        at least ``reopen_backoff_s`` in all): the next one at once, so that an attempt starts
+        within that timeout (and a reading) of the link coming back. Failed at once (refused,
+        no route): the next one the backoff after this one started, the backoff doubling up to
+        its maximum (0.25, 0.5, then 1 s): never a busy loop."""
         self._attempts += 1
         self.reopen_attempts += 1
         if opened:
@@ -236,9 +236,11 @@ class LinkMonitor:
                 self._next_attempt_s = now_s + self.config.silence_s
             log.debug("session reopened (attempt %d)", self._attempts)
             return
+        waited = now_s - self._attempt_started_s >= self.config.reopen_backoff_s
         if self.lost:
-            self._next_attempt_s = max(now_s, self._attempt_started_s + self._backoff_s)
-        self._backoff_s = min(self._backoff_s * 2, self.config.reopen_backoff_max_s)
+            self._next_attempt_s = now_s if waited else self._attempt_started_s + self._backoff_s
+        if not waited:
+            self._backoff_s = min(self._backoff_s * 2, self.config.reopen_backoff_max_s)
         log.debug("reopen attempt %d failed: %s", self._attempts, error)
 
     # -- what happened --------------------------------------------------------------------

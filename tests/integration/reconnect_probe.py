@@ -1,12 +1,13 @@
-"""What plain Zenoh does after a dead zone or a roam, measured in the namespace lab (issue 39).
+"""What plain Zenoh does after a dead zone or a roam, measured in the kernel lab (issue 39).
 
     sudo .venv/bin/python -m tests.integration.reconnect_probe --link tls --fault dead:15
     sudo .venv/bin/python -m tests.integration.reconnect_probe --link udp --fault roam \\
-        --set transport/link/tx/lease=10000 --set connect/retry/period_max_ms=4000
+        --set transport/unicast/open_timeout=1500 \\
+        --set 'connect/retry={"period_init_ms":250,"period_max_ms":500,"period_increase_factor":2}'
 
-A Python Zenoh router (the CEDDP's role) in the lab's server namespace, a Python Zenoh client
-(a robot's role: 50 puts a second of 1 KB with DROP congestion control, and a liveliness token)
-in the robot's. The router prints when each sample run begins after a silence and when the
+A Python Zenoh router (the CEDDP's role) in the CEDDP namespace of ``arpz.lab``, a Python Zenoh
+client (a robot's role: 50 puts a second of 1 KB with DROP congestion control, and a liveliness
+token) in the robot's. The router prints when each sample run begins after a silence and when the
 client's token comes and goes; the driver cuts the link (an nftables drop-all for N seconds, or a
 move to the other access point's subnet) and reports how long after the link was usable again
 the first sample arrived. Every time is ``time.time()``, one clock for every process of a host.
@@ -129,31 +130,34 @@ def _received_after(log: Path, cut: float) -> int:
 
 
 def drive(args: argparse.Namespace) -> int:
-    from tests.integration.reconnect_lab import CEDDP_ADDRESS, Lab, make_certs
+    from arpz.lab import Lab, LinkState
+    from arpz.lab.fleet import make_certs
 
-    tmp = Path(tempfile.mkdtemp(prefix="arpzrc-probe-"))
-    endpoint = f"{args.link}/{CEDDP_ADDRESS}:{PORT}"
-    router_conf = client_conf = None
-    if args.link in ("tls", "quic"):
-        make_certs(tmp / "tls", ["robot1"], FLEET)
-        router_conf = str(tmp / "tls" / "zenoh" / "ceddp-router.json5")
-        client_conf = str(tmp / "tls" / "zenoh" / "robot1-client.json5")
+    tmp = Path(tempfile.mkdtemp(prefix="arpz-probe-"))
     me = ["-m", "tests.integration.reconnect_probe"]
-    common = ["--endpoint", endpoint, "--run-s", str(args.wait_s + 60)]
     root = Path(__file__).resolve().parents[2]
-    with Lab() as lab:
-        rlog, clog = tmp / "router.log", tmp / "client.log"
-        rargs = [*me, "router", *common] + (["--zenoh-config", router_conf] if router_conf else [])
+    with Lab.create(["robot1"]) as lab:
+        endpoint = f"{args.link}/{lab.ceddp_address}:{PORT}"
+        common = ["--endpoint", endpoint, "--run-s", str(args.wait_s + 60)]
+        router_conf, client_conf = [], []
+        if args.link in ("tls", "quic"):
+            zenoh_files = make_certs(tmp / "tls", FLEET, ["robot1"], lab.ceddp_address) / "zenoh"
+            router_conf = ["--zenoh-config", str(zenoh_files / "ceddp-router.json5")]
+            client_conf = ["--zenoh-config", str(zenoh_files / "robot1-client.json5")]
+        rargs = [*me, "router", *common, *router_conf]
         for item in args.router_set:
             rargs += ["--set", item]
-        lab.popen(lab.server_ns, rargs, cwd=root, log=rlog)
+        # spawned in ``root`` (the module must import) with their logs in ``tmp``
+        lab.spawn("router", lab.ceddp_namespace, rargs, tmp, env={"PYTHONPATH": str(root)})
+        rlog, clog = tmp / "router.log", tmp / "client.log"
         if _wait_line(rlog, "READY") is None:
             print(rlog.read_text())
             return 1
-        cargs = [*me, "client", *common] + (["--zenoh-config", client_conf] if client_conf else [])
+        cargs = [*me, "client", *common, *client_conf]
         for item in args.set:
             cargs += ["--set", item]
-        lab.popen(lab.robot_ns, cargs, cwd=root, log=clog)
+        robot_ns = lab.robot("robot1").namespace
+        lab.spawn("client", robot_ns, cargs, tmp, env={"PYTHONPATH": str(root)})
         if _wait_line(clog, "CONNECTED") is None:
             print(clog.read_text())
             return 1
@@ -161,14 +165,14 @@ def drive(args: argparse.Namespace) -> int:
         kind, _, seconds = args.fault.partition(":")
         cut = time.time()
         if kind == "dead":
-            lab.dead_zone(True)
+            lab.apply("robot1", LinkState(dead=True), "dead zone")
             time.sleep(float(seconds))
-            usable = lab.dead_zone(False)
+            lab.apply("robot1", LinkState(), "back in range")
         else:
-            usable = lab.roam()
+            lab.apply("robot1", LinkState(subnet=1), "roam")
+        usable = time.time()
         # the first run of samples after the cut (runs begin only after a silence): UDP datagrams
-        # may arrive while the second namespace's rule is being removed, a moment before
-        # ``usable``
+        # may arrive while the second rule is being removed, a moment before ``usable``
         back = _wait_line(rlog, "RUN", after=cut, timeout_s=args.wait_s)
         result = {
             "link": args.link,
@@ -185,10 +189,7 @@ def drive(args: argparse.Namespace) -> int:
             "client": [ln for ln in clog.read_text().splitlines()[-8:]],
         }
         if args.ss:
-            from tests.integration.reconnect_lab import _run
-
-            ss = _run("ip", "netns", "exec", lab.robot_ns, "ss", "-tnio", check=False)
-            result["robot_sockets"] = ss.stdout.splitlines()
+            result["robot_sockets"] = lab.run(robot_ns, ["ss", "-tnio"]).stdout.splitlines()
         print(json.dumps(result, indent=1))
     return 0
 

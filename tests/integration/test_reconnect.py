@@ -2,11 +2,11 @@
 lease, or roaming to another subnet, comes back within 2 s of its link being usable again, over
 tcp, tls, udp and quic, logs the drop and the reconnection, and writes its own summary.
 
-Real Linux network namespaces (``tests/integration/reconnect_lab.py``): the CEDDP in one, the
-robot in the other, joined through two bridges (two access points, two subnets). The time the
-link was usable again is the driver's (``time.time()`` when the nftables drop rule was removed,
-or when the robot's new address and route were in place); the time the robot was back is the
-robot's own (``back_at`` of its drop in ``--summary-json``), on the same host clock.
+The kernel lab (``arpz.lab``): the CEDDP in one network namespace, the robot in another, behind an
+access point with two subnets. The time the link was usable again is the driver's
+(``time.time()`` once the lab's drop-all rules are gone, or once the robot's new address and route
+are in place); the time the robot was back is the robot's own (``back_at`` of its drop in
+``--summary-json``), on the same host clock. Root only (tests/lab_support.py).
 
 ``python -m pytest -n 0 -s tests/integration/test_reconnect.py`` prints the figures.
 """
@@ -14,35 +14,27 @@ robot's own (``back_at`` of its drop in ``--summary-json``), on the same host cl
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import time
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-from tests.integration.reconnect_lab import CEDDP_ADDRESS, Lab, lab_missing, make_certs
+from arpz.lab import Lab, LinkState
+from arpz.lab.fleet import make_certs
+from arpz.launch import Proc
+from tests.lab_support import require_lab
 from tests.support import wait_until
 
 # timing-bound: runs with the cores to itself (tests/conftest.py, cpu_share)
-pytestmark = [
-    pytest.mark.integration,
-    pytest.mark.cpu_exclusive,
-    pytest.mark.skipif(lab_missing() is not None, reason=f"namespace lab: {lab_missing()}"),
-]
+pytestmark = [pytest.mark.integration, pytest.mark.cpu_exclusive]
 
-ROOT = Path(__file__).resolve().parents[2]
 FLEET = "itest"
 PORT = 7447
 #: the requirement: back within this long after the link is usable again
 BACK_WITHIN_S = 2.0
 #: longer than Zenoh's 10 s lease: the router drops the robot's session meanwhile
 DEAD_ZONE_S = 12.0
-
-
-def _log_has(log: Path, needle: str) -> bool:
-    return log.exists() and needle in log.read_text()
 
 
 def _summary(path: Path) -> dict[str, Any] | None:
@@ -54,19 +46,17 @@ def _summary(path: Path) -> dict[str, Any] | None:
 
 
 class _Fleet:
-    """A CEDDP and one robot in the lab over ``link``."""
+    """A CEDDP and robot1 in the lab over ``link``."""
 
     def __init__(self, lab: Lab, tmp: Path, link: str) -> None:
         self.lab, self.tmp, self.link = lab, tmp, link
-        self.endpoint = f"{link}/{CEDDP_ADDRESS}:{PORT}"
-        self.ceddp_log = tmp / "ceddp.log"
-        self.robot_log = tmp / "robot.log"
+        self.endpoint = f"{link}/{lab.ceddp_address}:{PORT}"
         self.robot_summary = tmp / "robot-summary.json"
         self.ceddp_summary = tmp / "summary.json"
         secure = link in ("tls", "quic")
-        tls = make_certs(tmp / "tls", ["robot1"], FLEET) if secure else None
-        ceddp_toml = tmp / "ceddp.toml"
-        ceddp_toml.write_text(
+        tls = make_certs(tmp / "tls", FLEET, ["robot1"], lab.ceddp_address) if secure else None
+        self.ceddp_toml = tmp / "ceddp.toml"
+        self.ceddp_toml.write_text(
             f'fleet = "{FLEET}"\nlisten = ["{self.endpoint}"]\n'
             f'rrd = "{(tmp / "ceddp.rrd").as_posix()}"\n'
             f'summary_json = "{self.ceddp_summary.as_posix()}"\n'
@@ -80,29 +70,24 @@ class _Fleet:
             'preset = "machine2"\npreset_rate_hz = 20\nstats_period_s = 0.2\n'
             "connect_timeout_s = 20\n[local_cache]\nmax_silence_s = 0.5\n"
         )
-        self.ceddp: subprocess.Popen[str] | None = None
-        self.robot: subprocess.Popen[str] | None = None
+        self.ceddp: Proc | None = None
+        self.robot: Proc | None = None
 
     def start(self) -> None:
-        self.ceddp = self.lab.popen(
-            self.lab.server_ns,
-            ["-m", "arpz.ceddp", "--config", str(self.tmp / "ceddp.toml")],
-            cwd=ROOT,
-            log=self.ceddp_log,
-        )
-        wait_until(
-            lambda: _log_has(self.ceddp_log, "ready on"), timeout_s=30, what="the CEDDP ready"
-        )
+        lab = self.lab
+        self.ceddp = lab.spawn(
+            "ceddp", lab.ceddp_namespace, ["-m", "arpz.ceddp", "--config", str(self.ceddp_toml)],
+            self.tmp,
+        )  # fmt: skip
+        self.ceddp.wait_line("ready on", 30)
         robot_args = ["-m", "arpz.robot", "--config", str(self.robot_toml)]
-        self.robot = self.lab.popen(
-            self.lab.robot_ns,
+        self.robot = lab.spawn(
+            "robot1",
+            lab.robot("robot1").namespace,
             [*robot_args, "--summary-json", str(self.robot_summary)],
-            cwd=ROOT,
-            log=self.robot_log,
+            self.tmp,
         )
-        wait_until(
-            lambda: _log_has(self.robot_log, "running"), timeout_s=30, what="the robot running"
-        )
+        self.robot.wait_line("running", 30)
         wait_until(self.flowing, timeout_s=15, what="robot1's samples at the CEDDP")
 
     def received(self) -> int:
@@ -115,15 +100,14 @@ class _Fleet:
 
     def stop_robot(self) -> int:
         assert self.robot is not None
-        self.robot.send_signal(signal.SIGINT)
-        return self.robot.wait(40)
+        return self.robot.stop(40)
 
     def output(self) -> str:
-        text = ""
-        for name, log in (("robot", self.robot_log), ("ceddp", self.ceddp_log)):
-            if log.exists():
-                text += f"--- {name}\n{log.read_text()[-6000:]}\n"
-        return text
+        return "".join(
+            f"--- {proc.name}\n{proc.output()[-6000:]}\n"
+            for proc in (self.robot, self.ceddp)
+            if proc is not None
+        )
 
 
 def _back_at(summary_path: Path, after: float) -> float | None:
@@ -146,18 +130,20 @@ LINKS = ["tcp", "tls", "udp", "quic"]
 @pytest.mark.parametrize("fault", ["dead_zone", "roam"])
 @pytest.mark.parametrize("link", LINKS)
 def test_a_robot_is_back_within_2_s_of_its_link(tmp_path: Path, link: str, fault: str) -> None:
-    with Lab() as lab:
+    require_lab()
+    with Lab.create(["robot1"]) as lab:
         fleet = _Fleet(lab, tmp_path, link)
         try:
             fleet.start()
             before = fleet.received()
             cut = time.time()
             if fault == "dead_zone":
-                lab.dead_zone(True)
+                lab.apply("robot1", LinkState(dead=True), "dead zone")
                 time.sleep(DEAD_ZONE_S)  # deliberately: the dead zone itself
-                usable = lab.dead_zone(False)
+                lab.apply("robot1", LinkState(), "back in range")
             else:
-                usable = lab.roam()
+                lab.apply("robot1", LinkState(subnet=1), "roam")
+            usable = time.time()
             if link == "quic" and fault == "roam":
                 # QUIC carries its connection to the new address: nothing is lost to notice
                 wait_until(
@@ -204,8 +190,9 @@ def test_a_robot_is_back_within_2_s_of_its_link(tmp_path: Path, link: str, fault
         f"reopened {event['reopened']}, down {event['duration_s']} s)"
     )
     assert took <= BACK_WITHIN_S, (took, summary["link"], output)
-    robot_log = fleet.robot_log.read_text()
-    assert "link to the CEDDP lost" in robot_log and "reconnected after" in robot_log, output
+    assert fleet.robot is not None
+    assert fleet.robot.has_line("link to the CEDDP lost"), output
+    assert fleet.robot.has_line("reconnected after"), output
     assert summary["link"]["drops"] >= 1 and summary["link"]["reconnections"] >= 1
     # the same incarnation throughout: the CEDDP knows one
     ceddp = _summary(fleet.ceddp_summary)
