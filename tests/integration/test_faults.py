@@ -391,7 +391,9 @@ def test_a_dead_zone_longer_than_the_lease_is_one_outage_and_nothing_arrives_twi
     assert row["final_stats"] and len(row["incarnations"]) == 1, row["incarnations"]
     # the dead zone, then the robot's own stop
     assert row["leaves"] == 2 and row["joins"] == 2, summary["events"]
-    assert 10.0 <= row["outages_s"][0] <= 25.0, row["outages_s"]
+    # the CEDDP sees the robot go when the router's lease (10 s) ends, and back as soon as
+    # the link is: the robot reopens its session itself (docs/operations.md)
+    assert 0.0 < row["outages_s"][0] <= 8.0, row["outages_s"]
     for name, topic in _sensor_topics(row).items():
         assert topic["sent"] == topic["received"] + topic["lost"], (name, topic)
     assert row["sent"] == row["received"] + row["lost"], row

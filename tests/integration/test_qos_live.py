@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
@@ -16,6 +17,10 @@ from arpz.messages import (
     QosAssignmentMsg,
     RobotStats,
 )
+from arpz.protocol.events import DataInfo
+from arpz.reliability import Reader
+from arpz.traffic import ASSIGNMENT_QOS, REPORT_QOS
+from arpz.transport import Transport
 from tests.integration.fleet import Process, ceddp, robots, write_robot
 from tests.support import client, wait_until
 
@@ -23,13 +28,34 @@ pytestmark = pytest.mark.integration
 
 
 class Watcher:
-    """A plain client recording assignments, acknowledgements and robot stats as they pass."""
+    """A client recording assignments, acknowledgements and robot stats as they pass, through
+    reliable-channel readers of the keys (``attach``): a message larger than its writer's link
+    fragment (a CEDDP that also listens on UDP cuts at 1 280 bytes) arrives as fragments, which
+    only a reader puts back together."""
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
         self.assignments: list[QosAssignmentMsg] = []
         self.acks: list[QosAck] = []
         self.stats: dict[str, RobotStats] = {}
+
+    def attach(self, transport: Transport, stack: ExitStack, fleet: str = "itest") -> None:
+        """Readers of the CEDDP's assignments and the robots' reports, closed with ``stack``."""
+        readers = [
+            Reader(transport, f"arpz/{fleet}/ceddp/qos", ASSIGNMENT_QOS, self._assignment),
+            *(
+                Reader(transport, f"arpz/{fleet}/robot/*/{kind}", REPORT_QOS, self._report)
+                for kind in ("qos", "stats", "announce")
+            ),
+        ]
+        for reader in readers:
+            stack.callback(reader.close)
+
+    def _assignment(self, payload: bytes, info: DataInfo) -> None:
+        self.on_assignment(info.key, payload, None)
+
+    def _report(self, payload: bytes, info: DataInfo) -> None:
+        self.on_robot(info.key, payload, None)
 
     def on_assignment(self, key: str, payload: bytes, att: bytes | None) -> None:
         with self.lock:
@@ -62,9 +88,12 @@ def test_a_fourth_robot_joins_and_leaves(tmp_path: Path) -> None:
     four = three | {"robot4"}
     watcher = Watcher()
     qos = "[qos]\nenabled = true\nrmax_hz = 100.0\n"
-    with ceddp(tmp_path, extra=qos) as (_server, endpoint), client(endpoint) as raw:
-        raw.subscribe("arpz/itest/ceddp/qos", watcher.on_assignment)
-        raw.subscribe("arpz/itest/robot/*/*", watcher.on_robot)
+    with (
+        ceddp(tmp_path, extra=qos) as (_server, endpoint),
+        client(endpoint) as raw,
+        ExitStack() as readers,
+    ):
+        watcher.attach(raw, readers)
         configs = [
             write_robot(tmp_path, "robot1", endpoint, preset="machine1"),
             write_robot(tmp_path, "robot2", endpoint, preset="machine2"),

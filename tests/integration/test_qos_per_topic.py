@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import re
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
@@ -119,9 +120,9 @@ def test_per_topic_rates_reach_the_robots_and_a_lossy_link_resolves_once(
     with (
         ceddp(tmp_path, extra=QOS, also_listen=(link.ceddp_endpoint,)) as (server, endpoint),
         client(endpoint) as raw,
+        ExitStack() as readers,
     ):
-        raw.subscribe("arpz/itest/ceddp/qos", watcher.on_assignment)
-        raw.subscribe("arpz/itest/robot/*/*", watcher.on_robot)
+        watcher.attach(raw, readers)
         link.proxy.start()
         try:
             configs = [
