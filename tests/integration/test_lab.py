@@ -26,10 +26,8 @@ from arpz.lab import (
     TIMELINE_FILE,
     Lab,
     LabRunOptions,
-    LabUnavailable,
     LinkState,
     ProfileRunner,
-    check_available,
     dead_zone,
     load,
     run_lab,
@@ -37,6 +35,7 @@ from arpz.lab import (
 )
 from arpz.lab.clean import clean
 from arpz.lab.names import IF_PREFIX, NS_PREFIX
+from tests.lab_support import require_lab
 from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
@@ -46,13 +45,8 @@ PORT = 9000
 
 
 @pytest.fixture(autouse=True)
-def require_lab() -> None:
-    try:
-        check_available()
-    except LabUnavailable as exc:
-        if os.environ.get("ARPZ_REQUIRE_LAB") == "1":
-            pytest.fail(f"ARPZ_REQUIRE_LAB=1 but the lab cannot run here: {exc}")
-        pytest.skip(str(exc))
+def lab_available() -> None:
+    require_lab()
 
 
 @pytest.fixture

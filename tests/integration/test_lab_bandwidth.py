@@ -7,11 +7,12 @@ about 1 500) and the skipped ticks were counted nowhere. Root only (tests/lab_su
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from arpz.lab import Lab, parse_profile
-from arpz.lab.fleet import PORT, run_fleet_in_lab
+from arpz.lab.fleet import PORT, LabRunResult, run_fleet_in_lab
 from arpz.launch import FleetSpec
 from tests.lab_support import require_lab
 
@@ -27,35 +28,7 @@ IMU_HZ = 50.0
 def test_a_camera_that_saturates_its_link_does_not_starve_the_robots_other_sensors(
     tmp_path: Path, mbit: int
 ) -> None:
-    require_lab()
-    (tmp_path / "no-shm.json5").write_text(NO_SHM)
-    with Lab.create(["robot1"]) as lab:
-        endpoint = f"tcp/{lab.ceddp_address}:{PORT}"
-        ceddp = {
-            "fleet": "bw",
-            "listen": [endpoint],
-            "rrd": str(tmp_path / "ceddp.rrd"),
-            "zenoh_config": str(tmp_path / "no-shm.json5"),
-        }
-        robot = {
-            "robot_id": "robot1",
-            "fleet": "bw",
-            "connect": [endpoint],
-            # arpz's robot link defaults otherwise (its TCP send buffer held to 64 KiB)
-            "zenoh_config": str(tmp_path / "no-shm.json5"),
-            "stats_period_s": 0.5,
-            "sensors": [
-                {"name": "front", "kind": "camera", "rate_hz": 5.0},
-                {"name": "imu", "kind": "imu", "rate_hz": IMU_HZ},
-            ],
-        }
-        result = run_fleet_in_lab(
-            lab,
-            FleetSpec(ceddp=ceddp, robots={"robot1": robot}),
-            tmp_path,
-            profiles={"robot1": parse_profile(f"rate-{mbit}mbit")},
-            duration_s=DURATION_S,
-        )
+    result = _camera_robot_on(tmp_path, f"rate-{mbit}mbit", DURATION_S)
     row = result.summary["robots"]["robot1"]
     assert row["final_stats"], row
     camera, imu = row["topics"]["front"], row["topics"]["imu"]
@@ -86,22 +59,45 @@ def test_the_per_topic_optimiser_fits_the_camera_to_what_its_link_carries(
     """With ``[qos]`` per topic, the camera's skipped frames tell the CEDDP its link is full:
     the next assignment gives the camera the rate the link carries (less a headroom), where
     seed 001's problem, which counts messages and not bytes, gave it Rmax's share."""
+    qos = {"enabled": True, "mode": "per_topic", "rmax_hz": 100.0, "min_resolve_interval_s": 1.0}
+    result = _camera_robot_on(tmp_path, "rate-20mbit", 16.0, qos=qos)
+    summary = result.summary
+    control = summary["qos"]
+    reasons = [c["reason"] for c in control["links"]["measured_changes"]]
+    assert any("link robot1 full" in r for r in reasons), reasons
+    budget = control["links"]["link_budget_bytes_per_s"]["robot1"]
+    assert 0.5e6 < budget < 2.5e6, budget  # 20 Mbit/s is 2.5 MB/s, less the headroom
+    fitted = [a for a in control["assignments"] if "link robot1 full" in a["reason"]]
+    camera_hz = fitted[-1]["topics"]["robot1"]["front"]["rate_hz"]
+    assert camera_hz * 921_600 <= budget * 1.01, (camera_hz, budget)
+    row = summary["robots"]["robot1"]
+    for name, topic in row["topics"].items():
+        assert topic["sent"] == topic["received"] + topic["lost"], (name, topic)
+    print(
+        f"\nbudget {budget * 8 / 1e6:.1f} Mbit/s, camera assigned {camera_hz:.2f} Hz; "
+        f"camera {row['topics']['front']['received']} frames, "
+        f"{row['topics']['front']['frames_skipped']} skipped"
+    )
+
+
+def _camera_robot_on(
+    tmp_path: Path, profile: str, duration_s: float, *, qos: dict[str, Any] | None = None
+) -> LabRunResult:
+    """The CEDDP and robot1 (a 5 Hz camera, a 50 Hz IMU) in a lab, robot1's link on
+    ``profile``; shared memory off, arpz's robot link defaults otherwise (its TCP send buffer
+    held to 64 KiB)."""
     require_lab()
     (tmp_path / "no-shm.json5").write_text(NO_SHM)
     with Lab.create(["robot1"]) as lab:
         endpoint = f"tcp/{lab.ceddp_address}:{PORT}"
-        ceddp = {
+        ceddp: dict[str, Any] = {
             "fleet": "bw",
             "listen": [endpoint],
             "rrd": str(tmp_path / "ceddp.rrd"),
             "zenoh_config": str(tmp_path / "no-shm.json5"),
-            "qos": {
-                "enabled": True,
-                "mode": "per_topic",
-                "rmax_hz": 100.0,
-                "min_resolve_interval_s": 1.0,
-            },
         }
+        if qos is not None:
+            ceddp["qos"] = qos
         robot = {
             "robot_id": "robot1",
             "fleet": "bw",
@@ -113,27 +109,10 @@ def test_the_per_topic_optimiser_fits_the_camera_to_what_its_link_carries(
                 {"name": "imu", "kind": "imu", "rate_hz": IMU_HZ},
             ],
         }
-        result = run_fleet_in_lab(
+        return run_fleet_in_lab(
             lab,
             FleetSpec(ceddp=ceddp, robots={"robot1": robot}),
             tmp_path,
-            profiles={"robot1": parse_profile("rate-20mbit")},
-            duration_s=16.0,
+            profiles={"robot1": parse_profile(profile)},
+            duration_s=duration_s,
         )
-    summary = result.summary
-    qos = summary["qos"]
-    reasons = [c["reason"] for c in qos["links"]["measured_changes"]]
-    assert any("link robot1 full" in r for r in reasons), reasons
-    budget = qos["links"]["link_budget_bytes_per_s"]["robot1"]
-    assert 0.5e6 < budget < 2.5e6, budget  # 20 Mbit/s is 2.5 MB/s, less the headroom
-    fitted = [a for a in qos["assignments"] if "link robot1 full" in a["reason"]]
-    camera_hz = fitted[-1]["topics"]["robot1"]["front"]["rate_hz"]
-    assert camera_hz * 921_600 <= budget * 1.01, (camera_hz, budget)
-    row = summary["robots"]["robot1"]
-    for name, topic in row["topics"].items():
-        assert topic["sent"] == topic["received"] + topic["lost"], (name, topic)
-    print(
-        f"\nbudget {budget * 8 / 1e6:.1f} Mbit/s, camera assigned {camera_hz:.2f} Hz; "
-        f"camera {row['topics']['front']['received']} frames, "
-        f"{row['topics']['front']['frames_skipped']} skipped"
-    )
