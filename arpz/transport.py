@@ -192,12 +192,13 @@ class SessionSettings:
 #:
 #: A TCP link's kernel send buffer is held to 64 KiB (``so_sndbuf`` 32 KiB, which the kernel
 #: doubles): Zenoh's priorities order only what has not reached the socket yet, and the
-#: kernel's own buffer (megabytes once it autotunes) queued a second of camera frames ahead of
-#: every small sample on a saturated link. In the lab with a 5 Hz camera of 921 600-byte frames
-#: (tests/integration/test_lab_bandwidth.py), the IMU's p99: at 20 Mbit/s 1 055 ms with
-#: Zenoh's default, 113-146 ms with 128 KiB, 64-125 ms with 64 KiB; at 2 Mbit/s 1 140, 779 and
-#: 764 ms (the rest is the link's own queues). 64 KiB is about a 100 Mbit/s WiFi link's
-#: bandwidth-delay product at a 5 ms round trip.
+#: kernel's own buffer (megabytes once it autotunes) queues camera frames ahead of every small
+#: sample on a saturated link. In the lab with a 5 Hz camera of 921 600-byte frames
+#: (``python -m pytest -n 0 -s tests/integration/test_lab_bandwidth.py``), the IMU's p99 with
+#: the frames on their own thread: at 20 Mbit/s 919 ms with the kernel's buffer (and no bulk
+#: priority yet), with bulk priority 113-146 ms at 128 KiB and 64-125 ms at 64 KiB; at
+#: 2 Mbit/s 1 140 ms at 128 KiB, 764 ms at 64 KiB (the rest is the link's own queues). 64 KiB
+#: is about a 100 Mbit/s WiFi link's bandwidth-delay product at a 5 ms round trip.
 CLIENT_LINK_DEFAULTS: Mapping[str, object] = {
     "transport/unicast/open_timeout": 1500,
     "connect/retry": {"period_init_ms": 250, "period_max_ms": 500, "period_increase_factor": 2},

@@ -21,7 +21,9 @@ def _server() -> CeddpServer:
     return CeddpServer(CeddpConfig(fleet="f", rrd="unused.rrd"), MemoryTransport(MemoryBus()))
 
 
-def test_a_robot_back_as_the_same_incarnation_is_one_outage_with_its_duration() -> None:
+def _away_and_back(incarnation_after: str) -> CeddpServer:
+    """r1 joins as incarnation aaaa, its presence vanishes and comes back, and its first report
+    after names ``incarnation_after``."""
     server = _server()
     control = server.control
     presence, stats = keys.presence_key("f", "r1"), keys.stats_key("f", "r1")
@@ -29,8 +31,13 @@ def test_a_robot_back_as_the_same_incarnation_is_one_outage_with_its_duration() 
     control._handle_report(stats, _stats("aaaa"))
     control._handle_presence(presence, False)
     control._handle_presence(presence, True)
-    control._handle_report(stats, _stats("aaaa"))
-    record = control.robots["r1"]
+    control._handle_report(stats, _stats(incarnation_after))
+    return server
+
+
+def test_a_robot_back_as_the_same_incarnation_is_one_outage_with_its_duration() -> None:
+    server = _away_and_back("aaaa")
+    record = server.control.robots["r1"]
     assert len(record.outages) == 1 and 0 <= record.outages[0] < 1.0
     events = [e.split(": ", 1)[1] for e in server.events]
     assert events[0] == "robot r1 joined"
@@ -41,14 +48,7 @@ def test_a_robot_back_as_the_same_incarnation_is_one_outage_with_its_duration() 
 
 
 def test_a_robot_back_as_a_new_incarnation_is_a_restart_not_an_outage() -> None:
-    server = _server()
-    control = server.control
-    presence, stats = keys.presence_key("f", "r1"), keys.stats_key("f", "r1")
-    control._handle_presence(presence, True)
-    control._handle_report(stats, _stats("aaaa"))
-    control._handle_presence(presence, False)
-    control._handle_presence(presence, True)
-    control._handle_report(stats, _stats("bbbb"))
-    assert control.robots["r1"].outages == []
+    server = _away_and_back("bbbb")
+    assert server.control.robots["r1"].outages == []
     events = [e.split(": ", 1)[1] for e in server.events]
     assert "new incarnation bbbb" in events[-1]
