@@ -179,7 +179,7 @@ def _run_in_lab(
     (no root or nft: the reason says what is missing)."""
     # imported here: arpz.lab brings pyroute2 and needs root, which proxy cells do not
     from arpz.lab import Lab, LabError, Timeline, parse_profile
-    from arpz.lab.fleet import PORT, make_certs, run_fleet_in_lab
+    from arpz.lab.fleet import PORT, run_fleet_in_lab, secure
     from arpz.lab.timeline import TIMELINE_FILE
 
     names = {robot: lab_profile_name(spec.robot_network(cell, robot)) for robot in spec.robot_names}
@@ -205,13 +205,7 @@ def _run_in_lab(
                 robot_connect=dict.fromkeys(spec.robot_names, endpoint),
                 rrd=str(rrd),
             )
-            if spec.lab_link in ("tls", "quic"):
-                tls = make_certs(
-                    workdir / "tls", fleet.ceddp["fleet"], list(fleet.robots), lab.ceddp_address
-                )
-                fleet.ceddp["zenoh_config"] = str(tls / "zenoh" / "ceddp-router.json5")
-                for robot, conf in fleet.robots.items():
-                    conf["zenoh_config"] = str(tls / "zenoh" / f"{robot}-client.json5")
+            secure(fleet, spec.lab_link, lab, workdir)
             duration = (
                 spec.mission.time_limit_s + MISSION_MARGIN_S / 3
                 if spec.mission is not None

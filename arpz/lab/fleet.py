@@ -94,12 +94,19 @@ def lab_spec(options: LabRunOptions, lab: Lab, workdir: Path) -> FleetSpec:
     endpoint = f"{options.link}/{lab.ceddp_address}:{PORT}"
     demo = replace(options.demo, robots=options.robots, rrd=workdir / "arpz-lab.rrd")
     spec = demo_spec(demo, endpoint)
-    if options.link in ("tls", "quic"):
-        tls = make_certs(workdir / "tls", spec.ceddp["fleet"], list(spec.robots), lab.ceddp_address)
-        spec.ceddp["zenoh_config"] = str(tls / "zenoh" / "ceddp-router.json5")
-        for robot, conf in spec.robots.items():
-            conf["zenoh_config"] = str(tls / "zenoh" / f"{robot}-client.json5")
+    secure(spec, options.link, lab, workdir)
     return spec
+
+
+def secure(spec: FleetSpec, link: str, lab: Lab, workdir: Path) -> None:
+    """Over ``tls`` or ``quic``: the fleet's certificates and Zenoh files (mutual TLS, access
+    control) made in ``workdir/tls`` and given to the CEDDP's and every robot's config."""
+    if link not in ("tls", "quic"):
+        return
+    tls = make_certs(workdir / "tls", spec.ceddp["fleet"], list(spec.robots), lab.ceddp_address)
+    spec.ceddp["zenoh_config"] = str(tls / "zenoh" / "ceddp-router.json5")
+    for robot, conf in spec.robots.items():
+        conf["zenoh_config"] = str(tls / "zenoh" / f"{robot}-client.json5")
 
 
 def _write(path: Path, conf: dict[str, Any]) -> Path:
