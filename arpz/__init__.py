@@ -4,8 +4,8 @@ Robots (``python -m arpz.robot``) sense and act; the CEDDP server (``python -m a
 Zenoh router, de-duplicates readings (cache control), plans, tunes QoS and draws a Rerun dashboard.
 """
 
-from arpz.errors import ArpzError, ConfigError
-from arpz.transport import TransportError
+from arpz.core.errors import ArpzError, ConfigError
+from arpz.core.transport import TransportError
 
 __version__ = "0.1.0"
 

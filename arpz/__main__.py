@@ -13,7 +13,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from arpz.version import version_line
+from arpz.core.version import version_line
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,9 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "demo": Command("arpz.demo", "a CEDDP and N robots on loopback, with the reconciled summary"),
+    "demo": Command(
+        "arpz.tools.demo", "a CEDDP and N robots on loopback, with the reconciled summary"
+    ),
     "robot": Command("arpz.robot.__main__", "run a robot agent (sensing, local cache, actuation)"),
     "ceddp": Command("arpz.ceddp.__main__", "run the CEDDP server: router, planner, optimisers"),
     "topic": Command("arpz.tools.topic", "list, info, echo, hz, bw, delay of a fleet's topics"),

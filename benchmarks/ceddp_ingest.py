@@ -8,7 +8,7 @@ repeating as the simulated sensors do, so cache control has both hits and misses
 - arpz raw: the real ``CeddpServer`` with its Rerun dashboard: Zenoh FIFO -> worker -> decode ->
   sequence check -> latency -> cache control -> planner;
 - arpz channel: the same server behind its reliable-channel fleet Reader, fed by
-  ``arpz.reliability`` Writers (KEEP_ALL, batching; bulk publishers, see BULK_BATCH_DELAY_S);
+  ``arpz.channel`` Writers (KEEP_ALL, batching; bulk publishers, see BULK_BATCH_DELAY_S);
 - arpz channel-unbatched: the same with one sample per message (``batch_max_samples = 1``), the
   CEDDP's per-message cost, as a fleet of robots at 100 Hz per topic makes it pay.
 
@@ -39,11 +39,11 @@ sys.path.insert(0, str(ROOT))
 
 from arpz.ceddp.dashboard import Dashboard  # noqa: E402
 from arpz.ceddp.server import CeddpServer  # noqa: E402
-from arpz.config import CeddpConfig  # noqa: E402
+from arpz.channel import QOS_RELIABLE_ALL  # noqa: E402
+from arpz.core.config import CeddpConfig  # noqa: E402
+from arpz.core.transport import SessionSettings  # noqa: E402
 from arpz.perf.zenoh_baselines import ZenohCounter, open_session  # noqa: E402
-from arpz.reliability import QOS_RELIABLE_ALL  # noqa: E402
-from arpz.transport import SessionSettings  # noqa: E402
-from arpz.zenoh_transport import ZenohTransport  # noqa: E402
+from arpz.transport.zenoh import ZenohTransport  # noqa: E402
 from tests.support import free_port  # noqa: E402
 
 #: The channel publishers' batch delay (``--publisher-batch-delay-ms``). The benchmark measures
@@ -55,9 +55,9 @@ BULK_BATCH_DELAY_S = 0.02
 
 PUBLISHER = r"""
 import sys, time
-from arpz.messages import Sample, encode
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.messages import Sample, encode
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 endpoint, count, index, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 t = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]), timeout_s=10)
 topics = [(f"robot{r}", name) for r in range(1, 4)
@@ -65,7 +65,7 @@ topics = [(f"robot{r}", name) for r in range(1, 4)
 keys = [f"arpz/bench/robot/{r}/sensor/{n}" for r, n in topics]
 if path.startswith("channel"):
     import msgspec
-    from arpz.reliability import QOS_RELIABLE_ALL, Writer
+    from arpz.channel import QOS_RELIABLE_ALL, Writer
     # bulk publishers (see BULK_BATCH_DELAY_S); "channel-unbatched": one sample per message,
     # what a fleet of robots at 100 Hz per topic sends
     # written flat out, a publisher runs ahead of the CEDDP by the whole KEEP_ALL history and
@@ -249,7 +249,7 @@ def main() -> int:
         "--paths",
         default="raw,channel,channel-unbatched",
         help="CEDDP ingest paths to measure: raw (plain Zenoh samples), channel "
-        "(arpz.reliability KEEP_ALL writers, batching -> the CEDDP's fleet reader), "
+        "(arpz.channel KEEP_ALL writers, batching -> the CEDDP's fleet reader), "
         "channel-unbatched (one sample per message)",
     )
     parser.add_argument(

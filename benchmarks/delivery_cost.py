@@ -15,9 +15,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from arpz.protocol.actions import DeliverRun
-from arpz.protocol.events import DataInfo
-from arpz.reliability._channel import Channel
+from arpz.channel._channel import Channel
+from arpz.core.protocol.actions import DeliverRun
+from arpz.core.protocol.events import DataInfo
 
 
 def _ignore(payload: bytes, info: DataInfo) -> None:

@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.frames import TIMELINE  # noqa: E402
+from arpz.core.frames import TIMELINE  # noqa: E402
 
 
 def series(rrd: Path, names: tuple[str, ...]) -> dict[str, list[tuple[int, float]]]:

@@ -27,7 +27,7 @@ HERE = Path(__file__).resolve().parent.parent
 
 CHILD = """
 import gc, json, sys, time
-import arpz.ceddp.server, arpz.ceddp.dashboard, arpz.zenoh_transport  # the CEDDP's start-up
+import arpz.ceddp.server, arpz.ceddp.dashboard, arpz.transport.zenoh  # the CEDDP's start-up
 import cvxpy  # imported by the QoS optimiser when it solves
 freeze, objects, rounds = sys.argv[1] == "1", int(sys.argv[2]), int(sys.argv[3])
 if freeze:

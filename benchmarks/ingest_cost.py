@@ -22,8 +22,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from ceddp_ingest import ceddp_server  # benchmarks/: the same CEDDP as the ingest benchmark
 
-from arpz.messages import Sample, encode
-from arpz.protocol.events import DataInfo
+from arpz.core.messages import Sample, encode
+from arpz.core.protocol.events import DataInfo
 
 TOPICS = [
     (f"robot{r}", name)

@@ -24,14 +24,14 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.launch import free_port  # noqa: E402
+from arpz.core.transport import SessionSettings  # noqa: E402
 from arpz.perf.zenoh_baselines import open_session  # noqa: E402
-from arpz.transport import SessionSettings  # noqa: E402
+from arpz.tools.launch import free_port  # noqa: E402
 
 ROUTER = r"""
 import os, sys, time
 from arpz.perf.zenoh_baselines import open_session
-from arpz.transport import SessionSettings
+from arpz.core.transport import SessionSettings
 session = open_session(SessionSettings(mode="router", listen=[sys.argv[1]]))
 count = [0]
 sub = session.declare_subscriber("bench/**", lambda _s: count.__setitem__(0, count[0] + 1))

@@ -36,16 +36,16 @@ from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
-from arpz.endpoints import frame_fragment_bytes
-from arpz.launch import free_port
+from arpz.channel import FrameInfo, FrameReader, FrameWriter, HistoryPolicy, QosProfile
+from arpz.core.endpoints import frame_fragment_bytes
+from arpz.core.percentiles import percentile
+from arpz.core.protocol.fragments import DEFAULT_FRAGMENT_BYTES
+from arpz.core.transport import SessionSettings
 from arpz.netem.process import netem_process
 from arpz.netem.proxy import kernel_drops
-from arpz.percentiles import percentile
 from arpz.perf import zenoh_baselines as zb
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES
-from arpz.reliability import FrameInfo, FrameReader, FrameWriter, HistoryPolicy, QosProfile
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.tools.launch import free_port
+from arpz.transport.zenoh import ZenohTransport
 
 NO_SHM: dict[str, object] = {"transport/shared_memory/enabled": False}
 #: the largest UDP payload of one 1500-byte frame (1500 - 20 IP - 8 UDP)

@@ -62,8 +62,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.demo import DemoOptions  # noqa: E402
-from arpz.errors import ArpzError  # noqa: E402
+from arpz.core.errors import ArpzError  # noqa: E402
 from arpz.experiment.results import downlink  # noqa: E402
 from arpz.lab import (  # noqa: E402
     Lab,
@@ -77,6 +76,7 @@ from arpz.lab import (  # noqa: E402
 )
 from arpz.lab.fleet import LINKS  # noqa: E402
 from arpz.lab.timeline import TIMELINE_FILE, Entry  # noqa: E402
+from arpz.tools.demo import DemoOptions  # noqa: E402
 
 #: the order of the rows at each loss: the baseline first
 DEFAULT_LINKS = ("tcp", "tls", "udp", "quic")

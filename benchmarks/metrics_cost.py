@@ -7,8 +7,9 @@ a zero-copy slice a series) against what it did before, Rerun's own column build
 (``rr.TimeColumn`` and ``rr.Scalars.columns``), each into its own ``.rrd``.
 
 The summary computes p50 and p99 of every topic's latency and staleness reservoirs every
-``summary_period_s``: ``arpz.percentiles.percentiles`` (a sort and interpolation by hand) against
-``numpy.percentile``, on reservoirs of a slow topic (45 values), a list's bound (2 048) and a full
+``summary_period_s``: ``arpz.core.percentiles.percentiles`` (a sort and interpolation by hand)
+against ``numpy.percentile``, on reservoirs of a slow topic (45 values), a list's bound (2 048) and
+a full
 reservoir (20 000).
 
 The summary file is rewritten every ``summary_period_s``: ``write_json_atomically`` (msgspec's
@@ -36,8 +37,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from arpz.ceddp.dashboard import Dashboard
 from arpz.ceddp.server import write_json_atomically
-from arpz.frames import TIMELINE
-from arpz.percentiles import percentiles
+from arpz.core.frames import TIMELINE
+from arpz.core.percentiles import percentiles
 
 T0_S = 1_700_000_000.0
 

@@ -71,7 +71,7 @@ def stacks(raw: str, *, lines: bool = False) -> list[tuple[str, list[str], int]]
 
 
 def function_name(frame: str) -> str:
-    """``Writer.write (arpz/reliability/writer.py:103)`` -> ``Writer.write``."""
+    """``Writer.write (arpz/channel/writer.py:103)`` -> ``Writer.write``."""
     return frame.partition(" (")[0]
 
 

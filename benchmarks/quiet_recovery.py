@@ -25,10 +25,10 @@ HERE = Path(__file__).resolve().parent.parent
 
 def recovery_times(tries: int, idle_s: float) -> list[float]:
     """Seconds from the dropped write to its delivery, one a try (run inside a checkout)."""
-    from arpz.memory_transport import MemoryBus, MemoryTransport
-    from arpz.protocol.qos import QosProfile
-    from arpz.reliability.reader import Reader
-    from arpz.reliability.writer import Writer
+    from arpz.channel.reader import Reader
+    from arpz.channel.writer import Writer
+    from arpz.core.protocol.qos import QosProfile
+    from arpz.transport.memory import MemoryBus, MemoryTransport
 
     got: list[bytes] = []
     bus = MemoryBus()

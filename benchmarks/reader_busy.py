@@ -25,11 +25,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from arpz.protocol._common import new_guid
-from arpz.protocol.qos import HistoryPolicy, QosProfile
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.qos import HistoryPolicy, QosProfile
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus
 
 

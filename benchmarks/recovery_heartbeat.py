@@ -23,10 +23,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.protocol.qos import QosProfile  # noqa: E402
-from arpz.protocol.reader_machine import ReaderMachine  # noqa: E402
-from arpz.protocol.timers import FakeClock  # noqa: E402
-from arpz.protocol.writer_machine import WriterMachine  # noqa: E402
+from arpz.core.protocol.qos import QosProfile  # noqa: E402
+from arpz.core.protocol.reader_machine import ReaderMachine  # noqa: E402
+from arpz.core.protocol.timers import FakeClock  # noqa: E402
+from arpz.core.protocol.writer_machine import WriterMachine  # noqa: E402
 from tests.unit.reliability.lossy_bus import Link, LossyBus  # noqa: E402
 
 STEP_S = 0.001

@@ -16,10 +16,10 @@ import argparse
 import time
 from collections.abc import Callable
 
+from arpz.channel import HistoryPolicy, QosProfile, Writer
+from arpz.core.transport import SessionSettings
 from arpz.perf.harness import _perf, child, free_port, perf_router
-from arpz.reliability import HistoryPolicy, QosProfile, Writer
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 
 KEY = "bench/write"
 

@@ -32,9 +32,9 @@ import zenoh
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.launch import free_port  # noqa: E402
-from arpz.transport import SessionSettings  # noqa: E402
-from arpz.zenoh_transport import ZenohTransport  # noqa: E402
+from arpz.core.transport import SessionSettings  # noqa: E402
+from arpz.tools.launch import free_port  # noqa: E402
+from arpz.transport.zenoh import ZenohTransport  # noqa: E402
 
 KEY = "bench/request"
 

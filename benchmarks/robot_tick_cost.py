@@ -34,23 +34,23 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz.bundling import Bundler  # noqa: E402
-from arpz.config import RobotConfig, from_dict  # noqa: E402
-from arpz.endpoints import frame_fragment_bytes  # noqa: E402
+from arpz.channel.bundling import Bundler  # noqa: E402
+from arpz.core.config import RobotConfig, from_dict  # noqa: E402
+from arpz.core.endpoints import frame_fragment_bytes  # noqa: E402
+from arpz.core.protocol import bundle  # noqa: E402
+from arpz.core.transport import SessionSettings  # noqa: E402
 from arpz.perf.fleet import FleetOptions, robot_config  # noqa: E402
 from arpz.perf.harness import child, free_port, perf_router  # noqa: E402
-from arpz.protocol import bundle  # noqa: E402
 from arpz.robot.sensing import SensorChannel, build_sensors, sense  # noqa: E402
-from arpz.transport import SessionSettings  # noqa: E402
-from arpz.zenoh_transport import ZenohTransport  # noqa: E402
+from arpz.transport.zenoh import ZenohTransport  # noqa: E402
 
 ROBOT = "r001"
 READER = """
 import sys, threading
-from arpz.protocol.qos import QosProfile, HistoryPolicy
-from arpz.reliability import Reader
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.protocol.qos import QosProfile, HistoryPolicy
+from arpz.channel import Reader
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 transport = ZenohTransport.open(SessionSettings(mode="client", connect=[sys.argv[1]]))
 reader = Reader(transport, sys.argv[2], QosProfile(history=HistoryPolicy.KEEP_ALL), None,
                 on_data_run=lambda key, payloads: None)

@@ -26,12 +26,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from arpz import keys  # noqa: E402
 from arpz.bridge import rmw_zenoh  # noqa: E402
-from arpz.messages import SAMPLE_DECODER  # noqa: E402
-from arpz.percentiles import percentile  # noqa: E402
-from arpz.reliability import DataInfo, Reader  # noqa: E402
-from arpz.traffic import SENSOR_QOS  # noqa: E402
+from arpz.channel import DataInfo, Reader  # noqa: E402
+from arpz.core import keys  # noqa: E402
+from arpz.core.messages import SAMPLE_DECODER  # noqa: E402
+from arpz.core.percentiles import percentile  # noqa: E402
+from arpz.core.traffic import SENSOR_QOS  # noqa: E402
 from tests.integration.fleet import ceddp, robots, settle, write_robot  # noqa: E402
 from tests.support import client, wait_until  # noqa: E402
 

@@ -27,9 +27,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from arpz.channel import QOS_DEFAULT  # noqa: E402
 from arpz.experiment.runner import impairments  # noqa: E402
 from arpz.experiment.spec import PROFILES  # noqa: E402
-from arpz.reliability import QOS_DEFAULT  # noqa: E402
 from tests.integration.fleet import ceddp, robots, settle, udp_link, write_robot  # noqa: E402
 from tests.support import wait_until  # noqa: E402
 

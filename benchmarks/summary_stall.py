@@ -34,8 +34,8 @@ from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.summary import resolve, robot_summary
-from arpz.messages import Sample, encode
-from arpz.percentiles import percentiles
+from arpz.core.messages import Sample, encode
+from arpz.core.percentiles import percentiles
 
 #: the reservoir arpz kept a topic's whole-run values in before the histograms
 RESERVOIR = 20_000

@@ -23,8 +23,8 @@ import zenoh
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 from tests.support import free_port, wait_until
 
 

@@ -12,8 +12,7 @@ from __future__ import annotations
 import threading
 import time
 
-from arpz.perf.harness import free_port
-from arpz.reliability import (
+from arpz.channel import (
     DataInfo,
     HistoryPolicy,
     QosProfile,
@@ -21,8 +20,9 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     Writer,
 )
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.transport import SessionSettings
+from arpz.perf.harness import free_port
+from arpz.transport.zenoh import ZenohTransport
 
 QOS = QosProfile(history=HistoryPolicy.KEEP_ALL, deadline_s=0.5)
 

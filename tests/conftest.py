@@ -1,7 +1,7 @@
 """Shared pytest wiring: the repository on sys.path, and callback assertions that fail the test.
 
 The reliable channel catches whatever a user's callback raises (``on_data``, an event
-callback), counts it in ``callback_errors`` and logs it on the ``arpz.reliability`` logger, so
+callback), counts it in ``callback_errors`` and logs it on the ``arpz.channel`` logger, so
 that one bad callback cannot stop the channel. In a test that is the wrong trade: an ``assert``
 inside ``on_data`` that fails would be swallowed, and the test would go on to time out waiting
 for something that never comes, hiding the real message. The autouse fixture below listens on
@@ -30,8 +30,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 pytest_plugins = ["pytester"]
 
-#: the logger the reliable channel reports a raising callback on (arpz/reliability/_channel.py)
-CHANNEL_LOGGER = "arpz.reliability"
+#: the logger the reliable channel reports a raising callback on (arpz/channel/_channel.py)
+CHANNEL_LOGGER = "arpz.channel"
 EXPECTED_MARKER = "callback_errors_expected"
 #: the marker of a test that needs the machine's cores to itself (see ``cpu_share``)
 CPU_EXCLUSIVE_MARKER = "cpu_exclusive"

@@ -8,10 +8,10 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-from arpz.launch import PORT_TAKEN_LOG, free_port  # free_port: the tests import it from here
-from arpz.protocol import wire
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.protocol import wire
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.tools.launch import PORT_TAKEN_LOG, free_port  # free_port: the tests import it from here
+from arpz.transport.zenoh import ZenohTransport
 
 
 def free_udp_port() -> int:
@@ -132,7 +132,7 @@ def router(
     """A real Zenoh router (a Python session in router mode) on loopback.
 
     Yields (transport, endpoint). Without ``port``, one that another process takes between
-    ``free_port`` and the bind is replaced by a new one (up to 3 tries), as ``arpz.launch``
+    ``free_port`` and the bind is replaced by a new one (up to 3 tries), as ``arpz.tools.launch``
     does for the tools (the race failed a CI run in stop 38, there in an experiment's CEDDP)."""
     for attempt in range(1, ROUTER_PORT_TRIES + 1):
         endpoint = f"tcp/127.0.0.1:{port or free_port()}"

@@ -18,7 +18,10 @@ from typing import Any
 import msgspec
 
 from arpz.bridge.bridge import Bridge
-from arpz.cli import (
+from arpz.core.config import BridgeConfig, ConfigError, from_dict, load_toml
+from arpz.core.endpoints import DEFAULT_CONNECT
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.runtime.startup import (
     add_fleet_client_options,
     add_json_option,
     add_version_option,
@@ -29,10 +32,7 @@ from arpz.cli import (
     stop_on_signals,
     wait_for_stop,
 )
-from arpz.config import BridgeConfig, ConfigError, from_dict, load_toml
-from arpz.endpoints import DEFAULT_CONNECT
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 
 log = logging.getLogger("arpz.bridge")
 TOOL = "bridge"

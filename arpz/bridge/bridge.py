@@ -6,7 +6,7 @@ the CEDDP's own router session, standalone (``python -m arpz.bridge``) a client 
 Fleet -> ROS 2. It learns every robot's topics from the robots' announcements (as the CEDDP
 does), reads their samples through the reliable channel (one wildcard ``Reader`` for the small
 sensors, one ``FrameReader`` for camera frames and point clouds), converts each reading to its
-standard ROS 2 message (arpz.rosmsg) and puts the CDR on the topic's rmw_zenoh key with
+standard ROS 2 message (arpz.core.rosmsg) and puts the CDR on the topic's rmw_zenoh key with
 rmw_zenoh's attachment. Each bridged topic is a publisher of the node, with a liveliness token
 carrying the topic's QoS mapped from the arpz profile, so ``ros2 topic list`` shows it.
 
@@ -19,7 +19,7 @@ reader, its lifespan check and its command watchdog treat it as any command.
 Every callback only queues; one worker (``arpz-ros2``) does the work in arrival order, so the
 maps of topics and robots have one owner. Bad input (an undecodable sample, a reading with no
 ROS 2 message, a command of another type, a CDR that does not decode, a topic nobody maps) is
-counted and logged once per topic and cause (arpz.throttled_log), never raised.
+counted and logged once per topic and cause (arpz.core.throttled_log), never raised.
 """
 
 from __future__ import annotations
@@ -34,13 +34,20 @@ from typing import Any
 
 import msgspec
 
-from arpz import keys
 from arpz.bridge import naming, rmw_zenoh
 from arpz.bridge.commands import command_value
 from arpz.bridge.type_hash import UnknownTypeError, type_hash
-from arpz.channel_io import Inlet, Outlet
-from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, Ros2CommandConfig, Ros2Config, TrafficQos
-from arpz.messages import (
+from arpz.channel import FrameInfo, FrameReader, MessageLostStatus, ReaderEventCallbacks
+from arpz.channel.io import Inlet, Outlet
+from arpz.core import keys
+from arpz.core.config import (
+    LARGE_KINDS,
+    LARGE_SAMPLE_BYTES,
+    Ros2CommandConfig,
+    Ros2Config,
+    TrafficQos,
+)
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     LARGE_SAMPLE_DECODER,
@@ -50,11 +57,10 @@ from arpz.messages import (
     new_incarnation,
     writer_id,
 )
-from arpz.reliability import FrameInfo, FrameReader, MessageLostStatus, ReaderEventCallbacks
-from arpz.rosmsg.convert import ConversionError, deserialize, to_cdr
-from arpz.rosmsg.types import UnknownKindError, ros_type_for
-from arpz.throttled_log import ThrottledLog
-from arpz.transport import Handle, Publisher, Transport
+from arpz.core.rosmsg.convert import ConversionError, deserialize, to_cdr
+from arpz.core.rosmsg.types import UnknownKindError, ros_type_for
+from arpz.core.throttled_log import ThrottledLog
+from arpz.core.transport import Handle, Publisher, Transport
 
 log = logging.getLogger(__name__)
 #: bad input: one line per topic and cause per 10 s

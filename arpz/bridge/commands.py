@@ -12,14 +12,14 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, Final
 
-from arpz.messages import CommandValue
+from arpz.core.messages import CommandValue
 
 
 def _twist(message: Any) -> CommandValue:
     return [float(message.linear.x), float(message.angular.z)]
 
 
-#: ROS 2 type -> its arpz command value; the keys are arpz.config.ROS2_COMMAND_TYPES
+#: ROS 2 type -> its arpz command value; the keys are arpz.core.config.ROS2_COMMAND_TYPES
 CONVERTERS: Final[dict[str, Callable[[Any], CommandValue]]] = {
     "geometry_msgs/msg/Twist": _twist,
     "std_msgs/msg/Float64": lambda m: float(m.data),

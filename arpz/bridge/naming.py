@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Final
 
-from arpz.config import Ros2Config
+from arpz.core.config import Ros2Config
 
 #: the ROS 2 name of a topic named after its kind (the convention of the ROS 2 drivers of
 #: such sensors: ``scan`` for a planar LIDAR, ``image_raw`` for a camera, ``points`` for a cloud)

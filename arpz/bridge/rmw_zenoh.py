@@ -32,8 +32,8 @@ import struct
 from dataclasses import dataclass
 from typing import Final, NamedTuple
 
-from arpz.errors import ArpzError
-from arpz.protocol.qos import (
+from arpz.core.errors import ArpzError
+from arpz.core.protocol.qos import (
     HistoryPolicy,
     LivelinessPolicy,
     QosProfile,

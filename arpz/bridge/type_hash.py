@@ -6,7 +6,7 @@ A ROS 2 type hash is ``RIHS01_`` and the SHA-256 of a canonical JSON of the type
 token, so a subscriber whose definition of a type differs never matches a publisher of it.
 
 ``rosbags``' typestore computes this hash from the definitions it carries
-(``Typestore.hash_rihs01``); arpz.rosmsg already uses that typestore for the messages, so the
+(``Typestore.hash_rihs01``); arpz.core.rosmsg already uses that typestore for the messages, so the
 hash and the CDR come from one set of definitions. The golden tests check it against hashes
 published by ROS 2 itself (tests/unit/bridge/test_type_hash.py).
 """
@@ -17,8 +17,8 @@ import functools
 import re
 from typing import Final
 
-from arpz.errors import ArpzError
-from arpz.rosmsg.convert import STORE
+from arpz.core.errors import ArpzError
+from arpz.core.rosmsg.convert import STORE
 
 RIHS01: Final = re.compile(r"^RIHS01_[0-9a-f]{64}$")
 

@@ -16,11 +16,11 @@ from typing import Any
 
 import msgspec
 
-from arpz.cli import add_version_option, configure_logging, stop_on_signals
-from arpz.config import CeddpConfig, ConfigError, from_dict, load_toml
-from arpz.endpoints import DEFAULT_LISTEN, plain_tcp_beside_tls, resolve
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config, uses_tls
+from arpz.core.config import CeddpConfig, ConfigError, from_dict, load_toml
+from arpz.core.endpoints import DEFAULT_LISTEN, plain_tcp_beside_tls, resolve
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.runtime.startup import add_version_option, configure_logging, stop_on_signals
+from arpz.transport.zenoh import ZenohTransport, config_endpoints, load_zenoh_config, uses_tls
 
 log = logging.getLogger("arpz.ceddp")
 

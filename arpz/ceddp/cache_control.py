@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from arpz.messages import SensorValue, same_value
+from arpz.core.messages import SensorValue, same_value
 
 
 @dataclass

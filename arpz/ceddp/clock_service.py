@@ -10,7 +10,7 @@ ingest so that every latency and staleness of the robot is measured on this CEDD
 flags a robot whose |offset| exceeds ``[clock] max_offset_ms`` whatever the exchange's asymmetry
 (|offset| - delay / 2 beyond the bound): one WARN event when it crosses the bound, one INFO event
 when it is back (|offset| + delay / 2 within it). The estimates come from the robot's filter,
-which never takes a queued exchange over a fast one (arpz/protocol/clock.py); the error bound
+which never takes a queued exchange over a fast one (arpz/core/protocol/clock.py); the error bound
 keeps a robot's one slow first exchange, or an older robot's unfiltered estimate, from telling
 the user to set up NTP on a robot whose clock is right. The summary, the dashboard's frames and
 ``CeddpStats`` say which offset was used for whom.
@@ -24,11 +24,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from arpz import keys
 from arpz.ceddp.ingest import Ingest
-from arpz.config import CeddpClockConfig
-from arpz.messages import CLOCK_REQUEST_DECODER, DECODE_ERRORS, ClockReply, ClockStats, encode
-from arpz.transport import Handle, Transport
+from arpz.core import keys
+from arpz.core.config import CeddpClockConfig
+from arpz.core.messages import CLOCK_REQUEST_DECODER, DECODE_ERRORS, ClockReply, ClockStats, encode
+from arpz.core.transport import Handle, Transport
 
 #: (text, level) -> None: a fleet event, for the log, the dashboard and the summary
 EventSink = Callable[[str, str], None]

@@ -18,7 +18,6 @@ from dataclasses import dataclass, field
 
 import msgspec
 
-from arpz import keys
 from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.control_queue import ControlQueue
 from arpz.ceddp.downlink import Downlink
@@ -28,9 +27,11 @@ from arpz.ceddp.overload import BudgetChange
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.summary import RobotReport
-from arpz.channel_io import Outlet
-from arpz.config import CeddpConfig
-from arpz.messages import (
+from arpz.channel import QosPolicyKind, Reader
+from arpz.channel.io import Outlet
+from arpz.core import keys
+from arpz.core.config import CeddpConfig
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     QOS_ACK_DECODER,
@@ -40,8 +41,7 @@ from arpz.messages import (
     RobotStats,
     encode,
 )
-from arpz.reliability import QosPolicyKind, Reader
-from arpz.throttled_log import ThrottledLog
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 #: bad reports, refused items and failures: one line per cause per 10 s, never one per message

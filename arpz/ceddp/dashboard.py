@@ -30,9 +30,9 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from arpz.ceddp.pacing import Pacer
-from arpz.errors import ConfigError
-from arpz.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
-from arpz.throttled_log import ThrottledLog
+from arpz.core.errors import ConfigError
+from arpz.core.frames import ROBOT_METRICS, TIMELINE, TOPIC_METRICS, Event, MetricsFrame, WorldMap
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)

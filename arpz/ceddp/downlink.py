@@ -5,7 +5,7 @@ acknowledgements and its sequence numbers are per key, so a robot that is slow, 
 affects only its own writer (KEEP_LAST overwrites and GAPs are its own), and the robot's reader
 reconciles exactly against what was written for it. The writers are opened when the robot
 announces the commands it acts on, and closed when it has been away for
-``arpz.reliability.AWAY_RETENTION_S``, so state stays bounded by the robots present. A robot
+``arpz.channel.AWAY_RETENTION_S``, so state stays bounded by the robots present. A robot
 whose session was lost (a dead zone, a roam) keeps its writers: when it is back, its reader
 resumes the match and every command written meanwhile is resent, expired past its lifespan or
 GAPed and counted lost by the robot, as the ones before (issue 39: closing the writers at the
@@ -24,11 +24,11 @@ import threading
 import time
 from dataclasses import dataclass
 
-from arpz import keys
-from arpz.channel_io import Outlet
-from arpz.config import TrafficQos
-from arpz.reliability import AWAY_RETENTION_S
-from arpz.transport import Transport
+from arpz.channel import AWAY_RETENTION_S
+from arpz.channel.io import Outlet
+from arpz.core import keys
+from arpz.core.config import TrafficQos
+from arpz.core.transport import Transport
 
 log = logging.getLogger(__name__)
 

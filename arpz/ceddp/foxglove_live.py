@@ -44,11 +44,11 @@ from foxglove.messages import (
 )
 
 from arpz.ceddp.planner import Planner, Reading
-from arpz.errors import ConfigError
-from arpz.frames import MetricsFrame
-from arpz.rosmsg.convert import ConversionError, camera_size, to_ros
-from arpz.rosmsg.types import ROS_TYPES
-from arpz.throttled_log import ThrottledLog
+from arpz.core.errors import ConfigError
+from arpz.core.frames import MetricsFrame
+from arpz.core.rosmsg.convert import ConversionError, camera_size, to_ros
+from arpz.core.rosmsg.types import ROS_TYPES
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -61,7 +61,7 @@ def _timestamp(stamp_ns: int) -> Timestamp:
 
 
 def to_json(value: Any) -> Any:
-    """A ROS 2 message of ``arpz.rosmsg`` (rosbags dataclasses, numpy arrays) as JSON values:
+    """A ROS 2 message of ``arpz.core.rosmsg`` (rosbags dataclasses, numpy arrays) as JSON values:
     fields by name, arrays as lists, NaN and infinities as null (JSON has none)."""
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return {
@@ -110,14 +110,14 @@ METRICS_SCHEMA: dict[str, Any] = {
     },
     "additionalProperties": {"type": ["number", "null"]},
 }
-#: kinds arpz.rosmsg does not know (a custom driver's): the value as it is
+#: kinds arpz.core.rosmsg does not know (a custom driver's): the value as it is
 VALUE_TYPE = "arpz/Value"
 
 
 class _Topic:
     """One sensor topic's channel, made at its first reading, and how to turn a reading into
     its message: Foxglove's own schema for LIDAR, camera and point cloud, otherwise the ROS 2
-    message of ``arpz.rosmsg`` as JSON."""
+    message of ``arpz.core.rosmsg`` as JSON."""
 
     def __init__(self, topic: str, kind: str, first: Reading, context: foxglove.Context) -> None:
         self.kind = kind

@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from arpz.config import CeddpConfig
-from arpz.version import arpz_version, zenoh_version
-from arpz.zenoh_transport import config_security
+from arpz.core.config import CeddpConfig
+from arpz.core.version import arpz_version, zenoh_version
+from arpz.transport.zenoh import config_security
 
 
 @dataclass(frozen=True)

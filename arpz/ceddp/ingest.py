@@ -13,19 +13,19 @@ import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from arpz import keys
 from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
-from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES
-from arpz.messages import (
+from arpz.core import keys
+from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES
+from arpz.core.messages import (
     DECODE_ERRORS,
     HELLO_DECODER,
     LARGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
     SensorValue,
 )
-from arpz.percentiles import Distribution
-from arpz.protocol.wire import MAX_BATCH, MAX_SEQ, MAX_WRITE_RATE_HZ
+from arpz.core.percentiles import Distribution
+from arpz.core.protocol.wire import MAX_BATCH, MAX_SEQ, MAX_WRITE_RATE_HZ
 
 log = logging.getLogger(__name__)
 

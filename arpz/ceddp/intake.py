@@ -16,13 +16,10 @@ import threading
 import time
 from collections.abc import Sequence
 
-from arpz import keys
 from arpz.ceddp.control import ControlWorker, EventSink
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
-from arpz.config import LARGE_SAMPLE_BYTES, CeddpConfig
-from arpz.protocol.timers import WaitMeter
-from arpz.reliability import (
+from arpz.channel import (
     PLAIN_PEER,
     FrameInfo,
     FrameReader,
@@ -33,7 +30,10 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     UnchangedStatus,
 )
-from arpz.transport import PullSubscriber, Transport
+from arpz.core import keys
+from arpz.core.config import LARGE_SAMPLE_BYTES, CeddpConfig
+from arpz.core.protocol.timers import WaitMeter
+from arpz.core.transport import PullSubscriber, Transport
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +150,7 @@ class SensorIntake:
     def sojourn_ms(self) -> dict[str, float | int | None]:
         """The samples' time inside the CEDDP, from the router's receipt to the end of the
         sensor path's pass that processed them, ms: p50, p99 and max over the run (upper
-        bounds, arpz.protocol.timers.SojournMeter; None on the raw path, or none measured)."""
+        bounds, arpz.core.protocol.timers.SojournMeter; None on the raw path, or none measured)."""
         if self.reader is None:
             return {
                 "sojourn_ms_p50": None,

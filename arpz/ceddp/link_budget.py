@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from arpz.messages import RobotStats
+from arpz.core.messages import RobotStats
 
 #: a topic whose samples are this large or more is bulk: its rate is what fits the link
 BULK_SAMPLE_BYTES = 16 * 1024

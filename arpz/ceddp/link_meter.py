@@ -24,8 +24,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from arpz import keys
-from arpz.messages import RobotStats
+from arpz.core import keys
+from arpz.core.messages import RobotStats
 
 #: round trip assumed before the first clock exchange or Hello came back (loopback-ish)
 DEFAULT_RTT_S = 0.005

@@ -24,13 +24,13 @@ from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.pacing import Pacer
 from arpz.ceddp.planner import Planner
-from arpz.channel_io import Outlet
-from arpz.config import CeddpConfig
-from arpz.errors import ArpzError
-from arpz.frames import DashboardLike, MetricsFrame
-from arpz.messages import CeddpStats, TopicRate, encode
-from arpz.percentiles import percentile, percentiles
-from arpz.throttled_log import ThrottledLog
+from arpz.channel.io import Outlet
+from arpz.core.config import CeddpConfig
+from arpz.core.errors import ArpzError
+from arpz.core.frames import DashboardLike, MetricsFrame
+from arpz.core.messages import CeddpStats, TopicRate, encode
+from arpz.core.percentiles import percentile, percentiles
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)

@@ -19,10 +19,10 @@ from typing import Any
 import msgspec
 
 from arpz.ceddp.planner import CommandSink, Planner, Reading
-from arpz.config import MissionConfig
-from arpz.errors import ArpzError
-from arpz.frames import WorldView
-from arpz.messages import Command, Telemetry, encode
+from arpz.core.config import MissionConfig
+from arpz.core.errors import ArpzError
+from arpz.core.frames import WorldView
+from arpz.core.messages import Command, Telemetry, encode
 from arpz.mission import BEAM_ANGLES_DEG, Pose, World, beam_endpoints, beam_of_topic
 from arpz.mission.hallway import HallwayPlanner, PlannerSettings
 from arpz.mission.judge import Judge, JudgeSettings, MissionResult

@@ -34,9 +34,9 @@ from arpz.ceddp.optimiser import (
 )
 from arpz.ceddp.topic_optimiser import TopicMethod, TopicSolution, solve_topics
 from arpz.ceddp.topic_problem import TopicProblem, load_problem, solution_document
-from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
-from arpz.errors import ArpzError
-from arpz.traffic import SENSOR_QOS
+from arpz.core.errors import ArpzError
+from arpz.core.traffic import SENSOR_QOS
+from arpz.runtime.startup import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 
 EXIT_USAGE = 2
 EXIT_DISAGREE = 1

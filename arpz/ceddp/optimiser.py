@@ -37,8 +37,8 @@ from typing import Any, Final, Literal
 
 import msgspec
 
-from arpz.errors import ArpzError
-from arpz.protocol.qos import QosProfile
+from arpz.core.errors import ArpzError
+from arpz.core.protocol.qos import QosProfile
 
 #: Fast DDS ``max_samples`` default: the "Dmax = 5000" of seed 001 (its reference 17).
 DEFAULT_DMAX: Final = 5000

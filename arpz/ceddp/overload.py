@@ -34,7 +34,7 @@ from dataclasses import dataclass
 
 import msgspec
 
-from arpz.config import OverloadConfig
+from arpz.core.config import OverloadConfig
 
 #: budget changes kept for the summary (each is an event and a QoS epoch as well)
 MAX_CHANGES = 256

@@ -16,9 +16,9 @@ from typing import Protocol
 
 import msgspec
 
-from arpz import keys
-from arpz.messages import Hello, SensorValue, Telemetry
-from arpz.throttled_log import ThrottledLog
+from arpz.core import keys
+from arpz.core.messages import Hello, SensorValue, Telemetry
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 _throttled = ThrottledLog(log)

@@ -54,10 +54,10 @@ from arpz.ceddp.optimiser import (
     solve_closed,
 )
 from arpz.ceddp.topic_optimiser import TopicDemand, TopicSolution, solve_topics_closed
-from arpz.config import QosControlConfig, QosLimitsConfig
-from arpz.messages import QosAck, QosAssignmentMsg, RobotQos, RobotStats, TopicInfo
-from arpz.protocol.qos import QosProfile
-from arpz.traffic import SENSOR_QOS
+from arpz.core.config import QosControlConfig, QosLimitsConfig
+from arpz.core.messages import QosAck, QosAssignmentMsg, RobotQos, RobotStats, TopicInfo
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.traffic import SENSOR_QOS
 
 log = logging.getLogger(__name__)
 

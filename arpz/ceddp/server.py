@@ -25,7 +25,6 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.clock_service import ClockService, ClockWatch
 from arpz.ceddp.control import KIND_NAMES, ControlWorker, RobotRecord
@@ -40,12 +39,13 @@ from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, resolve, robot_summary
-from arpz.channel_io import Inlet, Outlet
-from arpz.config import CeddpConfig, ConfigError
-from arpz.frames import DashboardLike, Event, WorldMap, WorldView
-from arpz.messages import new_incarnation, writer_id
+from arpz.channel.io import Inlet, Outlet
+from arpz.core import keys
+from arpz.core.config import CeddpConfig, ConfigError
+from arpz.core.frames import DashboardLike, Event, WorldMap, WorldView
+from arpz.core.messages import new_incarnation, writer_id
+from arpz.core.transport import Transport
 from arpz.mission.judge import MissionResult
-from arpz.transport import Transport
 
 if TYPE_CHECKING:  # imported when their port is set (docs/tools.md "Live views")
     from arpz.bridge.bridge import Bridge  # imported when [ros2] is enabled (docs/ros2.md)

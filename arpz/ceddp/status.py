@@ -22,10 +22,10 @@ import msgspec
 
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
-from arpz.config import CeddpConfig
-from arpz.frames import MetricsFrame
-from arpz.messages import TopicCounters
-from arpz.protocol.reader_machine import ReaderStats
+from arpz.core.config import CeddpConfig
+from arpz.core.frames import MetricsFrame
+from arpz.core.messages import TopicCounters
+from arpz.core.protocol.reader_machine import ReaderStats
 
 #: the row of the CEDDP itself in a MetricsFrame's ``robots`` (metrics.py)
 CEDDP_ROW = "ceddp"

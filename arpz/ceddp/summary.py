@@ -18,8 +18,8 @@ import msgspec
 from arpz.ceddp.downlink import DownlinkCounters
 from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.ceddp.qos_control import QosController
-from arpz.messages import RobotStats, writer_id
-from arpz.percentiles import Distribution, LogHistogram, window_max
+from arpz.core.messages import RobotStats, writer_id
+from arpz.core.percentiles import Distribution, LogHistogram, window_max
 
 #: per-robot totals: the sum of these over the robot's sensor topics (not the Hello probe)
 TOTALS = (

@@ -27,8 +27,8 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector, CollectorRegistry
 
 from arpz.ceddp.status import FleetStatus, RobotStatus, TopicStatus
-from arpz.errors import ConfigError
-from arpz.throttled_log import ThrottledLog
+from arpz.core.errors import ConfigError
+from arpz.core.throttled_log import ThrottledLog
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)

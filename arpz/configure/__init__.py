@@ -1,7 +1,7 @@
 """Automatic configuration of node settings and placement (seed 002, Cano et al. 2016).
 
 Pure logic: a model file in, a Solution out; only ``characterise`` talks to a fleet, and only
-through ``arpz.transport``. ``python -m arpz.configure --help`` lists the commands.
+through ``arpz.core.transport``. ``python -m arpz.configure --help`` lists the commands.
 """
 
 from __future__ import annotations

@@ -12,12 +12,18 @@ import csv
 import sys
 from pathlib import Path
 
-from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, emit_json, fail
 from arpz.configure import METHODS, solve
 from arpz.configure.check import check
 from arpz.configure.model import ModelError, dump_json, dump_toml, load_model
 from arpz.configure.regression import FitError, candidate_fits, fit
 from arpz.configure.report import as_dict, as_text
+from arpz.runtime.startup import (
+    JSON_TO_STDOUT,
+    add_json_option,
+    add_version_option,
+    emit_json,
+    fail,
+)
 
 
 def _fail(message: str) -> int:

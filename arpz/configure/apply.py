@@ -22,22 +22,22 @@ import time
 from pathlib import Path
 from typing import Any
 
-from arpz import keys
-from arpz.cli import JSON_TO_STDOUT, connect_endpoints, emit_json, fail
 from arpz.configure.characterise import held_back_rates, listen, measured_rates
 from arpz.configure.eq10 import summarise, summary_text
 from arpz.configure.model import ModelError, load_model
 from arpz.configure.plan import Plan, eq10_nodes, plan
 from arpz.configure.report import as_dict
-from arpz.errors import ArpzError
-from arpz.messages import (
+from arpz.core import keys
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
     CONFIGURATION_ACK_DECODER,
     DECODE_ERRORS,
     ConfigurationAck,
     encode,
     new_incarnation,
 )
-from arpz.traffic import ASSIGNMENT_QOS, REPORT_QOS
+from arpz.core.traffic import ASSIGNMENT_QOS, REPORT_QOS
+from arpz.runtime.startup import JSON_TO_STDOUT, connect_endpoints, emit_json, fail
 
 TOOL = "configure apply"
 
@@ -115,9 +115,9 @@ def check_acks(planned: Plan, acks: dict[str, ConfigurationAck]) -> list[str]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from arpz.channel_io import Inlet, Outlet
-    from arpz.transport import SessionSettings, TransportError
-    from arpz.zenoh_transport import ZenohTransport
+    from arpz.channel.io import Inlet, Outlet
+    from arpz.core.transport import SessionSettings, TransportError
+    from arpz.transport.zenoh import ZenohTransport
 
     try:
         solution = load_solution(
@@ -234,7 +234,7 @@ def main(args: argparse.Namespace) -> int:
 
 
 def add_parser(sub: Any) -> None:
-    from arpz.cli import add_json_option
+    from arpz.runtime.startup import add_json_option
 
     p = sub.add_parser("apply", help="push a solution to a running fleet and measure it (eq. 10)")
     p.add_argument("input", help="a model file (solved here) or a solution's JSON (solve --json)")

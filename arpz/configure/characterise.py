@@ -26,8 +26,6 @@ from pathlib import Path
 
 import msgspec
 
-from arpz import keys
-from arpz.cli import fail
 from arpz.configure.eq10 import Eq10Node, summarise, summary_text
 from arpz.configure.model import (
     Computer,
@@ -41,7 +39,8 @@ from arpz.configure.model import (
     fixed_setting,
     load_model,
 )
-from arpz.messages import (
+from arpz.core import keys
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     CEDDP_STATS_DECODER,
     STATS_DECODER,
@@ -49,7 +48,8 @@ from arpz.messages import (
     CeddpStats,
     RobotStats,
 )
-from arpz.transport import Transport
+from arpz.core.transport import Transport
+from arpz.runtime.startup import fail
 
 SERVER = "server"
 CEDDP_NODE = "ceddp"
@@ -317,8 +317,8 @@ def eq10_nodes(rows: list[Eq10Row], weights: dict[str, float] | None = None) -> 
 
 def main(args: argparse.Namespace) -> int:
     from arpz.configure.model import ModelError
-    from arpz.transport import SessionSettings, TransportError
-    from arpz.zenoh_transport import ZenohTransport
+    from arpz.core.transport import SessionSettings, TransportError
+    from arpz.transport.zenoh import ZenohTransport
 
     expected = None
     if args.expected:

@@ -20,7 +20,7 @@ import msgspec
 import tomli_w
 
 from arpz.configure.regression import FitChoice, FitError, expand, fit, parameter_curves
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 
 
 class ModelError(ArpzError, ValueError):

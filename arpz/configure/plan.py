@@ -15,8 +15,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from arpz.configure.eq10 import Eq10Node
-from arpz.errors import ArpzError
-from arpz.messages import ConfigurationMsg, RobotConfiguration
+from arpz.core.errors import ArpzError
+from arpz.core.messages import ConfigurationMsg, RobotConfiguration
 
 
 class PlanError(ArpzError, ValueError):

@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 
 Kind = Literal["linear", "log", "poly2"]
 FitChoice = Literal["linear", "log", "poly2", "best"]

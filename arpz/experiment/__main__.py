@@ -13,9 +13,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from arpz.cli import add_version_option, fail
 from arpz.experiment.presets import PRESETS
 from arpz.experiment.spec import ExperimentSpec, SpecError, load_spec
+from arpz.runtime.startup import add_version_option, fail
 
 #: exit code of a run stopped by Ctrl-C / SIGTERM (finished cells are written)
 INTERRUPTED = 130

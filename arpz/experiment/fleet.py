@@ -20,7 +20,7 @@ from arpz.ceddp.optimiser import (
     QosSolution,
     solve_closed,
 )
-from arpz.config import ConfigError, TrafficQos, from_dict
+from arpz.core.config import ConfigError, TrafficQos, from_dict
 from arpz.experiment.spec import (
     OPT_DEPTH,
     Cell,
@@ -31,8 +31,8 @@ from arpz.experiment.spec import (
     opt_depth,
     opt_rate,
 )
-from arpz.launch import FleetSpec
 from arpz.robot.sensors.presets import PRESETS
+from arpz.tools.launch import FleetSpec
 
 #: the KEEP_LAST depth OPT robots start with until the first assignment (ROS 2's default)
 INITIAL_OPT_DEPTH = 10
@@ -100,7 +100,7 @@ def check_cells(spec: ExperimentSpec) -> None:
 
 
 def check_traffic(spec: ExperimentSpec) -> None:
-    """Raise SpecError when ``[traffic]`` names what arpz.config's TrafficQos does not take."""
+    """Raise SpecError when ``[traffic]`` names what arpz.core.config's TrafficQos does not take."""
     unknown = sorted(set(spec.traffic) - set(TrafficQos.__struct_fields__))
     if "sensor_qos" in spec.traffic:
         raise SpecError("[traffic] cannot set sensor_qos: the grid's depths and configs set it")
@@ -118,7 +118,7 @@ def check_traffic(spec: ExperimentSpec) -> None:
 def cell_fleet(
     spec: ExperimentSpec, cell: Cell, *, listen: list[str], robot_connect: dict[str, str], rrd: str
 ) -> FleetSpec:
-    """The CEDDP and robot configs (dicts in arpz.config's TOML schema) of ``cell``."""
+    """The CEDDP and robot configs (dicts in arpz.core.config's TOML schema) of ``cell``."""
     rate, depth = configured_qos(spec, cell)
     channel = {"reliability": "reliable", "history": "keep_last", "depth": depth}
     ceddp: dict[str, Any] = {

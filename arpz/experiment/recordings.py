@@ -12,7 +12,7 @@ import csv
 from pathlib import Path
 
 from arpz.ceddp.dashboard import merge_rrd, rrd_recording_ids
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 from arpz.experiment.results import read_rows
 
 

@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 from matplotlib.ticker import NullFormatter, ScalarFormatter
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 from arpz.experiment.results import read_rows
 from arpz.experiment.spec import FEATURES, OPT_DEPTH, OPT_VARIANTS, config_label
 

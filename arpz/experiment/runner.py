@@ -2,8 +2,8 @@
 
 Per cell: one ``arpz.netem`` proxy per robot in front of the CEDDP's UDP endpoint (clean while
 the sessions open and the readers match, impaired from the moment every robot runs), then
-``arpz.launch.run_fleet`` with the cell's configs, then the row. A ``lab:PROFILE`` network runs
-the cell in the kernel lab instead (``arpz.lab``: CEDDP and robots in their own network
+``arpz.tools.launch.run_fleet`` with the cell's configs, then the row. A ``lab:PROFILE``
+network runs the cell in the kernel lab instead (``arpz.lab``: CEDDP and robots in their own network
 namespaces, the profile applied by nftables and tbf to each robot's real link, over
 ``lab_link``), for what a user-space UDP proxy cannot impair: TCP, TLS and QUIC links, dead
 zones longer than the lease, roaming. Cells already in results.csv
@@ -26,12 +26,12 @@ from typing import Any, TextIO
 
 import msgspec
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
 from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile, lab_profile_name
-from arpz.launch import LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 from arpz.netem import GilbertElliott, Impairments, NetemProxy
+from arpz.tools.launch import LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 
 #: seconds a cell takes beyond its measurement (starting and stopping 4 processes), for the ETA
 #: before the first cell has been timed

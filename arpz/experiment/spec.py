@@ -15,7 +15,7 @@ from typing import Any
 
 import msgspec
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 
 #: the features a configuration may combine: seed 001's LC, CC and OPT, and OPT with only one of
 #: its two outputs applied (``optr``: the optimiser's R at the cell's fixed depth; ``optd``: the
@@ -143,12 +143,12 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
     hello_rate_hz: float = 10.0
     #: the Hello goes robot1 -> CEDDP -> relay -> CEDDP -> robot1 (seed 001 Fig. 9)
     hello_relay: str = "robot3"
-    #: history kept by the local cache for robots when LC is on: see arpz.config
+    #: history kept by the local cache for robots when LC is on: see arpz.core.config
     local_cache_max_silence_s: float = 1.0
     rmin_hz: float = 1.0
     dmax: int = 5000
     mission: MissionSpec | None = None
-    #: keys of arpz.config's TrafficQos set in the CEDDP's and every robot's config, to compare
+    #: keys of arpz.core.config's TrafficQos set in the CEDDP's and every robot's config, to compare
     #: the fleet's traffic profiles (e.g. ``plain_downlink = true``, or ``[traffic.command_qos]``)
     traffic: dict[str, Any] = msgspec.field(default_factory=dict)
     seed: int = 1

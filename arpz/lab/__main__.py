@@ -18,13 +18,19 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
-from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, emit_json, fail
-from arpz.demo import DemoOptions, format_summary
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 from arpz.lab.clean import clean
 from arpz.lab.fleet import LINKS, LabRunOptions, run_lab
 from arpz.lab.names import LabInterrupted, LabUnavailable
 from arpz.lab.profiles import PARAMETRISED, PROFILES
+from arpz.runtime.startup import (
+    JSON_TO_STDOUT,
+    add_json_option,
+    add_version_option,
+    emit_json,
+    fail,
+)
+from arpz.tools.demo import DemoOptions, format_summary
 
 
 def _parser() -> argparse.ArgumentParser:

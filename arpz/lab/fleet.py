@@ -1,7 +1,7 @@
 """A CEDDP and N robots as real processes inside a kernel lab, each robot's link driven by its
 profile: what ``python -m arpz lab run`` does.
 
-The configs are the demo's (``arpz.demo.demo_spec``: same fleet, presets, Hello relay, sensor
+The configs are the demo's (``arpz.tools.demo.demo_spec``: same fleet, presets, Hello relay, sensor
 QoS) with the endpoint on the lab's server address; ``tls`` and ``quic`` add the fleet
 certificates and Zenoh files of ``deploy/tls/make_fleet_certs.py`` (mutual TLS and access
 control, as deployed). The timeline is written beside the CEDDP's summary.json.
@@ -20,13 +20,13 @@ from typing import Any, TextIO
 
 import tomli_w
 
-from arpz.demo import DemoOptions, check_summary, demo_spec
 from arpz.lab.impair import ProfileRunner
 from arpz.lab.names import LabError
 from arpz.lab.net import Lab, LinkCounters
 from arpz.lab.profiles import LinkState, Profile, parse_assignments
 from arpz.lab.timeline import TIMELINE_FILE, Entry, Timeline, state_of
-from arpz.launch import FleetSpec, LaunchError, Proc
+from arpz.tools.demo import DemoOptions, check_summary, demo_spec
+from arpz.tools.launch import FleetSpec, LaunchError, Proc
 
 #: the links a lab fleet can use (quic needs the same certificates as tls)
 LINKS = ("tcp", "udp", "tls", "quic")
@@ -64,7 +64,7 @@ class LabRunResult:
     summary: dict[str, Any]
     #: the lab's timeline file (None: the timeline was kept in memory only)
     timeline: Path | None
-    #: what ``arpz.demo.check_summary`` finds (reconciliation, robots that never reported)
+    #: what ``arpz.tools.demo.check_summary`` finds (reconciliation, robots that never reported)
     problems: list[str]
     counters: dict[str, LinkCounters]
 
@@ -172,7 +172,7 @@ def run_fleet_in_lab(
     stop_requested: Callable[[], bool] = lambda: False,
 ) -> LabRunResult:
     """Start ``spec``'s CEDDP and robots (named as the lab's robots, their endpoints on
-    ``lab.ceddp_address``) in their namespaces, as ``arpz.launch.run_fleet`` does on loopback;
+    ``lab.ceddp_address``) in their namespaces, as ``arpz.tools.launch.run_fleet`` does on loopback;
     run the profiles for ``duration_s`` (or until ``stop_requested()``); clean the links so
     the final reports arrive; stop robots then CEDDP with SIGINT; return the summary. The
     caller owns the lab (and tears it down)."""

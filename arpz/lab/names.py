@@ -17,7 +17,7 @@ import re
 import secrets
 from dataclasses import dataclass
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 
 #: every namespace of every lab starts with this
 NS_PREFIX = "arpzlab-"

@@ -60,7 +60,7 @@ from arpz.lab.names import (
 )
 from arpz.lab.profiles import CLEAN, LinkState
 from arpz.lab.timeline import Timeline
-from arpz.launch import Proc
+from arpz.tools.launch import Proc
 
 try:
     from pyroute2 import IPRoute, netns
@@ -426,7 +426,7 @@ class Lab:
         log: bool = True,
         env: dict[str, str] | None = None,
     ) -> Proc:
-        """``python ARGS`` inside ``namespace`` as an ``arpz.launch.Proc`` (its log, its pid);
+        """``python ARGS`` inside ``namespace`` as an ``arpz.tools.launch.Proc`` (its log, its pid);
         killed at ``close()`` if still running."""
         proc = Proc.spawn(
             name, ["-c", _IN_NETNS, self._ip, namespace, *args], workdir, log=log, env=env

@@ -20,8 +20,8 @@ import msgspec
 import numpy as np
 import numpy.typing as npt
 
-from arpz.errors import ArpzError
-from arpz.keys import check_chunk
+from arpz.core.errors import ArpzError
+from arpz.core.keys import check_chunk
 from arpz.mission.kinematics import Pose
 
 FloatArray = npt.NDArray[np.float64]

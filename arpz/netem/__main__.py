@@ -17,9 +17,9 @@ import signal
 import sys
 from types import FrameType
 
-from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 from arpz.netem.model import GilbertElliott, Impairments, Outage
 from arpz.netem.proxy import NetemProxy
+from arpz.runtime.startup import JSON_TO_STDOUT, add_json_option, add_version_option, fail
 
 
 def _outage(text: str) -> Outage:

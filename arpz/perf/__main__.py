@@ -24,15 +24,10 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from arpz.cli import JSON_TO_STDOUT, add_json_option, add_version_option, fail
-from arpz.config import ConfigError
-from arpz.link_sizes import link_sizes
-from arpz.perf import fleet
-from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
-from arpz.perf.fleet import add_fleet_parser
-from arpz.perf.report import HEADER, Recorder, build_report, payload_maker
-from arpz.perf.zenoh_baselines import AdvancedPub, AdvancedSub, ZenohPub, ZenohSub, open_session
-from arpz.protocol.qos import (
+from arpz.channel import HistoryFullError
+from arpz.core.config import ConfigError
+from arpz.core.link_sizes import link_sizes
+from arpz.core.protocol.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
@@ -40,9 +35,14 @@ from arpz.protocol.qos import (
     ReliabilityPolicy,
     load_qos,
 )
-from arpz.reliability import HistoryFullError
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport, load_zenoh_config
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.perf import fleet
+from arpz.perf.endpoints import STOP, TRANSPORTS, ArpzPub, ArpzSub, OnPayload, Pub, Sub
+from arpz.perf.fleet import add_fleet_parser
+from arpz.perf.report import HEADER, Recorder, build_report, payload_maker
+from arpz.perf.zenoh_baselines import AdvancedPub, AdvancedSub, ZenohPub, ZenohSub, open_session
+from arpz.runtime.startup import JSON_TO_STDOUT, add_json_option, add_version_option, fail
+from arpz.transport.zenoh import ZenohTransport, load_zenoh_config
 
 
 def _on_signal(signum: int, frame: FrameType | None) -> None:

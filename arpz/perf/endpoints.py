@@ -8,16 +8,16 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from arpz.link_sizes import writer_fragment_bytes
-from arpz.protocol.events import DataInfo, MessageLostStatus
-from arpz.reliability import (
+from arpz.channel import (
     HistoryFullError,
     QosProfile,
     Reader,
     ReaderEventCallbacks,
     Writer,
 )
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.link_sizes import writer_fragment_bytes
+from arpz.core.protocol.events import DataInfo, MessageLostStatus
+from arpz.transport.zenoh import ZenohTransport
 
 TRANSPORTS = ("arpz", "zenoh", "advanced")
 
@@ -45,7 +45,7 @@ class Sub(Protocol):
 # ------------------------------------------------------------------------------------ arpz
 class ArpzPub:
     """A plain ``Writer``: a sample larger than one fragment (``link_fragment_bytes``, the
-    connect endpoints' per ``arpz.link_sizes.link_sizes``) goes as fragments, as every arpz
+    connect endpoints' per ``arpz.core.link_sizes.link_sizes``) goes as fragments, as every arpz
     writer's does."""
 
     def __init__(

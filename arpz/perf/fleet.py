@@ -3,8 +3,9 @@
 N real robot agents (``RobotAgent``: local cache, channel writers, reports, each with its own
 Zenoh client session) packed into P worker processes (``arpz.perf.fleet_worker``), against K real
 CEDDP processes (``python -m arpz.ceddp``: ingest, cache control, planner, dashboard), started
-and stopped by pid with ``arpz.launch``. Packing robots into a few processes is what lets 50-200
-robots run on a 2-core machine; the CEDDP's own CPU and memory are read from /proc, so its cost
+and stopped by pid with ``arpz.tools.launch``. Packing robots into a few processes is what lets
+50-200 robots run on a 2-core machine; the CEDDP's own CPU and memory are read from /proc, so its
+cost
 is measured apart from the robots'.
 
 With K > 1 the CEDDPs form one Zenoh router mesh (each connects to the first) with key-space
@@ -30,10 +31,9 @@ from typing import Any, TextIO
 
 import tomli_w
 
-from arpz.cli import add_json_option, emit_json, fail, stop_on_signals
-from arpz.config import CeddpConfig, RobotConfig, from_dict
-from arpz.errors import ArpzError
-from arpz.launch import LaunchError, Proc, free_port
+from arpz.core.config import CeddpConfig, RobotConfig, from_dict
+from arpz.core.errors import ArpzError
+from arpz.core.protocol.qos import MAX_HEARTBEAT_BACKOFF
 from arpz.perf.fleet_report import (
     P99_BOUND_MS,
     CeddpFigures,
@@ -51,7 +51,8 @@ from arpz.perf.fleet_report import (
     write_sweep_csv,
 )
 from arpz.perf.fleet_watch import CeddpWatcher
-from arpz.protocol.qos import MAX_HEARTBEAT_BACKOFF
+from arpz.runtime.startup import add_json_option, emit_json, fail, stop_on_signals
+from arpz.tools.launch import LaunchError, Proc, free_port
 
 #: the kinds of seed 001 Table 1, cycled over a robot's topics (a mixed, realistic fleet)
 TOPIC_KINDS = ("lidar", "imu", "ultrasonic", "dht11", "flame", "pir", "light")

@@ -14,12 +14,12 @@ import threading
 from dataclasses import dataclass
 from typing import Any
 
-from arpz import keys
-from arpz.channel_io import Inlet
-from arpz.messages import CEDDP_STATS_DECODER, DECODE_ERRORS
-from arpz.traffic import REPORT_QOS
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.channel.io import Inlet
+from arpz.core import keys
+from arpz.core.messages import CEDDP_STATS_DECODER, DECODE_ERRORS
+from arpz.core.traffic import REPORT_QOS
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 
 
 @dataclass

@@ -22,11 +22,11 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from arpz.cli import wait_for_stop
-from arpz.config import RobotConfig, from_dict
+from arpz.core.config import RobotConfig, from_dict
+from arpz.core.transport import SessionSettings
 from arpz.robot.agent import RobotAgent
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.runtime.startup import wait_for_stop
+from arpz.transport.zenoh import ZenohTransport
 
 log = logging.getLogger("arpz.perf.fleet")
 #: how long a robot waits for its settling burst's replies (``RobotAgent.settle_clock``)

@@ -17,7 +17,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import ExitStack, contextmanager
 from typing import IO, Any
 
-from arpz.launch import free_port  # re-exported: benchmarks and tests import it from here
+from arpz.tools.launch import free_port  # re-exported: benchmarks and tests import it from here
 
 
 def _perf(*args: str) -> list[str]:

@@ -1,5 +1,5 @@
 """The perf tool's baselines: raw Zenoh pub/sub (``zenoh``) and zenoh.ext's Advanced
-publisher/subscriber (``advanced``). The one module outside ``arpz.zenoh_transport`` that imports
+publisher/subscriber (``advanced``). The one module outside ``arpz.transport.zenoh`` that imports
 zenoh, as declared in pyproject's import-linter contracts: a baseline must measure Zenoh itself,
 not arpz's seam.
 """
@@ -14,9 +14,9 @@ from typing import Any
 import zenoh
 import zenoh.ext
 
+from arpz.core.transport import SessionSettings
 from arpz.perf.endpoints import STOP, OnPayload
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import build_config
+from arpz.transport.zenoh import build_config
 
 
 def open_session(settings: SessionSettings) -> zenoh.Session:

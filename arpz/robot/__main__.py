@@ -15,16 +15,16 @@ from typing import Any
 
 import msgspec
 
-from arpz.cli import add_version_option, configure_logging, stop_on_signals
-from arpz.config import ConfigError, RobotConfig, from_dict, load_toml
-from arpz.endpoints import DEFAULT_CONNECT, resolve
+from arpz.core.config import ConfigError, RobotConfig, from_dict, load_toml
+from arpz.core.endpoints import DEFAULT_CONNECT, resolve
+from arpz.core.transport import SessionSettings, TransportError, client_link_defaults
 from arpz.robot.agent import RobotAgent
 from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.summary import RobotSummary
-from arpz.transport import SessionSettings, TransportError, client_link_defaults
-from arpz.zenoh_transport import ZenohTransport, config_endpoints, load_zenoh_config
+from arpz.runtime.startup import add_version_option, configure_logging, stop_on_signals
+from arpz.transport.zenoh import ZenohTransport, config_endpoints, load_zenoh_config
 
 log = logging.getLogger("arpz.robot")
 

@@ -14,7 +14,7 @@ import threading
 from collections import Counter
 from collections.abc import Sequence
 
-from arpz.messages import Command
+from arpz.core.messages import Command
 
 
 class Actuator:

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import msgspec
 
-from arpz import keys
-from arpz.bundling import Bundler
-from arpz.channel_io import FrameOutlet, Outlet, drain
-from arpz.config import RobotConfig
-from arpz.endpoints import endpoint_address, frame_fragment_bytes
-from arpz.messages import (
+from arpz.channel import QosPolicyKind
+from arpz.channel.bundling import Bundler
+from arpz.channel.io import FrameOutlet, Outlet, drain
+from arpz.core import keys
+from arpz.core.config import RobotConfig
+from arpz.core.endpoints import endpoint_address, frame_fragment_bytes
+from arpz.core.messages import (
     Announce,
     ClockStats,
     InboundCounters,
@@ -39,7 +40,8 @@ from arpz.messages import (
     new_incarnation,
     writer_id,
 )
-from arpz.reliability import QosPolicyKind
+from arpz.core.transport import Reopenable, Transport
+from arpz.core.version import arpz_version, zenoh_version
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.clock_sync import ClockSync
 from arpz.robot.commands import CommandWorker
@@ -53,8 +55,6 @@ from arpz.robot.sensing import SensorChannel, build_sensors, effective_sensors, 
 from arpz.robot.sensors import value_type_of
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog
-from arpz.transport import Reopenable, Transport
-from arpz.version import arpz_version, zenoh_version
 
 log = logging.getLogger(__name__)
 
@@ -73,7 +73,7 @@ class RobotAgent:
     assignment to its actuators, presence and self-reporting.
 
     Every key in both directions goes through an ``Outlet`` / ``Inlet`` with the profile the
-    config declares for its kind of traffic (arpz/traffic.py): sensors and the Hello hops up,
+    config declares for its kind of traffic (arpz/core/traffic.py): sensors and the Hello hops up,
     reports (stats, announcements, QoS acks, telemetry) up, commands, Hello hops and the QoS
     assignment down; with ``reliability = "none"`` all of them are plain Zenoh.
 

@@ -2,8 +2,9 @@
 
 Every ``[clock] period_s`` the scheduler runs ``ClockSync.exchange``: a burst of requests on
 ``ceddp/clock``, each stamped t1 on the robot's clock; the CEDDP's reply carries t2 and t3 on
-its own, and the reply's arrival is t4 (arpz/protocol/clock.py has the arithmetic). The estimate
-is the fastest exchange of the last ``window`` among those whose delay was near the least seen
+its own, and the reply's arrival is t4 (arpz/core/protocol/clock.py has the arithmetic). The
+estimate is the fastest exchange of the last ``window`` among those whose delay was near the least
+seen
 since start (``MinDelayFilter``: a queued or retransmitted exchange never becomes the estimate;
 the previous one is held meanwhile); it travels in every ``RobotStats`` and ``Announce``
 (``clock``), and the CEDDP corrects this robot's latencies by it. The floor's slow rise is timed
@@ -21,19 +22,19 @@ import logging
 import threading
 import time
 
-from arpz import keys
-from arpz.config import RobotClockConfig
-from arpz.errors import ArpzError
-from arpz.messages import (
+from arpz.core import keys
+from arpz.core.config import RobotClockConfig
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
     CLOCK_REPLY_DECODER,
     DECODE_ERRORS,
     ClockRequest,
     ClockStats,
     encode,
 )
-from arpz.protocol.clock import Exchange, MinDelayFilter
-from arpz.throttled_log import ThrottledLog
-from arpz.transport import Transport
+from arpz.core.protocol.clock import Exchange, MinDelayFilter
+from arpz.core.throttled_log import ThrottledLog
+from arpz.core.transport import Transport
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)

@@ -17,10 +17,11 @@ import threading
 import time
 from collections.abc import Callable
 
-from arpz import keys
-from arpz.channel_io import Inlet
-from arpz.config import RobotConfig
-from arpz.messages import (
+from arpz.channel import MessageLostStatus, QosPolicyKind
+from arpz.channel.io import Inlet
+from arpz.core import keys
+from arpz.core.config import RobotConfig
+from arpz.core.messages import (
     COMMAND_DECODER,
     DECODE_ERRORS,
     HELLO_DECODER,
@@ -29,10 +30,9 @@ from arpz.messages import (
     InboundCounters,
     QosAssignmentMsg,
 )
-from arpz.reliability import MessageLostStatus, QosPolicyKind
+from arpz.core.transport import Transport
 from arpz.robot.actuation import Actuator
 from arpz.robot.watchdog import CommandWatchdog
-from arpz.transport import Transport
 
 log = logging.getLogger(__name__)
 

@@ -27,22 +27,22 @@ import threading
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Protocol
 
-from arpz import keys
-from arpz.channel_io import Inlet, Outlet
-from arpz.config import RobotConfig
-from arpz.messages import (
+from arpz.channel.io import Inlet, Outlet
+from arpz.core import keys
+from arpz.core.config import RobotConfig
+from arpz.core.messages import (
     CONFIGURATION_DECODER,
     DECODE_ERRORS,
     ConfigurationAck,
     ConfigurationMsg,
     encode,
 )
+from arpz.core.throttled_log import ThrottledLog
 from arpz.robot.scheduler import Job
 from arpz.robot.sensing import SensorChannel
-from arpz.throttled_log import ThrottledLog
 
 if TYPE_CHECKING:
-    from arpz.transport import Transport
+    from arpz.core.transport import Transport
 
 log = logging.getLogger(__name__)
 

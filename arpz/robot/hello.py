@@ -15,9 +15,9 @@ from collections.abc import Callable
 
 import msgspec
 
-from arpz.channel_io import Outlet
-from arpz.messages import Hello, HelloStats, encode
-from arpz.percentiles import Distribution
+from arpz.channel.io import Outlet
+from arpz.core.messages import Hello, HelloStats, encode
+from arpz.core.percentiles import Distribution
 
 log = logging.getLogger(__name__)
 

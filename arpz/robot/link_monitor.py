@@ -39,8 +39,8 @@ from dataclasses import dataclass
 
 import msgspec
 
-from arpz.config import LinkConfig
-from arpz.transport import Reopenable, TransportError
+from arpz.core.config import LinkConfig
+from arpz.core.transport import Reopenable, TransportError
 
 log = logging.getLogger("arpz.robot.link")
 

@@ -19,8 +19,8 @@ from dataclasses import dataclass, field
 
 import msgspec
 
-from arpz.config import SensorConfig
-from arpz.messages import QosAssignmentMsg, RobotQos
+from arpz.core.config import SensorConfig
+from arpz.core.messages import QosAssignmentMsg, RobotQos
 
 
 @dataclass(frozen=True)

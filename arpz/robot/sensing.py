@@ -17,16 +17,16 @@ from pathlib import Path
 
 import msgspec
 
-from arpz import keys
-from arpz.channel_io import FrameOutlet, Outlet
-from arpz.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
-from arpz.endpoints import frame_fragment_bytes
-from arpz.messages import LargeSample, Sample, TopicCounters, encode, same_value
+from arpz.channel.io import FrameOutlet, Outlet
+from arpz.core import keys
+from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
+from arpz.core.endpoints import frame_fragment_bytes
+from arpz.core.messages import LargeSample, Sample, TopicCounters, encode, same_value
+from arpz.core.transport import Transport
 from arpz.robot.local_cache import LocalCache
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors
 from arpz.robot.sensors.base import check_value
 from arpz.robot.sim_host import BeamDriver, SimHost
-from arpz.transport import Transport
 
 log = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
-from arpz.config import SensorConfig, SimConfig
-from arpz.messages import Command
+from arpz.core.config import SensorConfig, SimConfig
+from arpz.core.messages import Command
 from arpz.mission import BEAM_ANGLES_DEG, Lidar, RobotBody, SimClock, World, beam_topic
 from arpz.mission.world import BUILTIN_MAPS
 from arpz.robot.actuation import Actuator

@@ -1,7 +1,7 @@
 """The layout of an arpz recording: what ``arpz record`` writes and ``arpz play`` reads.
 
 An MCAP file with the rosbag2 profile (``ros2``): one channel per arpz key. A sensor topic of a
-kind with a standard ROS 2 type (arpz.rosmsg) is a ``cdr`` channel whose schema is the full
+kind with a standard ROS 2 type (arpz.core.rosmsg) is a ``cdr`` channel whose schema is the full
 ``ros2msg`` definition, so ROS 2 tools, Foxglove and any MCAP reader decode it. Everything else
 (commands, the Hello probe, the robots' reports, their liveliness tokens) keeps arpz's own
 msgpack payload on a schemaless ``msgpack`` channel (MCAP's well-known encoding for it; the
@@ -23,19 +23,19 @@ from typing import Any, BinaryIO, Final
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from arpz import keys
-from arpz.config import SENSOR_KINDS
-from arpz.protocol.qos import (
+from arpz.core import keys
+from arpz.core.config import SENSOR_KINDS
+from arpz.core.protocol.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
     QosProfile,
     ReliabilityPolicy,
 )
-from arpz.rosmsg.convert import message_definition
-from arpz.rosmsg.types import ros_type_for
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.rosmsg.convert import message_definition
+from arpz.core.rosmsg.types import ros_type_for
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 
 PROFILE: Final = "ros2"
 CDR: Final = "cdr"
@@ -48,16 +48,16 @@ METADATA_NAME: Final = "arpz"
 
 #: channel kinds beyond the sensor kinds, with the arpz type of their msgpack payload
 ARPZ_TYPES: Final = {
-    "hello": "arpz.messages.Hello",
-    "command": "arpz.messages.Command",
-    "telemetry": "arpz.messages.Telemetry",
-    "announce": "arpz.messages.Announce",
-    "stats": "arpz.messages.RobotStats",
-    "qos_ack": "arpz.messages.QosAck",
+    "hello": "arpz.core.messages.Hello",
+    "command": "arpz.core.messages.Command",
+    "telemetry": "arpz.core.messages.Telemetry",
+    "announce": "arpz.core.messages.Announce",
+    "stats": "arpz.core.messages.RobotStats",
+    "qos_ack": "arpz.core.messages.QosAck",
     #: a liveliness token appearing (true) or vanishing (false)
     "liveliness": "bool",
     #: a sensor topic no announcement named the kind of (recorded as it came)
-    "sample": "arpz.messages.Sample",
+    "sample": "arpz.core.messages.Sample",
 }
 _REPORTS: Final = {
     "telemetry": "telemetry",

@@ -40,8 +40,17 @@ from typing import Any, Final
 
 import msgspec
 
-from arpz import keys
-from arpz.cli import (
+from arpz.core import keys
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
+    CEDDP_STATS_DECODER,
+    DECODE_ERRORS,
+    STATS_DECODER,
+    CeddpStats,
+    RobotStats,
+)
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.runtime.startup import (
     add_fleet_client_options,
     add_json_option,
     add_version_option,
@@ -49,16 +58,7 @@ from arpz.cli import (
     emit_json,
     fail,
 )
-from arpz.errors import ArpzError
-from arpz.messages import (
-    CEDDP_STATS_DECODER,
-    DECODE_ERRORS,
-    STATS_DECODER,
-    CeddpStats,
-    RobotStats,
-)
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport, config_value, load_zenoh_config
+from arpz.transport.zenoh import ZenohTransport, config_value, load_zenoh_config
 
 TOOL: Final = "doctor"
 OK: Final = "OK"

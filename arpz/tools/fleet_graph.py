@@ -28,28 +28,28 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Final
 
-from arpz import keys
 from arpz.bridge.rmw_zenoh import ADMIN_SPACE, GraphRecord, graph_records
-from arpz.config import LARGE_KINDS
-from arpz.errors import ArpzError
-from arpz.messages import (
+from arpz.channel import DurabilityPolicy, Reader
+from arpz.core import keys
+from arpz.core.config import LARGE_KINDS
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     STATS_DECODER,
     Announce,
     RobotStats,
 )
-from arpz.protocol import wire
-from arpz.protocol.qos import (
+from arpz.core.protocol import wire
+from arpz.core.protocol.qos import (
     MatchQos,
     QosPolicyKind,
     QosProfile,
     decode_match_qos,
     incompatible_policy,
 )
-from arpz.reliability import DurabilityPolicy, Reader
-from arpz.rosmsg.types import UnknownKindError, ros_types_for
-from arpz.transport import Handle, Transport
+from arpz.core.rosmsg.types import UnknownKindError, ros_types_for
+from arpz.core.transport import Handle, Transport
 
 #: the single-chunk report keys below ``robot/{robot}/`` and their payload types
 ROBOT_REPORTS: Final = {
@@ -99,7 +99,7 @@ def topic_name(fleet: str, key: str) -> str | None:
 
 
 def payload_type(fleet: str, key: str, kind: str | None) -> str:
-    """The arpz message type (arpz/messages.py) carried on ``key``."""
+    """The arpz message type (arpz/core/messages.py) carried on ``key``."""
     parsed = keys.parse_robot_key(key)
     if parsed is not None:
         _, section, name = parsed
@@ -180,7 +180,7 @@ class TopicEntry:
     key: str
     #: the node that writes it (a robot id, or "ceddp")
     owner: str
-    #: the arpz payload type (arpz/messages.py): Sample, LargeSample, Command, RobotStats, ...
+    #: the arpz payload type (arpz/core/messages.py): Sample, LargeSample, Command, RobotStats, ...
     arpz_type: str
     #: the msgpack type of a Sample's or Command's value ("float", "bool", "str", "bytes"), or None
     value_type: str | None
@@ -290,7 +290,7 @@ class FleetGraph:
 
 
 def matches(topic: TopicEntry) -> list[dict[str, object]]:
-    """Every writer x reader pair of a topic with its verdict (arpz.protocol.qos matching); a
+    """Every writer x reader pair of a topic with its verdict (arpz.core.protocol.qos matching); a
     plain publisher and a channel reader never match (the reader refuses its samples)."""
     out: list[dict[str, object]] = []
     for writer in topic.writers:
@@ -750,8 +750,8 @@ __all__ = [
 
 @dataclass(frozen=True)
 class ClockOffset:
-    """The CEDDP's clock minus a writer's (arpz/protocol/clock.py's sign: a stamp of that writer
-    on the CEDDP's clock is ``stamp_ns + offset_ns``), and the round trip of the exchange it
+    """The CEDDP's clock minus a writer's (arpz/core/protocol/clock.py's sign: a stamp of that
+    writer on the CEDDP's clock is ``stamp_ns + offset_ns``), and the round trip of the exchange it
     comes from (the offset is right within half of it)."""
 
     offset_ns: int

@@ -17,7 +17,7 @@ or starts again with ``loop = true``. In robot.toml::
 ``mcap`` and ``rosbags`` libraries of the server extra, which a robot install does not have:
 they are imported only when this driver starts, and their absence is an error that says so.
 The driver lives with the tools, not in ``arpz.robot.sensors``, because ``arpz.robot`` never
-imports the server extra's libraries nor ``arpz.rosmsg`` (pyproject's import contracts); the
+imports the server extra's libraries nor ``arpz.core.rosmsg`` (pyproject's import contracts); the
 robot loads it by its path, as any user driver.
 """
 
@@ -41,7 +41,7 @@ def load_frames(path: Path, kind: str, topic: str | None) -> tuple[list[float], 
         from mcap.exceptions import McapError
         from mcap.reader import make_reader
 
-        from arpz.rosmsg.convert import ConversionError, from_cdr
+        from arpz.core.rosmsg.convert import ConversionError, from_cdr
     except ImportError as exc:
         raise TraceError(
             f"{path}: replaying frames from MCAP needs the mcap and rosbags libraries ({exc.name} "

@@ -35,11 +35,11 @@ import msgspec
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from arpz import cli, keys
-from arpz.channel_io import FrameOutlet, Outlet
-from arpz.config import LARGE_SAMPLE_BYTES, SENSOR_KINDS
-from arpz.errors import ArpzError
-from arpz.messages import (
+from arpz.channel.io import FrameOutlet, Outlet
+from arpz.core import keys
+from arpz.core.config import LARGE_SAMPLE_BYTES, SENSOR_KINDS
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     HELLO_DECODER,
@@ -52,11 +52,12 @@ from arpz.messages import (
     new_incarnation,
     writer_id,
 )
-from arpz.protocol.qos import QosProfile
-from arpz.rosmsg.convert import ConversionError, from_cdr
-from arpz.throttled_log import ThrottledLog
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.rosmsg.convert import ConversionError, from_cdr
+from arpz.core.throttled_log import ThrottledLog
+from arpz.core.transport import Handle, Transport, TransportError
+from arpz.runtime import startup
 from arpz.tools._recording import Topic, matches, open_client
-from arpz.transport import Handle, Transport, TransportError
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -233,14 +234,14 @@ class Player:
             self._start_wall_ns = time.time_ns()
             for topic, log_ns, data in self._messages():
                 offset_s = (log_ns - self.first_ns) / 1e9 / self.rate
-                if cli.wait_for_stop(stop, start_mono + offset_s - time.monotonic()):
+                if startup.wait_for_stop(stop, start_mono + offset_s - time.monotonic()):
                     return
                 self._publish(topic, log_ns, data)
             self.loops += 1
             if not self.loop:
                 return
             # the next pass starts one recording span after this one began
-            cli.wait_for_stop(stop, start_mono + span_ns / 1e9 / self.rate - time.monotonic())
+            startup.wait_for_stop(stop, start_mono + span_ns / 1e9 / self.rate - time.monotonic())
 
     def _restamp(self, stamp_ns: int) -> int:
         """A recorded stamp moved to this pass: as long after its start as it was after the
@@ -379,7 +380,7 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="FILE.mcap",
         help="a recording (or the name given to --out when it was split into FILE_0.mcap ...)",
     )
-    cli.add_fleet_client_options(
+    startup.add_fleet_client_options(
         parser,
         fleet_default=None,
         fleet_help="publish into this fleet (default: the fleet the recording was made of)",
@@ -391,26 +392,26 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--topics", nargs="+", default=[], metavar="PATTERN", help="play only these topics"
     )
-    cli.add_json_option(parser, "what was published")
-    cli.add_version_option(parser)
+    startup.add_json_option(parser, "what was published")
+    startup.add_version_option(parser)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        endpoints = cli.connect_endpoints(args.connect)
+        endpoints = startup.connect_endpoints(args.connect)
         files = recording_files(args.file)
         fleet = args.fleet or recorded_fleet(files[0])
         keys.check_chunk(fleet, what="--fleet")
     except ArpzError as exc:
-        return cli.fail("play", str(exc))
-    cli.configure_logging("WARNING")
-    stop = cli.stop_on_signals()
+        return startup.fail("play", str(exc))
+    startup.configure_logging("WARNING")
+    stop = startup.stop_on_signals()
     try:
         transport = open_client(endpoints, args.zenoh_config)
     except TransportError as exc:
-        return cli.fail("play", str(exc), 1)
+        return startup.fail("play", str(exc), 1)
     try:
         player = Player(
             transport, files, fleet=fleet, rate=args.rate, loop=args.loop, patterns=args.topics
@@ -425,7 +426,7 @@ def main(argv: list[str] | None = None) -> int:
         player.run(stop)
         player.close()
     except ArpzError as exc:
-        return cli.fail("play", str(exc))
+        return startup.fail("play", str(exc))
     finally:
         transport.close()
     summary = player.summary()
@@ -434,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
         f"({summary['loops']} pass(es))",
         file=sys.stderr,
     )
-    cli.emit_json(summary, args.json)
+    startup.emit_json(summary, args.json)
     return 0
 
 

@@ -26,8 +26,16 @@ from typing import Any
 
 import msgspec
 
-from arpz import cli, keys
-from arpz.config import (
+from arpz.channel import (
+    DataInfo,
+    FrameInfo,
+    FrameReader,
+    MessageLostStatus,
+    Reader,
+    ReaderEventCallbacks,
+)
+from arpz.core import keys
+from arpz.core.config import (
     LARGE_KINDS,
     LARGE_SAMPLE_BYTES,
     CeddpConfig,
@@ -36,27 +44,20 @@ from arpz.config import (
     TrafficQos,
     load_toml,
 )
-from arpz.errors import ArpzError
-from arpz.messages import (
+from arpz.core.errors import ArpzError
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     LARGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
 )
-from arpz.protocol.qos import QosProfile
-from arpz.reliability import (
-    DataInfo,
-    FrameInfo,
-    FrameReader,
-    MessageLostStatus,
-    Reader,
-    ReaderEventCallbacks,
-)
-from arpz.rosmsg.convert import ConversionError, is_exact, to_cdr
-from arpz.throttled_log import ThrottledLog
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.rosmsg.convert import ConversionError, is_exact, to_cdr
+from arpz.core.throttled_log import ThrottledLog
+from arpz.core.transport import Handle, Transport, TransportError
+from arpz.core.version import arpz_version
+from arpz.runtime import startup
 from arpz.tools._recording import McapSink, Topic, matches, open_client, report_kind
-from arpz.transport import Handle, Transport, TransportError
-from arpz.version import arpz_version
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -542,7 +543,7 @@ def build_parser() -> argparse.ArgumentParser:
         "profile: ROS 2 tools and Foxglove open it). Stops on SIGINT or after --duration, then "
         "prints messages and losses per topic.",
     )
-    cli.add_fleet_client_options(parser)
+    startup.add_fleet_client_options(parser)
     parser.add_argument("--out", required=True, type=Path, metavar="FILE.mcap")
     parser.add_argument("--duration", type=float, default=0.0, metavar="S", help="0: until SIGINT")
     parser.add_argument(
@@ -566,8 +567,8 @@ def build_parser() -> argparse.ArgumentParser:
         "them as each topic's QoS (default: arpz's default profiles, which a fleet that changed "
         "them does not use)",
     )
-    cli.add_json_option(parser, "the summary")
-    cli.add_version_option(parser)
+    startup.add_json_option(parser, "the summary")
+    startup.add_version_option(parser)
     parser.add_argument(
         "patterns",
         nargs="*",
@@ -605,7 +606,7 @@ def _fleet_traffic(path: Path | None) -> TrafficQos | None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        endpoints = cli.connect_endpoints(args.connect)
+        endpoints = startup.connect_endpoints(args.connect)
         keys.check_chunk(args.fleet, what="--fleet")
         if args.duration < 0 or args.split_size < 0 or args.split_duration < 0:
             raise ArpzError("--duration, --split-size and --split-duration must be >= 0")
@@ -614,13 +615,13 @@ def main(argv: list[str] | None = None) -> int:
         if args.out.suffix != ".mcap":
             raise ArpzError(f"--out {args.out}: give a file name ending in .mcap")
     except ArpzError as exc:
-        return cli.fail("record", str(exc))
-    cli.configure_logging("WARNING")
-    stop = cli.stop_on_signals()
+        return startup.fail("record", str(exc))
+    startup.configure_logging("WARNING")
+    stop = startup.stop_on_signals()
     try:
         transport = open_client(endpoints, args.zenoh_config)
     except TransportError as exc:
-        return cli.fail("record", str(exc), 1)
+        return startup.fail("record", str(exc), 1)
     sink = McapSink(
         args.out,
         split_bytes=int(args.split_size * 2**20),
@@ -651,9 +652,10 @@ def main(argv: list[str] | None = None) -> int:
             transport.close()
     summary = recorder.summary()
     print(
-        format_summary(summary), file=sys.stderr if args.json == cli.JSON_TO_STDOUT else sys.stdout
+        format_summary(summary),
+        file=sys.stderr if args.json == startup.JSON_TO_STDOUT else sys.stdout,
     )
-    cli.emit_json(summary, args.json)
+    startup.emit_json(summary, args.json)
     return 0
 
 

@@ -22,8 +22,10 @@ import time
 from collections.abc import Callable
 from typing import Final
 
-from arpz import keys
-from arpz.cli import (
+from arpz.core import keys
+from arpz.core.errors import ArpzError
+from arpz.core.transport import SessionSettings, Transport
+from arpz.runtime.startup import (
     JSON_TO_STDOUT,
     add_fleet_client_options,
     add_json_option,
@@ -33,7 +35,6 @@ from arpz.cli import (
     fail,
     stop_on_signals,
 )
-from arpz.errors import ArpzError
 from arpz.tools.fleet_graph import (
     Discovery,
     FleetGraph,
@@ -50,8 +51,7 @@ from arpz.tools.topic_text import (
     info_lines,
     list_lines,
 )
-from arpz.transport import SessionSettings, Transport
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 
 TOOL: Final = "topic"
 #: how long discovery watches the fleet at most before answering (less once every robot spoke)
@@ -63,7 +63,7 @@ TOPIC_HELP: Final = (
 )
 
 
-#: arpz payload type -> its decoder (arpz/messages.py)
+#: arpz payload type -> its decoder (arpz/core/messages.py)
 def run_list(args: argparse.Namespace, ctx: Context) -> int:
     graph = ctx.graph
     if not graph.nodes and not graph.topics:

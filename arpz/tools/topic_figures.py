@@ -8,8 +8,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from arpz.config import RobotClockConfig
-from arpz.messages import DECODE_ERRORS
+from arpz.core.config import RobotClockConfig
+from arpz.core.messages import DECODE_ERRORS
+from arpz.core.transport import Transport
 from arpz.robot.clock_sync import ClockSync
 from arpz.tools.fleet_graph import (
     CEDDP,
@@ -31,7 +32,6 @@ from arpz.tools.topic_text import (
     echo_text,
     message_document,
 )
-from arpz.transport import Transport
 
 
 class Echo:

@@ -28,12 +28,12 @@ from dataclasses import dataclass
 
 import msgspec
 
-from arpz.config import LARGE_SAMPLE_BYTES
-from arpz.messages import DECODE_ERRORS
-from arpz.protocol.qos import QosProfile, ReliabilityPolicy
-from arpz.reliability import DataInfo, FrameInfo, FrameReader, Reader, ReaderStats
+from arpz.channel import DataInfo, FrameInfo, FrameReader, Reader, ReaderStats
+from arpz.core.config import LARGE_SAMPLE_BYTES
+from arpz.core.messages import DECODE_ERRORS
+from arpz.core.protocol.qos import QosProfile, ReliabilityPolicy
+from arpz.core.transport import Handle, Transport
 from arpz.tools.fleet_graph import TopicEntry
-from arpz.transport import Handle, Transport
 
 #: messages waiting for the caller; beyond, they are dropped here and counted
 QUEUE_LIMIT = 100_000

@@ -13,8 +13,7 @@ from typing import IO, Any, Final
 
 import msgspec
 
-from arpz.cli import JSON_TO_STDOUT
-from arpz.messages import (
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     CEDDP_STATS_DECODER,
     COMMAND_DECODER,
@@ -27,6 +26,7 @@ from arpz.messages import (
     TELEMETRY_DECODER,
     LargeSample,
 )
+from arpz.runtime.startup import JSON_TO_STDOUT
 from arpz.tools.fleet_graph import (
     Endpoint,
     FleetGraph,

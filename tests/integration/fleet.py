@@ -10,8 +10,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from arpz.launch import PORT_TAKEN_LOG, LaunchError, PortTaken, Proc, on_fresh_ports
 from arpz.netem import Impairments, NetemProxy
+from arpz.tools.launch import PORT_TAKEN_LOG, LaunchError, PortTaken, Proc, on_fresh_ports
 from tests.support import free_port, free_udp_port
 
 #: The environment of a process whose resident memory a test judges (soak, abuse). glibc's
@@ -25,7 +25,7 @@ STEADY_MALLOC = {"MALLOC_ARENA_MAX": "2", "MALLOC_MMAP_THRESHOLD_": "131072"}
 
 
 class Process:
-    """A ``python -m arpz...`` child for the tests: arpz.launch's Proc, without a log file
+    """A ``python -m arpz...`` child for the tests: arpz.tools.launch's Proc, without a log file
     (a failure's message carries the whole output instead)."""
 
     def __init__(
@@ -97,7 +97,7 @@ def ceddp(
     env: dict[str, str] | None = None,
 ) -> Iterator[tuple[Process, str]]:
     """A CEDDP on a fresh port; started again on a new one if another process took it between
-    ``free_port`` and the bind (``arpz.launch.on_fresh_ports``' rule: a CI run failed on that
+    ``free_port`` and the bind (``arpz.tools.launch.on_fresh_ports``' rule: a CI run failed on that
     race)."""
 
     def start() -> tuple[Process, str]:

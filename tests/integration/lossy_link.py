@@ -12,9 +12,9 @@ from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass
 
+from arpz.core.transport import SessionSettings
 from arpz.netem.process import NetemProcess, netem_process
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 from tests.support import free_port, free_udp_port
 
 CLEAN_S = 1.5

@@ -2,8 +2,9 @@
 
 Written from rmw_zenoh's documentation (ros2/rmw_zenoh ``docs/design.md``: "Topic and Service
 name mapping to Zenoh key expressions", "Graph Cache", "Publishers"), NOT from arpz.bridge: its
-own token parser and key builder, CDR through ``rosbags``' Jazzy typestore directly (arpz.rosmsg
-uses the Humble one), the attachment through Zenoh's own serializer (``zenoh.ext``, which
+own token parser and key builder, CDR through ``rosbags``' Jazzy typestore directly
+(arpz.core.rosmsg uses the Humble one), the attachment through Zenoh's own serializer
+(``zenoh.ext``, which
 rmw_zenoh's ``AttachmentData`` uses), and zenoh-python directly. Like a ROS 2 node it declares
 its own node token and, for what it publishes, a publisher token, and computes the type hashes
 of what it publishes itself.

@@ -15,8 +15,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import Process, write_robot
 from tests.support import free_port
 

@@ -22,9 +22,9 @@ import msgspec
 import pytest
 
 from arpz.ceddp.ingest import MAX_WRITERS_PER_TOPIC
-from arpz.messages import CEDDP_STATS_DECODER, Hello, Sample, encode
-from arpz.protocol import wire
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.messages import CEDDP_STATS_DECODER, Hello, Sample, encode
+from arpz.core.protocol import wire
+from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import STEADY_MALLOC, ceddp, robots, settle, write_robot
 from tests.integration.secure_fleet import rss_mb
 from tests.support import client, wait_until

@@ -12,12 +12,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from arpz.bundling import Bundler
-from arpz.protocol import bundle, wire
-from arpz.protocol.qos import QosProfile
-from arpz.reliability import Reader, Writer
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.channel import Reader, Writer
+from arpz.channel.bundling import Bundler
+from arpz.core.protocol import bundle, wire
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import ceddp, robots, settle
 from tests.support import HeldHeartbeats, client, router, wait_until
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import CEDDP_STATS_DECODER
+from arpz.core.messages import CEDDP_STATS_DECODER
 from arpz.netem.process import netem_process
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import Process, robots
 from tests.support import client, free_port, free_udp_port, wait_until
 

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from arpz import keys
 from arpz.configure.model import load_model
-from arpz.messages import (
+from arpz.core import keys
+from arpz.core.messages import (
     Announce,
     CeddpStats,
     RobotStats,

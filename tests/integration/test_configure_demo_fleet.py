@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 
 from arpz.configure.model import load_model
-from arpz.demo import DemoOptions, demo_spec
-from arpz.launch import free_port, run_fleet
+from arpz.tools.demo import DemoOptions, demo_spec
+from arpz.tools.launch import free_port, run_fleet
 from tests.integration.test_configure_characterise import characterise
 
 pytestmark = pytest.mark.integration

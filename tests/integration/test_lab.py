@@ -21,7 +21,6 @@ from pathlib import Path
 
 import pytest
 
-from arpz.demo import DemoOptions
 from arpz.lab import (
     TIMELINE_FILE,
     Lab,
@@ -35,6 +34,7 @@ from arpz.lab import (
 )
 from arpz.lab.clean import clean
 from arpz.lab.names import IF_PREFIX, NS_PREFIX
+from arpz.tools.demo import DemoOptions
 from tests.lab_support import require_lab
 from tests.support import wait_until
 

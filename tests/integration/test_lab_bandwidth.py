@@ -13,7 +13,7 @@ import pytest
 
 from arpz.lab import Lab, parse_profile
 from arpz.lab.fleet import PORT, LabRunResult, run_fleet_in_lab
-from arpz.launch import FleetSpec
+from arpz.tools.launch import FleetSpec
 from tests.lab_support import require_lab
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

@@ -23,9 +23,9 @@ from typing import Any
 
 import pytest
 
-from arpz.demo import DemoOptions
 from arpz.lab import Lab, parse_profile
 from arpz.lab.fleet import LabRunOptions, lab_spec, run_fleet_in_lab
+from arpz.tools.demo import DemoOptions
 from tests.lab_support import require_lab
 
 pytestmark = [pytest.mark.integration, pytest.mark.slow]

@@ -10,9 +10,7 @@ from contextlib import ExitStack
 
 import pytest
 
-from arpz.link_sizes import link_sizes, session_batch_size
-from arpz.protocol.events import DataInfo
-from arpz.reliability import (
+from arpz.channel import (
     QOS_FRAMES_ALL,
     FrameInfo,
     FrameReader,
@@ -22,6 +20,8 @@ from arpz.reliability import (
     Reader,
     Writer,
 )
+from arpz.core.link_sizes import link_sizes, session_batch_size
+from arpz.core.protocol.events import DataInfo
 from tests.integration.lossy_link import lossy_link
 from tests.support import wait_until
 
@@ -95,7 +95,7 @@ def test_camera_frames_arrive_intact_over_a_link_losing_10_percent_of_frames() -
 def test_a_plain_writer_fragments_large_samples_over_udp_losing_1_percent_of_frames() -> None:
     """Issue 39: no manual setting. A plain Writer/Reader pair (what every Outlet/Inlet and the
     perf tool use) over UDP through netem losing 1 % of 1500-byte frames, with the batch size
-    arpz.link_sizes gives for the writer's endpoint: every 921 600-byte sample arrives whole,
+    arpz.core.link_sizes gives for the writer's endpoint: every 921 600-byte sample arrives whole,
     once, and only lost fragments are resent."""
     sizes = link_sizes(["udp/127.0.0.1:7447"])
     batch_size = session_batch_size(["udp/127.0.0.1:7447"])  # what the session sets

@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
-import arpz.demo
 import arpz.experiment.runner
-from arpz.demo import DemoOptions, demo_spec, run_demo
+import arpz.tools.demo
+from arpz.core.transport import TransportError
 from arpz.experiment.presets import quick
-from arpz.launch import PortTaken, free_port, run_fleet
-from arpz.transport import TransportError
+from arpz.tools.demo import DemoOptions, demo_spec, run_demo
+from arpz.tools.launch import PortTaken, free_port, run_fleet
 from tests import support
 from tests.integration import fleet
 
@@ -46,7 +46,7 @@ def test_the_demo_starts_again_on_a_new_port(
 ) -> None:
     with taken_port() as port:
         ports = iter([port])  # the first pick is taken, the next is really free
-        monkeypatch.setattr(arpz.demo, "free_port", lambda: next(ports, None) or free_port())
+        monkeypatch.setattr(arpz.tools.demo, "free_port", lambda: next(ports, None) or free_port())
         progress = io.StringIO()
         options = DemoOptions(robots=1, duration_s=2, rate_hz=20.0, rrd=tmp_path / "demo.rrd")
         summary = run_demo(options, tmp_path / "demo", progress)

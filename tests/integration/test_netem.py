@@ -10,9 +10,9 @@ import time
 
 import pytest
 
+from arpz.core.transport import SessionSettings
 from arpz.netem.process import netem_process
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.transport.zenoh import ZenohTransport
 from tests.support import free_port, free_udp_port, wait_until
 
 pytestmark = pytest.mark.integration

@@ -18,7 +18,12 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import CEDDP_STATS_DECODER, QOS_ASSIGNMENT_DECODER, CeddpStats, QosAssignmentMsg
+from arpz.core.messages import (
+    CEDDP_STATS_DECODER,
+    QOS_ASSIGNMENT_DECODER,
+    CeddpStats,
+    QosAssignmentMsg,
+)
 from tests.integration.fleet import ceddp, robots
 from tests.support import client, wait_until
 

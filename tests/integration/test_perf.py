@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from arpz.channel import Writer
+from arpz.core.protocol.qos import HistoryPolicy, QosProfile
 from arpz.perf.harness import child, free_port, perf_router, pingpong, pubsub
 from arpz.perf.report import make_payload
-from arpz.protocol.qos import HistoryPolicy, QosProfile
-from arpz.reliability import Writer
 from tests.support import client, wait_until
 
 pytestmark = pytest.mark.integration
@@ -133,10 +133,10 @@ def test_an_output_file_that_cannot_be_written_is_refused_before_the_run(tmp_pat
 
 RAISING_READER = """
 import sys, threading
-from arpz.protocol.qos import QosProfile, HistoryPolicy
-from arpz.reliability import Reader
-from arpz.transport import SessionSettings
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.protocol.qos import QosProfile, HistoryPolicy
+from arpz.channel import Reader
+from arpz.core.transport import SessionSettings
+from arpz.transport.zenoh import ZenohTransport
 
 def on_data(payload, info):
     raise ValueError("a callback that fails on every sample")

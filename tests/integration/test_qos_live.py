@@ -9,7 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import (
+from arpz.channel import Reader
+from arpz.core.messages import (
     QOS_ACK_DECODER,
     QOS_ASSIGNMENT_DECODER,
     STATS_DECODER,
@@ -17,10 +18,9 @@ from arpz.messages import (
     QosAssignmentMsg,
     RobotStats,
 )
-from arpz.protocol.events import DataInfo
-from arpz.reliability import Reader
-from arpz.traffic import ASSIGNMENT_QOS, REPORT_QOS
-from arpz.transport import Transport
+from arpz.core.protocol.events import DataInfo
+from arpz.core.traffic import ASSIGNMENT_QOS, REPORT_QOS
+from arpz.core.transport import Transport
 from tests.integration.fleet import Process, ceddp, robots, write_robot
 from tests.support import client, wait_until
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import ANNOUNCE_DECODER, Announce, QosAssignmentMsg
+from arpz.core.messages import ANNOUNCE_DECODER, Announce, QosAssignmentMsg
 from arpz.netem import Impairments
 from tests.integration.fleet import ceddp, robots, settle, udp_link, write_robot
 from tests.integration.test_qos_live import Watcher as QosWatcher

@@ -22,7 +22,7 @@ import pytest
 
 from arpz.lab import Lab, LinkState
 from arpz.lab.fleet import make_certs
-from arpz.launch import Proc
+from arpz.tools.launch import Proc
 from tests.lab_support import require_lab
 from tests.support import wait_until
 

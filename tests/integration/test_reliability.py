@@ -16,7 +16,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from arpz.reliability import (
+from arpz.channel import (
     QOS_RELIABLE_ALL,
     DataInfo,
     DurabilityPolicy,
@@ -216,9 +216,9 @@ def test_deadline_events_count_the_missed_periods_when_the_writer_pauses() -> No
 _WRITER_PROCESS = textwrap.dedent(
     """
     import sys, time
-    from arpz.transport import SessionSettings
-    from arpz.zenoh_transport import ZenohTransport
-    from arpz.reliability import Writer, QosProfile
+    from arpz.core.transport import SessionSettings
+    from arpz.transport.zenoh import ZenohTransport
+    from arpz.channel import Writer, QosProfile
     with ZenohTransport.open(SessionSettings(connect=[sys.argv[1]]), timeout_s=5) as t:
         with Writer(t, "arpz/f/robot/r9/sensor/imu", QosProfile()) as w:
             print("ready", flush=True)

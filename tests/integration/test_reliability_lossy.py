@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from arpz.reliability import (
+from arpz.channel import (
     QOS_RELIABLE_ALL,
     DataInfo,
     MessageLostStatus,

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arpz import keys
-from arpz.config import LARGE_SAMPLE_BYTES
-from arpz.messages import LARGE_SAMPLE_DECODER, SAMPLE_DECODER, TELEMETRY_DECODER
-from arpz.reliability import FrameReader, Reader
-from arpz.traffic import FRAMES_QOS, REPORT_QOS, SENSOR_QOS
+from arpz.channel import FrameReader, Reader
+from arpz.core import keys
+from arpz.core.config import LARGE_SAMPLE_BYTES
+from arpz.core.messages import LARGE_SAMPLE_DECODER, SAMPLE_DECODER, TELEMETRY_DECODER
+from arpz.core.traffic import FRAMES_QOS, REPORT_QOS, SENSOR_QOS
 from tests.integration.fleet import Process, ceddp, robots, write_robot
 from tests.integration.ros2_peer import Ros2Peer, qos_fields
 from tests.support import client, wait_until

@@ -20,12 +20,12 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import DECODE_ERRORS, STATS_DECODER, Command, RobotStats, Sample, encode
-from arpz.protocol import wire
-from arpz.reliability import Writer
-from arpz.traffic import SENSOR_QOS
-from arpz.transport import TransportError
-from arpz.zenoh_transport import ZenohTransport
+from arpz.channel import Writer
+from arpz.core.messages import DECODE_ERRORS, STATS_DECODER, Command, RobotStats, Sample, encode
+from arpz.core.protocol import wire
+from arpz.core.traffic import SENSOR_QOS
+from arpz.core.transport import TransportError
+from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import robots, settle
 from tests.integration.secure_fleet import (
     SCRIPT,

@@ -26,7 +26,7 @@ from typing import Any
 
 import pytest
 
-from arpz.messages import CEDDP_STATS_DECODER
+from arpz.core.messages import CEDDP_STATS_DECODER
 from tests.integration.fleet import STEADY_MALLOC, ceddp, robots
 from tests.integration.secure_fleet import rss_mb
 from tests.support import client

@@ -21,9 +21,9 @@ from typing import Any
 
 import pytest
 
-from arpz.endpoints import frame_fragment_bytes
+from arpz.core.endpoints import frame_fragment_bytes
+from arpz.core.rosmsg.types import ros_type_for
 from arpz.robot.sensors import PRESETS
-from arpz.rosmsg.types import ros_type_for
 from tests.integration.fleet import Process, ceddp, robots, write_robot
 from tests.support import wait_until
 

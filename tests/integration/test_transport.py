@@ -2,9 +2,9 @@ import threading
 
 import pytest
 
-from arpz.errors import ArpzError
-from arpz.transport import SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport
+from arpz.core.errors import ArpzError
+from arpz.core.transport import SessionSettings, TransportError
+from arpz.transport.zenoh import ZenohTransport
 from tests.support import client, free_port, router, wait_until
 
 pytestmark = pytest.mark.integration

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from arpz.launch import free_port
-from arpz.transport import CLIENT_LINK_DEFAULTS, Received, SessionSettings, TransportError
-from arpz.zenoh_transport import ZenohTransport, _abort_on_close, build_config, config_value
+from arpz.core.transport import CLIENT_LINK_DEFAULTS, Received, SessionSettings, TransportError
+from arpz.tools.launch import free_port
+from arpz.transport.zenoh import ZenohTransport, _abort_on_close, build_config, config_value
 from tests.support import router, wait_until
 
 pytestmark = pytest.mark.integration

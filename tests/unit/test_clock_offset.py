@@ -9,8 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.messages import STATS_DECODER, ClockStats, RobotStats, encode
-from arpz.protocol.clock import FLOOR_RISE_NS_PER_S, MARGIN_NS, Exchange, MinDelayFilter
+from arpz.core.messages import STATS_DECODER, ClockStats, RobotStats, encode
+from arpz.core.protocol.clock import FLOOR_RISE_NS_PER_S, MARGIN_NS, Exchange, MinDelayFilter
 
 #: nanoseconds: offsets up to an hour either way, one-way delays up to 10 s, holds up to 1 s
 offsets = st.integers(min_value=-3_600 * 10**9, max_value=3_600 * 10**9)

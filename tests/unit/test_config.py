@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.config import CeddpConfig, ConfigError, RobotConfig, load_toml
+from arpz.core.config import CeddpConfig, ConfigError, RobotConfig, load_toml
 
 
 def write(tmp_path: Path, text: str) -> Path:

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.config import CeddpConfig, RobotConfig, load_toml
+from arpz.core.config import CeddpConfig, RobotConfig, load_toml
 from arpz.robot.agent import effective_sensors
 from arpz.robot.sensors import make_driver
 

@@ -1,9 +1,9 @@
-"""``arpz.channel_io.drain``: a stopping robot waits for its unacknowledged samples while the
+"""``arpz.channel.io.drain``: a stopping robot waits for its unacknowledged samples while the
 CEDDP keeps acknowledging them, and not after it stops (a fake clock: no real waiting)."""
 
 from __future__ import annotations
 
-from arpz.channel_io import drain
+from arpz.channel.io import drain
 
 
 class Clock:

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from arpz.config import CeddpConfig, ConfigError, RobotConfig, from_dict
-from arpz.endpoints import (
+from arpz.core.config import CeddpConfig, ConfigError, RobotConfig, from_dict
+from arpz.core.endpoints import (
     DEFAULT_CONNECT,
     check_endpoints,
     endpoint_address,
@@ -13,8 +13,8 @@ from arpz.endpoints import (
     plain_tcp_beside_tls,
     resolve,
 )
-from arpz.errors import ArpzError
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
+from arpz.core.errors import ArpzError
+from arpz.core.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
 
 
 @pytest.mark.parametrize(

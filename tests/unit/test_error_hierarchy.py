@@ -8,7 +8,7 @@ import inspect
 import pkgutil
 
 import arpz
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 
 
 def _arpz_modules() -> list[str]:

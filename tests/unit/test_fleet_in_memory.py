@@ -6,9 +6,9 @@ The same flows go through a real router and real processes in tests/integration/
 import threading
 
 from arpz.ceddp.server import CeddpServer
-from arpz.config import CeddpConfig, HelloConfig, RobotConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import CeddpConfig, HelloConfig, RobotConfig
 from arpz.robot.agent import RobotAgent
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 
@@ -80,8 +80,8 @@ def test_counts_reconcile_and_hello_round_trips() -> None:
 
 
 def test_qos_is_assigned_whether_the_announcement_or_the_presence_comes_first() -> None:
-    from arpz.config import QosControlConfig
-    from arpz.messages import QOS_ASSIGNMENT_DECODER, Announce, TopicInfo, encode
+    from arpz.core.config import QosControlConfig
+    from arpz.core.messages import QOS_ASSIGNMENT_DECODER, Announce, TopicInfo, encode
 
     bus = MemoryBus()
     server = CeddpServer(
@@ -102,8 +102,8 @@ def test_qos_is_assigned_whether_the_announcement_or_the_presence_comes_first() 
         sensors=[TopicInfo(topic="pir", kind="pir", rate_hz=10, value_type="str")],
     )
     # through the channel, as a robot reports (a plain put would be refused as INCOMPATIBLE)
-    from arpz.reliability import Writer
-    from arpz.traffic import REPORT_QOS
+    from arpz.channel import Writer
+    from arpz.core.traffic import REPORT_QOS
 
     writer = Writer(robot, "arpz/f/robot/r1/announce", REPORT_QOS)
     writer.write(encode(announce))  # before its presence

@@ -1,7 +1,7 @@
 """Fuzzing config loading: whatever a TOML file or a dict holds, only ConfigError may escape.
 
 A robot's ``python -m arpz.robot`` must exit with code 2 and a message naming the file and the
-field for ANY bad file, never with a traceback, so ``arpz.config.load_toml`` and ``from_dict``
+field for ANY bad file, never with a traceback, so ``arpz.core.config.load_toml`` and ``from_dict``
 may raise nothing but ``ConfigError``. The values are drawn from the config Structs' own field
 types (read with ``msgspec.inspect``, so fields added later are fuzzed too), mixed with values of
 the wrong type, unknown fields, and text that is not TOML at all.
@@ -21,7 +21,7 @@ import msgspec.inspect as mi
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from arpz.config import CeddpConfig, ConfigError, RobotConfig, from_dict, load_toml
+from arpz.core.config import CeddpConfig, ConfigError, RobotConfig, from_dict, load_toml
 
 FUZZ = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 DEPLOY = Path(__file__).resolve().parents[2] / "deploy"

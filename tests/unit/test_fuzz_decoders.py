@@ -1,8 +1,8 @@
 """Fuzzing every decoder of untrusted bytes: only the documented errors may escape.
 
 Anything on a Zenoh key can be put there by a buggy or hostile client, so each decoder in
-``arpz.messages`` (found by introspection, so a decoder added later is fuzzed too) must either
-return a typed message or raise one of ``arpz.messages.DECODE_ERRORS``; the reliable channel's
+``arpz.core.messages`` (found by introspection, so a decoder added later is fuzzed too) must either
+return a typed message or raise one of ``arpz.core.messages.DECODE_ERRORS``; the reliable channel's
 wire decoders must return ``None`` for anything they cannot use. The CEDDP's ingest, which is
 where those bytes land, must count every payload in exactly one place and never raise.
 """
@@ -18,12 +18,12 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from arpz import keys, messages
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import HelloRelay
-from arpz.messages import DECODE_ERRORS, Hello, Sample, encode
-from arpz.protocol import wire
+from arpz.core import keys, messages
+from arpz.core.messages import DECODE_ERRORS, Hello, Sample, encode
+from arpz.core.protocol import wire
 from tests.unit.reliability.test_wire import decoded_again
 
 DECODERS: dict[str, msgspec.msgpack.Decoder[Any]] = {

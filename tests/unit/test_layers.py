@@ -12,16 +12,16 @@ import pytest
 
 #: the bottom layers: usable (and unit-testable) with no Zenoh, no Rerun, no solver loaded
 PURE = [
-    "arpz.protocol.reader_machine",
-    "arpz.protocol.writer_machine",
-    "arpz.reliability",
-    "arpz.config",
-    "arpz.messages",
-    "arpz.frames",
-    "arpz.memory_transport",
+    "arpz.core.protocol.reader_machine",
+    "arpz.core.protocol.writer_machine",
+    "arpz.channel",
+    "arpz.core.config",
+    "arpz.core.messages",
+    "arpz.core.frames",
+    "arpz.transport.memory",
     "arpz.mission",
-    "arpz.channel_io",
-    "arpz.link_sizes",
+    "arpz.channel.io",
+    "arpz.core.link_sizes",
 ]
 
 

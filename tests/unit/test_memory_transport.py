@@ -1,7 +1,7 @@
 import pytest
 
-from arpz.memory_transport import MemoryBus, MemoryTransport, key_matches
-from arpz.transport import TransportError
+from arpz.core.transport import TransportError
+from arpz.transport.memory import MemoryBus, MemoryTransport, key_matches
 
 
 def test_key_matching_follows_zenoh_wildcards() -> None:

@@ -2,7 +2,7 @@ import msgspec
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.messages import (
+from arpz.core.messages import (
     DECODE_ERRORS,
     HELLO_DECODER,
     SAMPLE_DECODER,

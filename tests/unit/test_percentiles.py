@@ -8,7 +8,7 @@ import random
 import numpy as np
 import pytest
 
-from arpz.percentiles import (
+from arpz.core.percentiles import (
     _FOLD_AT,
     RELATIVE_ERROR,
     Distribution,

@@ -16,11 +16,11 @@ import time
 
 import pytest
 
-from arpz.cli import wait_for_stop
+from arpz.runtime.startup import wait_for_stop
 
 SCRIPT = r"""
 import signal, sys, threading, time
-from arpz.cli import stop_on_signals, wait_for_stop
+from arpz.runtime.startup import stop_on_signals, wait_for_stop
 
 stop = stop_on_signals()
 

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from arpz.percentiles import RELATIVE_ERROR
-from arpz.protocol import timers
-from arpz.protocol.timers import SojournMeter
+from arpz.core.percentiles import RELATIVE_ERROR
+from arpz.core.protocol import timers
+from arpz.core.protocol.timers import SojournMeter
 
 
 def test_each_sample_of_a_pass_counts_with_the_pass_s_figure() -> None:

@@ -6,7 +6,7 @@ import logging
 
 import pytest
 
-from arpz.throttled_log import OTHER_CAUSES, ThrottledLog
+from arpz.core.throttled_log import OTHER_CAUSES, ThrottledLog
 
 
 class Clock:

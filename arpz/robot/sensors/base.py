@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from typing import Any, ClassVar, cast
 
-from arpz.errors import ArpzError
-from arpz.messages import SensorValue
+from arpz.core.errors import ArpzError
+from arpz.core.messages import SensorValue
 
 #: the Python type of each kind's value, as Table 1 of seed 001 gives it
 VALUE_TYPES: dict[str, type] = {

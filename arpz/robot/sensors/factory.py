@@ -6,8 +6,8 @@ import importlib
 import zlib
 from pathlib import Path
 
-from arpz.config import SensorConfig
-from arpz.errors import ArpzError
+from arpz.core.config import SensorConfig
+from arpz.core.errors import ArpzError
 from arpz.robot.sensors.base import SensorDriver
 from arpz.robot.sensors.replay import ReplayDriver
 from arpz.robot.sensors.simulated import SIMULATED

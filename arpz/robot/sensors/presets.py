@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from arpz.config import SensorConfig
+from arpz.core.config import SensorConfig
 
 PRESETS: dict[str, tuple[str, ...]] = {
     "machine1": ("lidar", "light", "flame", "dht11", "imu", "pir"),

@@ -13,8 +13,8 @@ import json
 from pathlib import Path
 from typing import Any, ClassVar
 
-from arpz.errors import ArpzError
-from arpz.messages import SensorValue
+from arpz.core.errors import ArpzError
+from arpz.core.messages import SensorValue
 from arpz.robot.sensors.base import VALUE_TYPES, SensorDriver, check_value
 
 

@@ -10,14 +10,15 @@ from pathlib import Path
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from arpz import keys
 from arpz.bridge import rmw_zenoh as rz
 from arpz.bridge.__main__ import load, parse_args
 from arpz.bridge.bridge import Bridge
 from arpz.bridge.commands import CONVERTERS, command_value
 from arpz.bridge.naming import command_key_expr, topic_name
 from arpz.bridge.type_hash import type_hash
-from arpz.config import (
+from arpz.channel import Reader, Writer
+from arpz.core import keys
+from arpz.core.config import (
     ROS2_COMMAND_TYPES,
     CeddpConfig,
     ConfigError,
@@ -25,10 +26,9 @@ from arpz.config import (
     from_dict,
     load_toml,
 )
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import COMMAND_DECODER, Announce, Sample, TopicInfo, encode
-from arpz.reliability import Reader, Writer
-from arpz.traffic import COMMAND_QOS, REPORT_QOS, SENSOR_QOS
+from arpz.core.messages import COMMAND_DECODER, Announce, Sample, TopicInfo, encode
+from arpz.core.traffic import COMMAND_QOS, REPORT_QOS, SENSOR_QOS
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 FLEET = "f"

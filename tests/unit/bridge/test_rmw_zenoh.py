@@ -19,7 +19,7 @@ import zenoh
 from zenoh.ext import Int64, UInt8, z_deserialize, z_serialize
 
 from arpz.bridge import rmw_zenoh as rz
-from arpz.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
+from arpz.core.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
 
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
 ADD_TWO_INTS_HASH = "RIHS01_e118de6bf5eeb66a2491b5bda11202e7b68f198d6f67922cf30364858239c81a"

@@ -18,7 +18,7 @@ from __future__ import annotations
 import pytest
 
 from arpz.bridge.type_hash import RIHS01, UnknownTypeError, type_hash
-from arpz.rosmsg.types import ROS_TYPES
+from arpz.core.rosmsg.types import ROS_TYPES
 
 GOLDEN = {
     "std_msgs/msg/String": (

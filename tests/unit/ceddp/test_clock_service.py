@@ -8,9 +8,9 @@ from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.clock_service import ClockWatch
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
-from arpz.config import CeddpClockConfig
-from arpz.messages import ClockStats, Sample, encode
-from arpz.percentiles import RELATIVE_ERROR
+from arpz.core.config import CeddpClockConfig
+from arpz.core.messages import ClockStats, Sample, encode
+from arpz.core.percentiles import RELATIVE_ERROR
 
 KEY = "arpz/f/robot/r1/sensor/imu"
 SHIFT_NS = 500_000_000  # the robot's clock is 0.5 s ahead: its offset is -0.5 s

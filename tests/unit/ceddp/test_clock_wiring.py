@@ -8,13 +8,13 @@ import threading
 import msgspec
 import pytest
 
-from arpz import keys
 from arpz.ceddp.server import CeddpServer
-from arpz.config import CeddpConfig, ConfigError, RobotClockConfig, RobotConfig, from_dict
-from arpz.frames import Event, MetricsFrame, WorldMap, WorldView
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import CEDDP_STATS_DECODER, CeddpStats
+from arpz.core import keys
+from arpz.core.config import CeddpConfig, ConfigError, RobotClockConfig, RobotConfig, from_dict
+from arpz.core.frames import Event, MetricsFrame, WorldMap, WorldView
+from arpz.core.messages import CEDDP_STATS_DECODER, CeddpStats
 from arpz.robot.agent import RobotAgent
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 

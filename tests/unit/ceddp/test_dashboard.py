@@ -12,7 +12,7 @@ import pytest
 from rerun.chunk import RrdReader
 
 from arpz.ceddp.dashboard import Dashboard
-from arpz.frames import TIMELINE, MetricsFrame
+from arpz.core.frames import TIMELINE, MetricsFrame
 from tests.support import wait_until
 
 T0_NS = 1_700_000_000_000_000_000

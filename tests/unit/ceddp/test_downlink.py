@@ -2,8 +2,8 @@
 either written or counted."""
 
 from arpz.ceddp.downlink import Downlink
-from arpz.config import CeddpConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import CeddpConfig
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def test_a_robot_cannot_make_the_ceddp_open_unbounded_writers() -> None:

@@ -7,8 +7,8 @@ import pytest
 
 from arpz.ceddp import server as server_module
 from arpz.ceddp.server import CeddpServer
-from arpz.config import CeddpConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import CeddpConfig
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def test_the_event_log_keeps_the_newest_and_counts_the_rest(

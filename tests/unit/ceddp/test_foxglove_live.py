@@ -16,9 +16,9 @@ import pytest
 
 from arpz.ceddp.foxglove_live import FoxgloveLive, json_schema, to_json
 from arpz.ceddp.planner import Reading
-from arpz.errors import ConfigError
-from arpz.frames import MetricsFrame
-from arpz.rosmsg.convert import to_ros
+from arpz.core.errors import ConfigError
+from arpz.core.frames import MetricsFrame
+from arpz.core.rosmsg.convert import to_ros
 from tests.foxglove_ws import FoxgloveClient, descriptor_fields, packed_doubles, protobuf_fields
 from tests.support import free_port, wait_until
 

@@ -1,7 +1,7 @@
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import MAX_WRITERS_PER_TOPIC, Ingest
 from arpz.ceddp.planner import HelloRelay, Planner, Reading
-from arpz.messages import HELLO_DECODER, Hello, LargeSample, Sample, encode
+from arpz.core.messages import HELLO_DECODER, Hello, LargeSample, Sample, encode
 
 KEY = "arpz/f/robot/r1/sensor/pir"
 

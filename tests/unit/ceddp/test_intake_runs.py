@@ -14,9 +14,9 @@ from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.intake import _RUN_CHUNK, SensorIntake
 from arpz.ceddp.planner import Planner, Reading
-from arpz.config import CeddpConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import Sample, encode
+from arpz.core.config import CeddpConfig
+from arpz.core.messages import Sample, encode
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 KEY = "arpz/f/robot/r1/sensor/pir"
 #: the bound on one hold in these tests: far above what a loaded test host adds to a quick chunk

@@ -13,8 +13,8 @@ from arpz.ceddp.link_budget import (
     fit_rates,
 )
 from arpz.ceddp.qos_control import QosController
-from arpz.config import QosControlConfig
-from arpz.messages import RobotStats, TopicCounters, TopicInfo
+from arpz.core.config import QosControlConfig
+from arpz.core.messages import RobotStats, TopicCounters, TopicInfo
 
 FRAME = 921_600
 IMU = 40

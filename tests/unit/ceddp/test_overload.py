@@ -12,8 +12,8 @@ from arpz.ceddp.optimiser import QosLimits, rmax_for_budget, solve
 from arpz.ceddp.overload import BudgetChange, LoadSample, OverloadGovernor
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.qos_control import QosController
-from arpz.config import CeddpConfig, OverloadConfig, QosControlConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import CeddpConfig, OverloadConfig, QosControlConfig
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 CONFIG = OverloadConfig(
     busy_bound=0.9,

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import msgspec
 
-from arpz import keys
 from arpz.ceddp.server import CeddpServer
-from arpz.config import CeddpConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import RobotStats
+from arpz.core import keys
+from arpz.core.config import CeddpConfig
+from arpz.core.messages import RobotStats
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def _stats(incarnation: str) -> bytes:

@@ -9,8 +9,8 @@ A fourth robot with 6 topics: T_avg = 25/4 = 6.25, R = 16 - 1 = 15 Hz, D = floor
 import pytest
 
 from arpz.ceddp.qos_control import QosController
-from arpz.config import QosControlConfig, QosLimitsConfig, SensorConfig
-from arpz.messages import QosAck, QosAssignmentMsg, RobotQos
+from arpz.core.config import QosControlConfig, QosLimitsConfig, SensorConfig
+from arpz.core.messages import QosAck, QosAssignmentMsg, RobotQos
 from arpz.robot.qos import decide
 
 PAPER = {"robot1": 7, "robot2": 6, "robot3": 6}

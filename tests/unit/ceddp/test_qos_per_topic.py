@@ -12,8 +12,8 @@ import pytest
 from arpz.ceddp.link_meter import BurstMeter, LinkMeter, channel_round_trip_s
 from arpz.ceddp.optimiser import channel_link, loss_aware_depth, recovery_heartbeat_s
 from arpz.ceddp.qos_control import QosController
-from arpz.config import QosControlConfig, SensorConfig
-from arpz.messages import (
+from arpz.core.config import QosControlConfig, SensorConfig
+from arpz.core.messages import (
     ClockStats,
     QosAssignmentMsg,
     RobotQos,
@@ -21,7 +21,7 @@ from arpz.messages import (
     TopicCounters,
     TopicInfo,
 )
-from arpz.protocol.qos import QosProfile
+from arpz.core.protocol.qos import QosProfile
 from arpz.robot.qos import decide
 
 PAPER = {"robot1": 7, "robot2": 6, "robot3": 6}

@@ -10,8 +10,8 @@ from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.summary import Deferred, resolve, robot_summary, topic_summary
-from arpz.messages import RobotStats, Sample, TopicCounters, encode, writer_id
-from arpz.percentiles import RELATIVE_ERROR
+from arpz.core.messages import RobotStats, Sample, TopicCounters, encode, writer_id
+from arpz.core.percentiles import RELATIVE_ERROR
 
 KEY = "arpz/f/robot/r1/sensor/pir"
 

@@ -32,7 +32,7 @@ from arpz.ceddp.topic_optimiser import (
     solve_topics_closed,
     solve_topics_cvxpy,
 )
-from arpz.traffic import SENSOR_QOS
+from arpz.core.traffic import SENSOR_QOS
 
 
 def _fleet(counts: list[int], **kwargs: object) -> list[TopicDemand]:

@@ -12,17 +12,17 @@ import msgspec
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from arpz import keys
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.control import RobotRecord
 from arpz.ceddp.ingest import Ingest
 from arpz.ceddp.planner import Planner
 from arpz.ceddp.status import FleetStatus, RateWindow, StatusReader
 from arpz.ceddp.web import PAGE, StatusWeb
-from arpz.config import CeddpConfig
-from arpz.errors import ConfigError
-from arpz.frames import MetricsFrame
-from arpz.messages import Announce, RobotStats, Sample, TopicCounters, TopicInfo, encode
+from arpz.core import keys
+from arpz.core.config import CeddpConfig
+from arpz.core.errors import ConfigError
+from arpz.core.frames import MetricsFrame
+from arpz.core.messages import Announce, RobotStats, Sample, TopicCounters, TopicInfo, encode
 from tests.support import free_port
 
 FLEET = "webtest"
@@ -209,7 +209,7 @@ def test_a_port_in_use_is_a_config_error_naming_web_port() -> None:
     ],
 )
 def test_the_live_ports_are_validated(fields: dict[str, int], message: str) -> None:
-    from arpz.config import from_dict
+    from arpz.core.config import from_dict
 
     with pytest.raises(ConfigError, match=message):
         from_dict(fields, CeddpConfig, source="test.toml")
@@ -217,7 +217,7 @@ def test_the_live_ports_are_validated(fields: dict[str, int], message: str) -> N
 
 def test_a_view_that_cannot_start_closes_the_ones_opened_before_it() -> None:
     from arpz.ceddp.server import CeddpServer
-    from arpz.memory_transport import MemoryBus, MemoryTransport
+    from arpz.transport.memory import MemoryBus, MemoryTransport
 
     web_port = free_port()
     with socket.socket() as busy:

@@ -10,7 +10,6 @@ from typing import Any
 import msgspec
 import pytest
 
-from arpz.config import RobotConfig
 from arpz.configure import solve
 from arpz.configure.eq10 import Eq10Node, summarise, summary_text
 from arpz.configure.model import (
@@ -24,7 +23,8 @@ from arpz.configure.model import (
 )
 from arpz.configure.plan import PlanError, eq10_nodes, plan
 from arpz.configure.report import as_dict
-from arpz.messages import ConfigurationMsg, RobotConfiguration
+from arpz.core.config import RobotConfig
+from arpz.core.messages import ConfigurationMsg, RobotConfiguration
 from arpz.robot.configuration import ConfigurationHandler, LocalObstacleCheck
 from arpz.robot.scheduler import Job
 

@@ -6,7 +6,7 @@ import pytest
 
 from arpz.configure.characterise import Observations, build_model, eq10
 from arpz.configure.model import Computer, Model, Node, Setting, validate
-from arpz.messages import Announce, CeddpStats, RobotStats, TopicCounters, TopicInfo, TopicRate
+from arpz.core.messages import Announce, CeddpStats, RobotStats, TopicCounters, TopicInfo, TopicRate
 
 
 def _stats(robot: str, t_s: float, sent_bytes: int, cpu: float, final: bool = False):

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from arpz.ceddp.optimiser import QosLimits, solve_closed
-from arpz.config import CeddpConfig, RobotConfig, from_dict
+from arpz.core.config import CeddpConfig, RobotConfig, from_dict
 from arpz.experiment.fleet import (
     INITIAL_OPT_DEPTH,
     cell_fleet,
@@ -215,7 +215,7 @@ def test_examples_load() -> None:
 
 @pytest.mark.parametrize("preset", sorted(PRESETS))
 def test_cell_configs_load_as_real_configs(preset: str) -> None:
-    """Every config a cell writes is accepted by arpz.config, as the processes will load it."""
+    """Every config a cell writes is accepted by arpz.core.config, as the processes will load it."""
     spec = PRESETS[preset]()
     for cell in spec.cells():
         fleet = cell_fleet(

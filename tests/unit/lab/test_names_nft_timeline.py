@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.errors import ArpzError
+from arpz.core.errors import ArpzError
 from arpz.lab import net, nft
 from arpz.lab.names import (
     IF_PREFIX,

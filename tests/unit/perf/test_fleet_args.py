@@ -9,7 +9,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from arpz.config import CeddpConfig, RobotConfig, from_dict
+from arpz.core.config import CeddpConfig, RobotConfig, from_dict
 from arpz.perf import fleet
 from arpz.perf.__main__ import main
 from arpz.perf.fleet import (

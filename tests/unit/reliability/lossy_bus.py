@@ -14,12 +14,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from arpz.memory_transport import key_matches
-from arpz.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
-from arpz.protocol.events import DataInfo
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.core.protocol.actions import Action, Deliver, DeliverRun, Notify, Send, TokenChange
+from arpz.core.protocol.events import DataInfo
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
+from arpz.transport.memory import key_matches
 
 Machine = WriterMachine | ReaderMachine
 

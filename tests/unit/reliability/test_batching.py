@@ -7,15 +7,15 @@ import random
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.qos import HistoryPolicy, QosProfile
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import BATCH_MAX_BYTES, WriterMachine
-from arpz.reliability import Writer
+from arpz.channel import Writer
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.qos import HistoryPolicy, QosProfile
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import BATCH_MAX_BYTES, WriterMachine
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.unit.reliability.lossy_bus import Link, LossyBus, publish
 
 G = b"\x07" * 8

@@ -1,5 +1,6 @@
-"""Bundles (arpz.protocol.bundle, arpz.bundling): a tick's sensor messages as one message, seen
-by every subscriber as the messages they carry, and unable to name another robot's key."""
+"""Bundles (arpz.core.protocol.bundle, arpz.channel.bundling): a tick's sensor messages as one
+message, seen by every subscriber as the messages they carry, and unable to name another robot's
+key."""
 
 from __future__ import annotations
 
@@ -8,11 +9,11 @@ from collections.abc import Callable
 
 import pytest
 
-from arpz.bundling import Bundler
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol import bundle, wire
-from arpz.protocol.qos import HistoryPolicy, QosProfile
-from arpz.reliability import Reader, Writer
+from arpz.channel import Reader, Writer
+from arpz.channel.bundling import Bundler
+from arpz.core.protocol import bundle, wire
+from arpz.core.protocol.qos import HistoryPolicy, QosProfile
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import HeldHeartbeats
 
 ROBOT = "arpz/f/robot/r1/sensor"

@@ -1,6 +1,6 @@
 """The check in tests/conftest.py: an assert that fails inside a channel callback fails the test.
 
-The channel catches what a callback raises and goes on (arpz/reliability/_channel.py); without
+The channel catches what a callback raises and goes on (arpz/channel/_channel.py); without
 the check such a test would end in a timeout instead of the assertion's own message.
 """
 
@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.reliability import (
+from arpz.channel import (
     QOS_RELIABLE_ALL,
     DataInfo,
     MatchedStatus,
@@ -17,6 +16,7 @@ from arpz.reliability import (
     ReaderEventCallbacks,
     Writer,
 )
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.conftest import CallbackAssertions
 from tests.support import wait_until
 
@@ -87,8 +87,8 @@ def test_a_callback_raising_something_else_is_not_taken_for_a_failed_assert(
 
 
 _INNER_TEST = """
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.reliability import QOS_RELIABLE_ALL, Reader, Writer
+from arpz.transport.memory import MemoryBus, MemoryTransport
+from arpz.channel import QOS_RELIABLE_ALL, Reader, Writer
 from tests.support import wait_until
 
 def test_inner():

@@ -12,13 +12,7 @@ from typing import Any
 import msgspec
 import pytest
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
-from arpz.reliability import (
+from arpz.channel import (
     QOS_RELIABLE_ALL,
     DataInfo,
     HistoryFullError,
@@ -30,8 +24,14 @@ from arpz.reliability import (
     Writer,
     WriterEventCallbacks,
 )
-from arpz.reliability._channel import _heartbeat_at, _Turns, tick_intervals_s
-from arpz.transport import TransportError
+from arpz.channel._channel import _heartbeat_at, _Turns, tick_intervals_s
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
+from arpz.core.transport import TransportError
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import SlowFirstDelivery, wait_until
 
 
@@ -268,7 +268,7 @@ def test_a_delivery_thread_that_cannot_receive_says_so_and_counts_it(
     """Not a silent stop: the reader would never deliver again."""
     transport = _TransportWithBrokenPull(MemoryBus())
     with (
-        caplog.at_level(logging.ERROR, logger="arpz.reliability"),
+        caplog.at_level(logging.ERROR, logger="arpz.channel"),
         Reader(transport, "t/x", QOS_RELIABLE_ALL, lambda p, i: None) as reader,
     ):
         wait_until(
@@ -276,7 +276,7 @@ def test_a_delivery_thread_that_cannot_receive_says_so_and_counts_it(
             what="the failure counted and logged",
         )
     caplog.clear()
-    with caplog.at_level(logging.ERROR, logger="arpz.reliability"):  # a normal close: quiet
+    with caplog.at_level(logging.ERROR, logger="arpz.channel"):  # a normal close: quiet
         bus = MemoryBus()
         with Reader(MemoryTransport(bus), "t/x", QOS_RELIABLE_ALL, lambda p, i: None):
             time.sleep(0.05)
@@ -534,7 +534,7 @@ def test_a_callback_that_raises_on_every_sample_is_counted_each_time_and_logged_
 
     qos = QosProfile(history=HistoryPolicy.KEEP_ALL)
     with (
-        caplog.at_level(logging.ERROR, logger="arpz.reliability"),
+        caplog.at_level(logging.ERROR, logger="arpz.channel"),
         _pair("t/bad", "t/bad", qos, on_data) as (reader, writer),
     ):
         for n in range(500):

@@ -9,12 +9,12 @@ from __future__ import annotations
 import math
 import random
 
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.qos import HistoryPolicy, QosProfile
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.qos import HistoryPolicy, QosProfile
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node
 
 QOS = QosProfile(history=HistoryPolicy.KEEP_ALL, max_samples=1000, batch_max_samples=1)

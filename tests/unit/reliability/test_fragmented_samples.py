@@ -11,9 +11,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from arpz.bundling import Bundler
-from arpz.channel_io import Inlet, Outlet
-from arpz.link_sizes import (
+from arpz.channel import Reader, Writer
+from arpz.channel.bundling import Bundler
+from arpz.channel.io import Inlet, Outlet
+from arpz.core.link_sizes import (
     MIN_FRAGMENT_BYTES,
     UDP_BATCH_BYTES,
     ZENOH_MESSAGE_OVERHEAD,
@@ -23,17 +24,16 @@ from arpz.link_sizes import (
     session_batch_size,
     writer_fragment_bytes,
 )
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.events import DataInfo
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
-from arpz.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
-from arpz.reliability import Reader, Writer
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.events import DataInfo
+from arpz.core.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
+from arpz.core.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile, ReliabilityPolicy
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node
 from tests.unit.reliability.test_large import LossyTransport, Sink

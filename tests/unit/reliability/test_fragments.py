@@ -1,4 +1,4 @@
-"""Split and bounded reassembly of large samples (``arpz.protocol.fragments``), pure."""
+"""Split and bounded reassembly of large samples (``arpz.core.protocol.fragments``), pure."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from arpz.protocol.fragments import (
+from arpz.core.protocol.fragments import (
     HEADER,
     HEADER_BYTES,
     FragmentError,

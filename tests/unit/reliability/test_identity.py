@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import random
 
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.qos import QosProfile
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node
 
 VICTIM = "robot/robot1/imu"
@@ -117,7 +117,7 @@ def test_acknack_with_another_readers_guid_is_refused() -> None:
 
 def test_writer_tokens_are_bounded_per_key_and_in_all() -> None:
     """A client inventing writer guids (on its own keys) cannot grow a reader without bound."""
-    from arpz.protocol.reader_machine import MAX_WRITERS_PER_KEY
+    from arpz.core.protocol.reader_machine import MAX_WRITERS_PER_KEY
 
     clock = FakeClock()
     r = ReaderMachine("robot/*/imu", QOS, new_guid(), clock, max_writers=40)

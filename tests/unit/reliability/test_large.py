@@ -9,11 +9,7 @@ from contextlib import closing
 import msgspec
 import pytest
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol import wire
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, HEADER_BYTES, FragmentError, split
-from arpz.protocol.qos import QosError
-from arpz.reliability import (
+from arpz.channel import (
     QOS_FRAMES_ALL,
     QOS_VIDEO,
     FrameInfo,
@@ -23,7 +19,11 @@ from arpz.reliability import (
     QosProfile,
     ReaderEventCallbacks,
 )
-from arpz.reliability.large import fragment_qos
+from arpz.channel.large import fragment_qos
+from arpz.core.protocol import wire
+from arpz.core.protocol.fragments import DEFAULT_FRAGMENT_BYTES, HEADER_BYTES, FragmentError, split
+from arpz.core.protocol.qos import QosError
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 FRAME = 64_000  # 50 fragments: big enough to be cut, small enough to be fast

@@ -6,13 +6,13 @@ from __future__ import annotations
 
 import random
 
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile
-from arpz.protocol.reader_machine import QUEUED_HOLD_FACTOR, ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import WriterMachine
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.qos import DurabilityPolicy, HistoryPolicy, QosProfile
+from arpz.core.protocol.reader_machine import QUEUED_HOLD_FACTOR, ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus
 
 DURABLE = QosProfile(

@@ -9,19 +9,19 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from arpz.protocol import wire
-from arpz.protocol._common import new_guid
-from arpz.protocol.actions import Send
-from arpz.protocol.qos import (
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import new_guid
+from arpz.core.protocol.actions import Send
+from arpz.core.protocol.qos import (
     DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
     QosProfile,
     ReliabilityPolicy,
 )
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import LOSSY_HOLD_PERIODS, QUIET_HEARTBEAT_S, WriterMachine
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import LOSSY_HOLD_PERIODS, QUIET_HEARTBEAT_S, WriterMachine
 from tests.unit.reliability.lossy_bus import Link, LossyBus, Node, publish
 
 FAST = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])

@@ -5,7 +5,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.protocol.qos import (
+from arpz.core.protocol.qos import (
     QOS_DEFAULT,
     QOS_SENSOR_DATA,
     DurabilityPolicy,

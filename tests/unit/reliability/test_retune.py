@@ -2,11 +2,11 @@
 
 import pytest
 
-from arpz.channel_io import Inlet, Outlet
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol.actions import Notify, Send
-from arpz.protocol.events import DeadlineMissedStatus
-from arpz.reliability import QOS_DEFAULT, FakeClock, QosProfile, WriterMachine
+from arpz.channel import QOS_DEFAULT, FakeClock, QosProfile, WriterMachine
+from arpz.channel.io import Inlet, Outlet
+from arpz.core.protocol.actions import Notify, Send
+from arpz.core.protocol.events import DeadlineMissedStatus
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def machine() -> tuple[WriterMachine, FakeClock]:

@@ -1,8 +1,8 @@
 """A writer's assert_unchanged reaches the reader as an ``unchanged`` event (for planners that
 judge freshness), and only as often as a reader checks a deadline."""
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.reliability import QOS_DEFAULT, Reader, ReaderEventCallbacks, UnchangedStatus, Writer
+from arpz.channel import QOS_DEFAULT, Reader, ReaderEventCallbacks, UnchangedStatus, Writer
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 KEY = "arpz/f/robot/r1/sensor/pir"

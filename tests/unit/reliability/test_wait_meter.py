@@ -6,8 +6,8 @@ import time
 
 import pytest
 
-from arpz.percentiles import RELATIVE_ERROR
-from arpz.protocol.timers import _FOLD_EVERY, BacklogMeter, WaitMeter
+from arpz.core.percentiles import RELATIVE_ERROR
+from arpz.core.protocol.timers import _FOLD_EVERY, BacklogMeter, WaitMeter
 
 
 def test_a_wait_counts_while_it_lasts_and_work_does_not() -> None:

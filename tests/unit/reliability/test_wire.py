@@ -5,13 +5,13 @@ from collections.abc import Callable
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.protocol import wire
-from arpz.protocol._common import BadInput, new_guid
-from arpz.protocol.actions import Action, Notify
-from arpz.protocol.qos import QosProfile
-from arpz.protocol.reader_machine import ReaderMachine
-from arpz.protocol.timers import FakeClock
-from arpz.protocol.writer_machine import RESEND_BUDGET, WriterMachine
+from arpz.core.protocol import wire
+from arpz.core.protocol._common import BadInput, new_guid
+from arpz.core.protocol.actions import Action, Notify
+from arpz.core.protocol.qos import QosProfile
+from arpz.core.protocol.reader_machine import ReaderMachine
+from arpz.core.protocol.timers import FakeClock
+from arpz.core.protocol.writer_machine import RESEND_BUDGET, WriterMachine
 
 G1, G2 = b"\x01" * 8, b"\x02" * 8
 

@@ -6,10 +6,10 @@ import threading
 import time
 
 from arpz.ceddp.clock_service import ClockService
-from arpz.config import RobotClockConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import RobotClockConfig
+from arpz.core.transport import ReplyCallback
 from arpz.robot.clock_sync import ClockSync
-from arpz.transport import ReplyCallback
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 

@@ -3,11 +3,11 @@ and a gap in their seq is counted as lost, as the CEDDP counts plain sensor samp
 
 import threading
 
-from arpz.config import RobotConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import Command, encode
+from arpz.core.config import RobotConfig
+from arpz.core.messages import Command, encode
 from arpz.robot.actuation import RecordingActuator
 from arpz.robot.agent import RobotAgent
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 

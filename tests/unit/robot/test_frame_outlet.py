@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from arpz.channel_io import FrameOutlet
-from arpz.config import RobotConfig, SensorConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
+from arpz.channel.io import FrameOutlet
+from arpz.core.config import RobotConfig, SensorConfig
+from arpz.core.protocol.fragments import DEFAULT_FRAGMENT_BYTES, STREAM_FRAGMENT_BYTES
 from arpz.robot.sensing import sensor_outlet
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def test_a_robot_takes_its_links_fragment_size_unless_told() -> None:

@@ -8,8 +8,8 @@ import threading
 import time
 from typing import Any
 
-from arpz.config import SensorConfig
-from arpz.messages import LARGE_SAMPLE_DECODER
+from arpz.core.config import SensorConfig
+from arpz.core.messages import LARGE_SAMPLE_DECODER
 from arpz.robot.local_cache import LocalCache
 from arpz.robot.sensing import FrameSender, SensorChannel, sense
 from tests.support import wait_until

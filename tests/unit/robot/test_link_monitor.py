@@ -12,12 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from arpz.config import LinkConfig, RobotConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.core.config import LinkConfig, RobotConfig
+from arpz.core.transport import TransportError
 from arpz.robot.agent import RobotAgent
 from arpz.robot.link_monitor import LinkMonitor, LinkWatch, Signals, Waiting, route_sources
 from arpz.robot.summary import RobotSummary
-from arpz.transport import TransportError
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 UP = Signals(heard=0, asked=0, present=True, route=("10.0.1.2",))

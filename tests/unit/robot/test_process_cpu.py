@@ -39,9 +39,9 @@ def test_the_same_reading_twice_gives_no_figure() -> None:
 
 
 def test_robot_stats_report_the_process_cpu() -> None:
-    from arpz.config import RobotConfig, from_dict
-    from arpz.memory_transport import MemoryBus, MemoryTransport
+    from arpz.core.config import RobotConfig, from_dict
     from arpz.robot.agent import RobotAgent
+    from arpz.transport.memory import MemoryBus, MemoryTransport
 
     raw = {
         "robot_id": "r001",

@@ -6,10 +6,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from arpz.bundling import Bundler
-from arpz.config import RobotConfig, from_dict
-from arpz.memory_transport import MemoryBus, MemoryTransport
+from arpz.channel.bundling import Bundler
+from arpz.core.config import RobotConfig, from_dict
 from arpz.robot.sensing import build_sensors, sense
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 
 def _config(*, bundles: bool) -> RobotConfig:

@@ -5,7 +5,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from arpz.config import SensorConfig
+from arpz.core.config import SensorConfig
 from arpz.robot.sensors import make_driver, preset_sensors
 from arpz.robot.sensors.base import SensorDriver, check_value
 from arpz.robot.sensors.factory import DriverError

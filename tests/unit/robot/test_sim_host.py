@@ -3,10 +3,10 @@
 import threading
 import time
 
-from arpz.config import RobotConfig, SimConfig
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import SAMPLE_DECODER, TELEMETRY_DECODER, Command, encode
+from arpz.core.config import RobotConfig, SimConfig
+from arpz.core.messages import SAMPLE_DECODER, TELEMETRY_DECODER, Command, encode
 from arpz.robot.agent import RobotAgent
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 

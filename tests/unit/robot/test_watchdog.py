@@ -5,8 +5,8 @@ from pathlib import Path
 
 import pytest
 
-from arpz.config import SimConfig
-from arpz.messages import Command
+from arpz.core.config import SimConfig
+from arpz.core.messages import Command
 from arpz.robot.actuation import Actuator, RecordingActuator
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog

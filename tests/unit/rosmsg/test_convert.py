@@ -11,9 +11,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from arpz.messages import SensorValue
-from arpz.robot.sensors.simulated import SIMULATED
-from arpz.rosmsg.convert import (
+from arpz.core.messages import SensorValue
+from arpz.core.rosmsg.convert import (
     CDR_LE_HEADER,
     ConversionError,
     deserialize,
@@ -25,7 +24,8 @@ from arpz.rosmsg.convert import (
     to_cdr,
     to_ros,
 )
-from arpz.rosmsg.types import ROS_TYPES, ros_type_for
+from arpz.core.rosmsg.types import ROS_TYPES, ros_type_for
+from arpz.robot.sensors.simulated import SIMULATED
 
 STAMPS = st.integers(0, 2**31 * 1_000_000_000 - 1)
 FRAMES = st.text(max_size=20)

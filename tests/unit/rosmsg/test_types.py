@@ -5,8 +5,8 @@ from __future__ import annotations
 import pytest
 from rosbags.typesys import Stores, get_typestore
 
-from arpz.config import SENSOR_KINDS
-from arpz.rosmsg.types import ROS_TYPES, UnknownKindError, ros_type_for, ros_types_for
+from arpz.core.config import SENSOR_KINDS
+from arpz.core.rosmsg.types import ROS_TYPES, UnknownKindError, ros_type_for, ros_types_for
 
 
 def test_every_sensor_kind_has_types_known_to_the_ros2_typestore() -> None:

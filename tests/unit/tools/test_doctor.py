@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import (
+from arpz.core.messages import (
     CeddpStats,
     ClockStats,
     InboundCounters,

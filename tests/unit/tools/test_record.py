@@ -13,11 +13,10 @@ import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2.metadata import parse_qos
 
-from arpz import keys
-from arpz.channel_io import Inlet, Outlet
-from arpz.config import TrafficQos
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import (
+from arpz.channel.io import Inlet, Outlet
+from arpz.core import keys
+from arpz.core.config import TrafficQos
+from arpz.core.messages import (
     ANNOUNCE_DECODER,
     SAMPLE_DECODER,
     Announce,
@@ -26,11 +25,12 @@ from arpz.messages import (
     TopicInfo,
     encode,
 )
-from arpz.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
+from arpz.core.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
 from arpz.tools import record as record_tool
 from arpz.tools._recording import McapSink, Topic, offered_qos_yaml, split_path
 from arpz.tools.play import Player, RecordingError, recording_files
 from arpz.tools.record import Recorder
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 FLEET = "t"
@@ -144,7 +144,7 @@ def test_sensor_topics_become_ros2_channels_and_the_rest_stays_arpz(
     assert message.publish_time >= message.log_time  # type: ignore[attr-defined]
     channel, message = topics["/robot1/cmd/velocity"][0]
     assert channel.message_encoding == "msgpack"  # type: ignore[attr-defined]
-    assert channel.metadata["arpz_type"] == "arpz.messages.Command"  # type: ignore[attr-defined]
+    assert channel.metadata["arpz_type"] == "arpz.core.messages.Command"  # type: ignore[attr-defined]
     assert message.data == encode(command) and message.log_time == command.stamp_ns  # type: ignore[attr-defined]
     summary = rec.summary()
     assert summary["topics"]["/robot1/lidar"]["messages"] == 2
@@ -162,7 +162,7 @@ def test_a_topic_never_announced_is_recorded_as_arpz_samples(
     run_until(rec, lambda: not rec._queue.qsize() and rec._pending)
     rec.close()  # what still waits for an announcement is written raw
     channel, message = by_topic(tmp_path / "r.mcap")["/robot1/lidar"][0]
-    assert channel.metadata["arpz_type"] == "arpz.messages.Sample"  # type: ignore[attr-defined]
+    assert channel.metadata["arpz_type"] == "arpz.core.messages.Sample"  # type: ignore[attr-defined]
     assert SAMPLE_DECODER.decode(message.data) == sample  # type: ignore[attr-defined]
 
 
@@ -204,7 +204,7 @@ def test_plain_mode_counts_losses_from_the_payload_seq(bus: MemoryBus, tmp_path:
 def test_a_recording_is_split_by_size_and_every_part_is_whole(tmp_path: Path) -> None:
     out = tmp_path / "big.mcap"
     topic = Topic("arpz/t/robot/r/sensor/lidar", "r", "lidar", TRAFFIC.sensor_qos)
-    from arpz.rosmsg.convert import to_cdr
+    from arpz.core.rosmsg.convert import to_cdr
 
     with McapSink(out, split_bytes=4000, split_s=0.0, metadata={}) as sink:
         for i in range(400):
@@ -332,7 +332,7 @@ def test_play_topics_select_what_is_played_and_which_robots(bus: MemoryBus, tmp_
 def test_channel_losses_are_counted_on_the_topic_of_their_writer(tmp_path: Path) -> None:
     """MESSAGE_LOST names a writer guid; the recorder learned each guid's key from its samples
     (a guid it never got a sample from is still counted, as unattributed)."""
-    from arpz.protocol.events import DataInfo, MessageLostStatus
+    from arpz.core.protocol.events import DataInfo, MessageLostStatus
 
     sink = McapSink(tmp_path / "r.mcap", split_bytes=0, split_s=0.0, metadata={})
     rec = Recorder(MemoryTransport(MemoryBus()), FLEET, sink, mode="channel")
@@ -351,7 +351,7 @@ def test_channel_losses_are_counted_on_the_topic_of_their_writer(tmp_path: Path)
 def test_the_recorded_qos_can_be_the_fleets_own(tmp_path: Path) -> None:
     """--qos-from: a CEDDP's config (or a robot's) gives the profiles the recorder reads with
     and stores; a file that is neither is refused naming the field."""
-    from arpz.config import ConfigError
+    from arpz.core.config import ConfigError
     from arpz.tools.record import _fleet_traffic
 
     ceddp = tmp_path / "ceddp.toml"

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from arpz.config import SensorConfig
+from arpz.core.config import SensorConfig
+from arpz.core.rosmsg.convert import to_cdr
 from arpz.robot.sensors import make_driver
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.sensors.simulated import SimCamera, SimPointCloud
-from arpz.rosmsg.convert import to_cdr
 from arpz.tools._recording import McapSink, Topic
 from arpz.tools.frame_replay import CameraReplay, PointCloudReplay
 

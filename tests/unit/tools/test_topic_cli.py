@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from arpz.messages import ClockStats, LargeSample, RobotStats, Sample, encode
+from arpz.core.messages import ClockStats, LargeSample, RobotStats, Sample, encode
 from arpz.tools import topic
 from arpz.tools.fleet_graph import CEDDP, Endpoint, FleetGraph, TopicEntry
 from arpz.tools.topic_figures import Bw, Delay, Echo, Hz, clock_correction

@@ -7,9 +7,9 @@ from contextlib import closing
 
 import pytest
 
-from arpz import keys
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import (
+from arpz.channel import Writer
+from arpz.core import keys
+from arpz.core.messages import (
     Announce,
     ClockStats,
     InboundCounters,
@@ -18,9 +18,9 @@ from arpz.messages import (
     TopicInfo,
     encode,
 )
-from arpz.protocol import wire
-from arpz.protocol.qos import QOS_SENSOR_DATA, QosProfile, encode_match_qos
-from arpz.reliability import Writer
+from arpz.core.protocol import wire
+from arpz.core.protocol.qos import QOS_SENSOR_DATA, QosProfile, encode_match_qos
+from arpz.core.traffic import COMMAND_QOS, REPORT_QOS, SENSOR_QOS
 from arpz.tools.fleet_graph import (
     CEDDP,
     FleetObserver,
@@ -31,7 +31,7 @@ from arpz.tools.fleet_graph import (
     topic_name,
 )
 from arpz.tools.topic_text import list_lines
-from arpz.traffic import COMMAND_QOS, REPORT_QOS, SENSOR_QOS
+from arpz.transport.memory import MemoryBus, MemoryTransport
 
 F = "f1"
 

@@ -9,10 +9,9 @@ from contextlib import closing
 
 import pytest
 
-from arpz.memory_transport import MemoryBus, MemoryTransport
-from arpz.messages import Announce, LargeSample, Sample, encode
-from arpz.protocol.qos import QOS_RELIABLE_ALL, QosProfile
-from arpz.reliability import QOS_VIDEO, FrameWriter, HistoryFullError, Writer
+from arpz.channel import QOS_VIDEO, FrameWriter, HistoryFullError, Writer
+from arpz.core.messages import Announce, LargeSample, Sample, encode
+from arpz.core.protocol.qos import QOS_RELIABLE_ALL, QosProfile
 from arpz.tools.fleet_graph import Endpoint, TopicEntry
 from arpz.tools.topic_stream import (
     ChannelStream,
@@ -23,6 +22,7 @@ from arpz.tools.topic_stream import (
     data_head,
     open_stream,
 )
+from arpz.transport.memory import MemoryBus, MemoryTransport
 from tests.support import wait_until
 
 KEY = "arpz/f/robot/r1/sensor/lidar"
