@@ -70,6 +70,9 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     #: of the CEDDP): its share of the rate budget grows in proportion (docs/qos-optimiser.md)
     priority: float = 1.0
     seed: int | None = None
+    #: a NaN or infinity from the driver: "refuse" (a driver error, counted, never a sample) or
+    #: "pass" (sent like any reading)
+    nan: Literal["refuse", "pass"] = "refuse"
     #: free-form options handed to the driver (e.g. a GPIO pin for a hardware driver)
     options: dict[str, Any] = msgspec.field(default_factory=dict)
 

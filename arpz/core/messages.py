@@ -115,7 +115,8 @@ class ClockReply(msgspec.Struct, array_like=True, frozen=True):
 
 
 class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
-    """Per-topic counters kept by a robot's local cache: produced == sent + held_back."""
+    """Per-topic counters a robot keeps: produced == sent + held_back + write_failures +
+    driver_errors (every read of the driver is produced)."""
 
     produced: int = 0
     sent: int = 0
@@ -147,6 +148,16 @@ class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     frames_skipped: int = 0
     #: sensing periods the scheduler could not run on time and skipped (it re-aligns when late)
     late_periods: int = 0
+    #: reads that gave no reading (``produced == sent + held_back + write_failures +
+    #: driver_errors``): the driver raised (``driver_exceptions``), or its value was refused
+    #: (``values_refused``: a wrong type, a NaN or infinity under ``nan = "refuse"``)
+    driver_errors: int = 0
+    driver_exceptions: int = 0
+    values_refused: int = 0
+    #: reads that took longer than the sensor's period (the reading is sent all the same)
+    late_reads: int = 0
+    #: the last driver error or refusal, "ExceptionType: message" ("": none)
+    last_driver_error: str = ""
 
 
 class InboundCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
@@ -239,6 +250,12 @@ class RobotStats(msgspec.Struct, frozen=True):
     bundled_messages: int = 0
     bundles: int = 0
     bundle_put_failures: int = 0
+    #: sensors that gave no reading (only driver errors, or none read) for the whole last
+    #: reporting interval and at least two of their periods
+    silent_sensors: list[str] = msgspec.field(default_factory=list)
+    #: the robot's wall clock when this incarnation started (0: an older robot): of two
+    #: processes running with one robot_id, the CEDDP keeps the one that started first
+    started_ns: int = 0
 
 
 class TopicRate(msgspec.Struct, frozen=True):
@@ -290,6 +307,9 @@ class CeddpStats(msgspec.Struct, frozen=True):
     clock_max_offset_ms: float | None = None
     #: robots whose |offset| exceeds the bound now
     clock_flagged: list[str] = msgspec.field(default_factory=list)
+    #: robot ids two processes run with now ("robot: kept incarnation, dropped incarnation"):
+    #: the newer one's samples are dropped
+    duplicate_robots: list[str] = msgspec.field(default_factory=list)
 
 
 class TopicInfo(msgspec.Struct, frozen=True):

@@ -1,7 +1,8 @@
 """``python -m arpz.robot --config robot.toml [flags]``: run one robot agent.
 
 Exit codes: 0 clean stop, 1 runtime failure (e.g. the server cannot be reached), 2 bad
-configuration (the message names the file, the field and the problem).
+configuration (the message names the file, the field and the problem), or a robot_id another
+running process of the fleet already uses.
 """
 
 from __future__ import annotations
@@ -17,14 +18,24 @@ import msgspec
 
 from arpz.core.config import ConfigError, RobotConfig, from_dict, load_toml
 from arpz.core.endpoints import DEFAULT_CONNECT, resolve
-from arpz.core.transport import SessionSettings, TransportError, client_link_defaults
-from arpz.robot.agent import RobotAgent
+from arpz.core.transport import (
+    CLIENT_LINK_DEFAULTS,
+    SessionSettings,
+    TransportError,
+    client_link_defaults,
+)
+from arpz.robot.agent import DuplicateRobotError, RobotAgent, check_robot_id_free
 from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.summary import RobotSummary
 from arpz.runtime.startup import add_version_option, configure_logging, stop_on_signals
-from arpz.transport.zenoh import ZenohTransport, config_endpoints, load_zenoh_config
+from arpz.transport.zenoh import (
+    ZenohTransport,
+    config_endpoints,
+    config_value,
+    load_zenoh_config,
+)
 
 log = logging.getLogger("arpz.robot")
 
@@ -140,6 +151,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"arpz robot: error: {exc}", file=sys.stderr)
         return 1
     try:
+        # before the agent declares anything: a second process with this robot_id is refused
+        lease = config_value(zconf, "transport/link/tx/lease") if zconf is not None else None
+        if not isinstance(lease, int | float):
+            lease = CLIENT_LINK_DEFAULTS["transport/link/tx/lease"]
+        assert isinstance(lease, int | float)
+        try:
+            check_robot_id_free(transport, config, linger_s=lease / 1000 + 1.0)
+        except DuplicateRobotError as exc:
+            print(f"arpz robot: error: {exc}", file=sys.stderr)
+            return 2
         base_dir = args.config.parent if args.config is not None else Path.cwd()
         try:
             agent = RobotAgent(config, transport, base_dir=base_dir)

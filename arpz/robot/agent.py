@@ -25,7 +25,11 @@ from arpz.channel.io import FrameOutlet, Outlet, drain
 from arpz.core import keys
 from arpz.core.config import RobotConfig
 from arpz.core.endpoints import endpoint_address, frame_fragment_bytes
+from arpz.core.errors import ArpzError
 from arpz.core.messages import (
+    ANNOUNCE_DECODER,
+    DECODE_ERRORS,
+    STATS_DECODER,
     Announce,
     ClockStats,
     InboundCounters,
@@ -58,7 +62,7 @@ from arpz.robot.watchdog import CommandWatchdog
 
 log = logging.getLogger(__name__)
 
-__all__ = ["RobotAgent", "effective_sensors"]
+__all__ = ["DuplicateRobotError", "RobotAgent", "check_robot_id_free", "effective_sensors"]
 
 #: how long the robot waits for the CEDDP to acknowledge its final report before closing
 _FINAL_REPORT_WAIT_S = 2.0
@@ -103,6 +107,8 @@ class RobotAgent:
         #: the clock against the CEDDP's, and the wall clock every stamp of this robot reads
         self.clock_sync = ClockSync(config.clock, transport, fleet)
         self._wall_ns = self.clock_sync.wall_ns
+        #: the robot's wall clock at this incarnation's start (``RobotStats.started_ns``)
+        self.started_ns = self._wall_ns()
         self._versions = (arpz_version(), zenoh_version())
         self.hello_probe = HelloProbe(
             robot,
@@ -538,6 +544,8 @@ class RobotAgent:
         counters = self.counters()
         rated: dict[str, TopicCounters] = dict(counters)
         interval_s = max(now - last_now, 1e-9)
+        now_s = now - self._start_s  # the scheduler's clock, which ``sense`` notes readings on
+        silent = [s.config.name for s in self.sensors if s.silent(now_s, interval_s)]
         if rates:
             self._last_report_s = now
         for sensor in self.sensors if rates else ():
@@ -583,6 +591,8 @@ class RobotAgent:
             bundled_messages=bundles.bundled if bundles else 0,
             bundles=bundles.bundles if bundles else 0,
             bundle_put_failures=bundles.put_failures if bundles else 0,
+            silent_sensors=silent,
+            started_ns=self.started_ns,
         )
 
     def _clock_stats(self) -> ClockStats | None:
@@ -616,6 +626,114 @@ class RobotAgent:
             clock=self._clock_stats(),
         )
         self._announce_out.send(encode(announce), self._wall_ns())
+
+
+class DuplicateRobotError(ArpzError):
+    """Another process of the fleet runs with this robot's ``robot_id``."""
+
+
+#: how long a starting robot waits for the router to tell it of a presence token on its key
+PRESENCE_HISTORY_S = 0.5
+
+
+class _OtherRun:
+    """What a starting robot hears of another process with its robot_id (Zenoh callbacks:
+    record and signal, nothing that waits)."""
+
+    def __init__(self) -> None:
+        self.changed = threading.Event()
+        self.alive: bool | None = None
+        #: (incarnation, started_ns) of a report from the other process
+        self.report: tuple[str, int] | None = None
+
+    def on_token(self, _key: str, alive: bool) -> None:
+        self.alive = alive
+        self.changed.set()
+
+    def on_report(self, key: str, payload: bytes, _attachment: bytes | None) -> None:
+        try:
+            if key.endswith("/stats"):
+                stats = STATS_DECODER.decode(payload)
+                if stats.final:
+                    return  # its last words: it is stopping
+                self.report = (stats.incarnation, stats.started_ns)
+            else:
+                self.report = (ANNOUNCE_DECODER.decode(payload).incarnation, 0)
+        except DECODE_ERRORS:
+            return
+        self.changed.set()
+
+
+def check_robot_id_free(
+    transport: Transport,
+    config: RobotConfig,
+    *,
+    linger_s: float,
+    history_s: float = PRESENCE_HISTORY_S,
+) -> float:
+    """Raise ``DuplicateRobotError`` when another process runs as ``config.robot_id`` in the
+    fleet; call before the agent declares anything. Returns how long it waited.
+
+    The other process's presence token is the sign. It can also be a previous run of this robot
+    that ended without closing its session (a crash, a power cut): the router keeps its token
+    until the lease of that session ends. So, while the token is alive, the robot waits for
+    either: the token to vanish (a previous run: go on), a report (stats or announcement) from
+    the other process (it runs: refused at once), or ``linger_s`` to pass (the lease: refused).
+    Under access control a robot may not be allowed to see its own token; then the CEDDP's
+    check is the one that catches a duplicate (docs/operations.md)."""
+    fleet, robot = config.fleet, config.robot_id
+    other = _OtherRun()
+    started = time.monotonic()
+    handles = [transport.watch_liveliness(keys.presence_key(fleet, robot), other.on_token)]
+    try:
+        other.changed.wait(history_s)
+        if not other.alive:
+            return time.monotonic() - started
+        log.warning(
+            "a presence token of robot %s is alive before this process declared its own: "
+            "waiting up to %.1f s for it to go (a previous run that ended without closing its "
+            "session) or to hear from the process that holds it",
+            robot,
+            linger_s,
+        )
+        for key in (keys.stats_key(fleet, robot), keys.announce_key(fleet, robot)):
+            handles.append(transport.subscribe(key, other.on_report))
+        deadline = started + history_s + linger_s
+        while other.alive and other.report is None:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            other.changed.clear()
+            if other.alive and other.report is None:
+                other.changed.wait(min(left, 0.1))
+        waited = time.monotonic() - started
+        if not other.alive:
+            log.info("the previous run's presence token of robot %s vanished", robot)
+            return waited
+    finally:
+        for handle in handles:
+            handle.undeclare()
+    fix = (
+        "give each robot its own robot_id (robot_id in its TOML, or --robot-id), or stop the "
+        "other process first"
+    )
+    if other.report is not None:
+        incarnation, started_ns = other.report
+        since = (
+            f", started {time.strftime('%Y-%m-%d %H:%M:%S', time.gmtime(started_ns / 1e9))} UTC"
+            if started_ns
+            else ""
+        )
+        raise DuplicateRobotError(
+            f"robot_id '{robot}' is in use: another process runs as {robot} in fleet "
+            f"'{fleet}' (incarnation {incarnation}{since}, reporting on "
+            f"{keys.stats_key(fleet, robot)}); {fix}"
+        )
+    raise DuplicateRobotError(
+        f"robot_id '{robot}' is in use: the presence token {keys.presence_key(fleet, robot)} "
+        f"of another process stayed alive {waited:.1f} s, longer than a session that ended "
+        f"lingers (the lease, {linger_s:.1f} s), and it sent no report; {fix}"
+    )
 
 
 def _route_targets(endpoints: list[str]) -> list[tuple[str, int]]:

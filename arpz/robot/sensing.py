@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from time import perf_counter
 
 import msgspec
 
@@ -22,13 +24,19 @@ from arpz.core import keys
 from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
 from arpz.core.endpoints import frame_fragment_bytes
 from arpz.core.messages import LargeSample, Sample, TopicCounters, encode, same_value
+from arpz.core.throttled_log import ThrottledLog
 from arpz.core.transport import Transport
 from arpz.robot.local_cache import LocalCache
 from arpz.robot.sensors import SensorDriver, make_driver, preset_sensors
-from arpz.robot.sensors.base import check_value
+from arpz.robot.sensors.base import DriverValueError, check_value
 from arpz.robot.sim_host import BeamDriver, SimHost
 
 log = logging.getLogger(__name__)
+#: driver errors, refusals and late reads: one line per sensor and cause every 10 s for as long
+#: as the cause lasts, with the count of what it stands for (never one per read, never silent)
+throttled = ThrottledLog(log)
+#: the longest a driver error's text kept for the stats (``TopicCounters.last_driver_error``)
+ERROR_TEXT_CHARS = 200
 
 
 def effective_sensors(config: RobotConfig) -> list[SensorConfig]:
@@ -132,7 +140,14 @@ class SensorChannel:
     output: Outlet | FrameOutlet
     seq: int = 0
     bytes_sent: int = 0
-    driver_errors: int = 0
+    #: reads that gave no reading: the driver raised, or its value was refused
+    driver_exceptions: int = 0
+    values_refused: int = 0
+    #: reads that took longer than the sensor's period (sent all the same)
+    late_reads: int = 0
+    last_driver_error: str = ""
+    #: when the driver last gave a reading (the scheduler's clock; 0: the agent's start)
+    last_reading_s: float = 0.0
     late_ticks: int = 0
     sent_at_last_report: int = 0
     produced_at_last_report: int = 0
@@ -153,6 +168,16 @@ class SensorChannel:
     #: a large sensor's sending thread (None: small samples go out from the scheduler's tick)
     sender: FrameSender | None = None
 
+    @property
+    def driver_errors(self) -> int:
+        """Reads that gave no reading (``produced`` counts them)."""
+        return self.driver_exceptions + self.values_refused
+
+    def silent(self, now_s: float, interval_s: float) -> bool:
+        """No reading for the last ``interval_s`` and at least two periods (only driver
+        errors, or no read at all)."""
+        return now_s - self.last_reading_s >= max(interval_s, 2.0 / self.rate_hz)
+
     def counters(self) -> TopicCounters:
         c = self.cache.counters
         channel = self.output.totals()
@@ -160,8 +185,9 @@ class SensorChannel:
         # a reading the cache passed but a full KEEP_ALL history refused, or a frame a newer
         # one replaced while the link was busy, was not sent
         not_sent = channel["write_failures"] + skipped
+        errors = self.driver_errors
         return TopicCounters(
-            produced=c.produced,
+            produced=c.produced + errors,
             sent=c.sent - not_sent,
             held_back=c.held_back,
             last_seq=self.seq,
@@ -176,6 +202,11 @@ class SensorChannel:
             overwritten_unacked=channel["overwritten_unacked"],
             deadline_missed=channel["deadline_missed"],
             cache_forgets=self.cache_forgets,
+            driver_errors=errors,
+            driver_exceptions=self.driver_exceptions,
+            values_refused=self.values_refused,
+            late_reads=self.late_reads,
+            last_driver_error=self.last_driver_error,
         )
 
     def stop_sending(self) -> None:
@@ -251,20 +282,41 @@ def sensor_outlet(
 
 
 def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
-    """One tick: read the driver, hold an unchanged reading back, send a changed one."""
+    """One tick: read the driver, hold an unchanged reading back, send a changed one. A read
+    that raises, or whose value is refused, is a driver error: counted, logged (one line per
+    cause every 10 s), and no sample."""
+    config = sensor.config
+    started = perf_counter()
     try:
-        value = check_value(sensor.config.kind, sensor.driver.read(now_s))
+        raw = sensor.driver.read(now_s)
     except Exception as exc:  # a driver bug or a device error must not stop the robot
-        sensor.driver_errors += 1
-        if sensor.driver_errors in (1, 10, 100) or sensor.driver_errors % 1000 == 0:
-            log.error(
-                "sensor %s: driver error #%d: %s: %s",
-                sensor.config.name,
-                sensor.driver_errors,
-                type(exc).__name__,
-                exc,
-            )
+        sensor.driver_exceptions += 1
+        _driver_error(sensor, writer, type(exc).__name__, f"{type(exc).__name__}: {exc}")
         return
+    took_s = perf_counter() - started
+    try:
+        value = check_value(config.kind, raw)
+        if type(value) is float and not math.isfinite(value) and config.nan == "refuse":
+            raise DriverValueError(
+                f'a {config.kind} driver returned {value} (nan = "pass" in its [[sensors]] '
+                "entry sends NaN and infinity)"
+            )
+    except DriverValueError as exc:
+        sensor.values_refused += 1
+        _driver_error(sensor, writer, "refused", f"value refused: {exc}")
+        return
+    sensor.last_reading_s = now_s
+    if took_s * sensor.rate_hz > 1.0:
+        sensor.late_reads += 1
+        throttled.warning(
+            f"{writer} {config.name} late",
+            "sensor %s: read took %.3f s, longer than its period of %.3f s (the reading is "
+            "sent; %d late reads so far)",
+            config.name,
+            took_s,
+            1.0 / sensor.rate_hz,
+            sensor.late_reads,
+        )
     stamp_ns = sensor.wall_ns()
     if sensor.last_read is None or not same_value(
         value,
@@ -306,3 +358,16 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
             unacked.append((seq, sensor.changed_ns))
     else:
         sensor.cache.forget()
+
+
+def _driver_error(sensor: SensorChannel, writer: str, cause: str, text: str) -> None:
+    text = text[:ERROR_TEXT_CHARS]
+    sensor.last_driver_error = text
+    throttled.log(
+        logging.ERROR,
+        f"{writer} {sensor.config.name} {cause}",
+        "sensor %s: driver error: %s (%d reads gave no reading so far)",
+        sensor.config.name,
+        text,
+        sensor.driver_errors,
+    )
