@@ -1,14 +1,26 @@
 """The layout of an arpz recording: what ``arpz record`` writes and ``arpz play`` reads.
 
-An MCAP file with the rosbag2 profile (``ros2``): one channel per arpz key. A sensor topic of a
-kind with a standard ROS 2 type (arpz.core.rosmsg) is a ``cdr`` channel whose schema is the full
-``ros2msg`` definition, so ROS 2 tools, Foxglove and any MCAP reader decode it. Everything else
-(commands, the Hello probe, the robots' reports, their liveliness tokens) keeps arpz's own
-msgpack payload on a schemaless ``msgpack`` channel (MCAP's well-known encoding for it; the
-layout is arpz's, named by the channel's ``arpz_type`` metadata and documented in
-docs/protocol.md). Channel metadata: ``arpz_key`` (the Zenoh key), ``arpz_kind``, ``arpz_type``,
-``arpz_qos`` (arpz's QoS profile as JSON, or ``none`` for plain keys) and rosbag2's
-``offered_qos_profiles`` (YAML). docs/tools.md "Recording and replay" describes it for users.
+An MCAP file with the rosbag2 profile (``ros2``): one channel per arpz key, and by default every
+channel one that standard ROS 2 tooling reads (``ros2 bag``, rosbags, mcap-ros2-support,
+Foxglove): a ``cdr`` channel whose schema is the full ``ros2msg`` definition of a standard type.
+
+- A sensor topic of a kind with a standard ROS 2 type (arpz.core.rosmsg.types) is that type.
+- A command is the standard type of its value (arpz.core.rosmsg.commands: ``[v, omega]`` a
+  ``geometry_msgs/msg/Twist``), decided by the first command of the channel.
+- A robot's reports (announce, stats, QoS ack, telemetry) and its presence and mode tokens are
+  ``diagnostic_msgs/msg/DiagnosticArray`` whose key/value pairs are the message's fields
+  (arpz.core.rosmsg.reports: exact, so ``play`` turns them back into what the robot sent).
+- arpz's own messages that have no standard type (the Hello probe, and sensor samples whose kind
+  no announcement named) are left out, and counted; with ``--include-internal`` they are kept as
+  ``json`` channels with a ``jsonschema`` schema (MCAP's well-known encodings: the mcap library,
+  Foxglove and any JSON reader take them; ROS 2 tools do not).
+
+Recordings made before (issue 41) kept everything but the sensor topics as arpz's msgpack on
+schemaless ``msgpack`` channels; ``play`` still reads them. Channel metadata: ``arpz_key`` (the
+Zenoh key), ``arpz_kind``, ``arpz_type`` (the channel's type), ``arpz_message`` (the arpz
+message each message is, once converted back), ``arpz_qos`` (arpz's QoS profile as JSON, or
+``none`` for plain keys) and rosbag2's ``offered_qos_profiles`` (YAML). docs/tools.md
+"Recording and replay" describes it for users.
 """
 
 from __future__ import annotations
@@ -24,7 +36,18 @@ import msgspec
 from mcap.writer import CompressionType, Writer
 
 from arpz.core import keys
-from arpz.core.config import SENSOR_KINDS
+from arpz.core.config import LARGE_KINDS, SENSOR_KINDS
+from arpz.core.messages import (
+    DECODE_ERRORS,
+    Announce,
+    Command,
+    Hello,
+    LargeSample,
+    QosAck,
+    RobotStats,
+    Sample,
+    Telemetry,
+)
 from arpz.core.protocol.qos import (
     DurabilityPolicy,
     HistoryPolicy,
@@ -32,13 +55,25 @@ from arpz.core.protocol.qos import (
     QosProfile,
     ReliabilityPolicy,
 )
-from arpz.core.rosmsg.convert import message_definition
+from arpz.core.rosmsg.convert import ConversionError, message_definition, serialize
+from arpz.core.rosmsg.reports import (
+    DIAGNOSTIC_ARRAY,
+    OK,
+    STALE,
+    from_fields,
+    message_from_cdr,
+    report_from_cdr,
+    report_to_ros,
+    to_fields,
+)
 from arpz.core.rosmsg.types import ros_type_for
 from arpz.core.transport import SessionSettings
 from arpz.transport.zenoh import ZenohTransport
 
 PROFILE: Final = "ros2"
 CDR: Final = "cdr"
+JSON: Final = "json"
+#: the message encoding of everything but the sensor topics in recordings made before issue 41
 MSGPACK: Final = "msgpack"
 #: chunks are compressed with zstd: the mcap library's default, and readable by rosbag2,
 #: Foxglove, rosbags and mcap-ros2-support alike
@@ -46,18 +81,22 @@ COMPRESSION: Final = CompressionType.ZSTD
 #: the MCAP metadata record that says which fleet was recorded, and how
 METADATA_NAME: Final = "arpz"
 
-#: channel kinds beyond the sensor kinds, with the arpz type of their msgpack payload
-ARPZ_TYPES: Final = {
-    "hello": "arpz.core.messages.Hello",
-    "command": "arpz.core.messages.Command",
-    "telemetry": "arpz.core.messages.Telemetry",
-    "announce": "arpz.core.messages.Announce",
-    "stats": "arpz.core.messages.RobotStats",
-    "qos_ack": "arpz.core.messages.QosAck",
-    #: a liveliness token appearing (true) or vanishing (false)
-    "liveliness": "bool",
-    #: a sensor topic no announcement named the kind of (recorded as it came)
-    "sample": "arpz.core.messages.Sample",
+LIVELINESS: Final = "liveliness"
+#: a robot's reports, written as DiagnosticArray: channel kind -> its arpz message
+REPORT_MESSAGES: Final[dict[str, type[msgspec.Struct]]] = {
+    "announce": Announce,
+    "stats": RobotStats,
+    "qos_ack": QosAck,
+    "telemetry": Telemetry,
+}
+#: arpz's own messages with no standard ROS 2 type: channel kind -> its arpz message. Left out
+#: by default; JSON with ``--include-internal``. ``sample`` / ``large_sample``: a sensor topic
+#: whose kind no announcement named; ``command``: in recordings made before issue 41 only
+INTERNAL_MESSAGES: Final[dict[str, type[msgspec.Struct]]] = {
+    "hello": Hello,
+    "sample": Sample,
+    "large_sample": LargeSample,
+    "command": Command,
 }
 _REPORTS: Final = {
     "telemetry": "telemetry",
@@ -67,16 +106,23 @@ _REPORTS: Final = {
 }
 
 
+def _message_name(message_type: type[msgspec.Struct]) -> str:
+    return f"arpz.core.messages.{message_type.__name__}"
+
+
 @dataclass(frozen=True)
 class Topic:
-    """One recorded key: where it goes in the MCAP file and how its payload is written."""
+    """One recorded key: where it goes in the MCAP file and how its messages are written."""
 
     key: str
     robot: str
-    #: a sensor kind (lidar, camera, ...) or one of ARPZ_TYPES
+    #: a sensor kind (lidar, camera, ...), ``command``, ``liveliness``, or a kind of
+    #: REPORT_MESSAGES or INTERNAL_MESSAGES
     kind: str
     #: the reliable channel's profile of the key (None: a plain key)
     qos: QosProfile | None
+    #: a command channel's ROS 2 type (of its first command; arpz.core.rosmsg.commands)
+    command_type: str | None = None
 
     @property
     def name(self) -> str:
@@ -93,22 +139,121 @@ class Topic:
         return f"/{robot}/arpz/{what}" + (f"/{name}" if name else "")
 
     @property
-    def standard(self) -> bool:
-        """Written as a ROS 2 message (CDR), not as arpz msgpack."""
+    def sensor(self) -> bool:
+        """A sensor topic of a standard kind: its readings are converted to the kind's type."""
         return self.kind in SENSOR_KINDS
 
     @property
+    def report(self) -> bool:
+        """A robot report or liveliness token: a DiagnosticArray."""
+        return self.kind in REPORT_MESSAGES or self.kind == LIVELINESS
+
+    @property
+    def encoding(self) -> str:
+        """``cdr`` (a standard ROS 2 type) or ``json`` (arpz's own, ``--include-internal``)."""
+        if self.sensor or self.report or (self.kind == "command" and self.command_type):
+            return CDR
+        return JSON
+
+    @property
     def type_name(self) -> str:
-        return ros_type_for(self.kind) if self.standard else ARPZ_TYPES[self.kind]
+        """The channel's type: the ROS 2 type, or the arpz message of a JSON channel."""
+        if self.sensor:
+            return ros_type_for(self.kind)
+        if self.report:
+            return DIAGNOSTIC_ARRAY
+        if self.kind == "command" and self.command_type:
+            return self.command_type
+        return _message_name(INTERNAL_MESSAGES[self.kind])
+
+    @property
+    def arpz_message(self) -> str:
+        """The arpz message each of the channel's messages is, converted back."""
+        if self.kind == LIVELINESS:
+            return "bool"
+        if self.sensor:
+            return _message_name(LargeSample if self.kind in LARGE_KINDS else Sample)
+        return _message_name({**REPORT_MESSAGES, **INTERNAL_MESSAGES}[self.kind])
+
+    def schema(self) -> tuple[str, str, bytes]:
+        """(name, encoding, data) of the channel's MCAP schema."""
+        if self.encoding == CDR:
+            return self.type_name, "ros2msg", message_definition(self.type_name).encode()
+        return self.type_name, "jsonschema", json_schema(INTERNAL_MESSAGES[self.kind])
 
     def metadata(self) -> dict[str, str]:
         return {
             "arpz_key": self.key,
             "arpz_kind": self.kind,
             "arpz_type": self.type_name,
+            "arpz_message": self.arpz_message,
             "arpz_qos": msgspec.json.encode(self.qos).decode() if self.qos else "none",
             "offered_qos_profiles": offered_qos_yaml(self.qos),
         }
+
+
+def json_schema(message_type: type[msgspec.Struct]) -> bytes:
+    """The JSON Schema of an arpz message written as a JSON object of its fields (msgspec's
+    schema, with an ``array_like`` struct's array turned into the object it is written as)."""
+    schema = msgspec.json.schema(message_type)
+    body = schema["$defs"][message_type.__name__]
+    if body.get("type") == "array":
+        names = message_type.__struct_fields__
+        body = {key: value for key, value in body.items() if key in ("title", "description")} | {
+            "type": "object",
+            "properties": dict(zip(names, body["prefixItems"], strict=True)),
+            "required": list(names[: body["minItems"]]),
+        }
+        schema["$defs"][message_type.__name__] = body
+    return msgspec.json.encode(schema)
+
+
+def internal_json(kind: str, message: msgspec.Struct) -> bytes:
+    """An internal message (INTERNAL_MESSAGES) as the JSON object of its fields."""
+    assert isinstance(message, INTERNAL_MESSAGES[kind]), (kind, message)
+    return msgspec.json.encode(to_fields(message))
+
+
+def liveliness_report(topic: Topic, alive: bool, stamp_ns: int) -> bytes:
+    """A liveliness token appearing or vanishing, as a DiagnosticArray (STALE when it
+    vanished)."""
+    what = topic.name.split("/arpz/", 1)[-1]
+    return serialize(
+        report_to_ros(
+            {"alive": alive},
+            name=f"{topic.robot}/{what}",
+            hardware_id=topic.robot,
+            message=f"{what}: {'up' if alive else 'gone'}",
+            stamp_ns=stamp_ns,
+            level=OK if alive else STALE,
+        )
+    )
+
+
+def recorded_message(topic: Topic, encoding: str, data: bytes) -> Any:
+    """The arpz message (or a liveliness token's bool) of one recorded message of a
+    non-sensor channel, in any form a recording holds: the DiagnosticArray of a report or token,
+    the JSON of an internal message, or the msgpack of a recording made before issue 41.
+    Raises ConversionError, msgspec's errors or ValueError on a message that is none of these."""
+    kind = topic.kind
+    if kind == LIVELINESS:
+        if encoding == MSGPACK:
+            return bool(msgspec.msgpack.decode(data))
+        alive = report_from_cdr(data).fields.get("alive")
+        if alive not in ("true", "false"):
+            raise ConversionError(f"a liveliness report says alive={alive!r}")
+        return alive == "true"
+    message_type = {**REPORT_MESSAGES, **INTERNAL_MESSAGES}[kind]
+    if encoding == MSGPACK:
+        if kind == "sample":  # a camera's raw samples shared the kind with the scalar ones
+            try:
+                return msgspec.msgpack.decode(data, type=Sample)
+            except DECODE_ERRORS:
+                return msgspec.msgpack.decode(data, type=LargeSample)
+        return msgspec.msgpack.decode(data, type=message_type)
+    if encoding == JSON:
+        return from_fields(message_type, msgspec.json.decode(data))
+    return message_from_cdr(message_type, data)
 
 
 def matches(topic: Topic, patterns: Sequence[str]) -> bool:
@@ -213,17 +358,11 @@ class McapSink:
         channel = self._channels.get(topic.key)
         if channel is not None:
             return channel
-        schema = 0
-        if topic.standard:
-            schema = self._schemas.get(topic.type_name, 0)
-            if not schema:
-                schema = writer.register_schema(
-                    topic.type_name, "ros2msg", message_definition(topic.type_name).encode()
-                )
-                self._schemas[topic.type_name] = schema
-        channel = writer.register_channel(
-            topic.name, CDR if topic.standard else MSGPACK, schema, topic.metadata()
-        )
+        schema = self._schemas.get(topic.type_name, 0)
+        if not schema:
+            schema = writer.register_schema(*topic.schema())
+            self._schemas[topic.type_name] = schema
+        channel = writer.register_channel(topic.name, topic.encoding, schema, topic.metadata())
         self._channels[topic.key] = channel
         return channel
 

@@ -24,7 +24,7 @@ import contextlib
 import difflib
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Final
 
@@ -35,9 +35,11 @@ from arpz.core.config import LARGE_KINDS
 from arpz.core.errors import ArpzError
 from arpz.core.messages import (
     ANNOUNCE_DECODER,
+    CEDDP_STATS_DECODER,
     DECODE_ERRORS,
     STATS_DECODER,
     Announce,
+    CeddpStats,
     RobotStats,
 )
 from arpz.core.protocol import wire
@@ -263,6 +265,15 @@ class FleetGraph:
     #: the ROS 2 graph on the same router (rmw_zenoh's liveliness tokens, any domain): the
     #: bridge's publishers and subscriptions and those of ROS 2 nodes (docs/ros2.md)
     ros2: tuple[GraphRecord, ...] = ()
+    #: the CEDDP's latest report (None: none heard); its ``access_control`` says whether this
+    #: tool may write anything to the fleet (``read_only``)
+    ceddp_stats: CeddpStats | None = None
+
+    @property
+    def read_only(self) -> bool:
+        """The CEDDP reports access control in force: a tool holds an observer's rights at
+        most (deploy/tls/make_fleet_certs.py), and must read in a way that writes nothing."""
+        return bool(self.ceddp_stats is not None and self.ceddp_stats.access_control)
 
     def topic(self, name_or_key: str) -> TopicEntry:
         """The topic given as ``/robot1/lidar``, ``robot1/lidar`` or an arpz key
@@ -357,6 +368,7 @@ class FleetObserver:
         self._stats: dict[str, list[RobotStats]] = {}
         self._other_fleets: set[str] = set()
         self._ros2_tokens: set[str] = set()
+        self._ceddp_stats: CeddpStats | None = None
         self.ignore_guids: set[str] = set()
         #: reports that could not be decoded
         self.decode_errors = 0
@@ -370,6 +382,15 @@ class FleetObserver:
                 self._ros2_tokens.add(key)
             else:
                 self._ros2_tokens.discard(key)
+
+    def on_ceddp_stats(self, stats: CeddpStats) -> None:
+        with self._lock:
+            if self._ceddp_stats is None or stats.stamp_ns >= self._ceddp_stats.stamp_ns:
+                self._ceddp_stats = stats
+
+    def ceddp_stats(self) -> CeddpStats | None:
+        with self._lock:
+            return self._ceddp_stats
 
     def on_token(self, key: str, alive: bool) -> None:
         if not key.startswith(self._prefix):
@@ -429,6 +450,10 @@ class FleetObserver:
             if (parsed := keys.parse_robot_key(key)) is not None and parsed[1] == "presence"
         )
 
+    def ceddp_present(self) -> bool:
+        with self._lock:
+            return f"{self._prefix}{CEDDP}/presence" in self._tokens
+
     def stats_count(self, robot: str) -> int:
         with self._lock:
             return len(self._stats.get(robot, []))
@@ -442,6 +467,7 @@ class FleetObserver:
             stats = {robot: list(pair) for robot, pair in self._stats.items() if pair}
             other = tuple(sorted(self._other_fleets - {self.fleet}))
             ros2, _not_rmw_zenoh = graph_records(sorted(self._ros2_tokens))
+            ceddp_stats = self._ceddp_stats
         nodes = self._nodes(tokens, announces, stats)
         modes = {node.name: node.mode for node in nodes}
         writers: dict[str, list[Endpoint]] = {}
@@ -480,6 +506,7 @@ class FleetObserver:
             latest,
             other,
             tuple(sorted(ros2, key=lambda r: (r.topic, r.role, r.node))),
+            ceddp_stats,
         )
 
     def _nodes(
@@ -642,40 +669,121 @@ _REPORT_SECTIONS: Final = ("announce", "stats")
 _HISTORY_QOS: Final = QosProfile(depth=4, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 
 
+def watch_reports(
+    transport: Transport,
+    key_expr: str,
+    on_report: Callable[[str, bytes], None],
+    handles: list[Handle],
+    readers: list[Reader],
+) -> Reader:
+    """Read the reports on ``key_expr`` both ways (into ``handles`` and ``readers``, which the
+    caller closes): a plain subscription, which gets each report as it is published and asks
+    nothing of anyone (all an observer's rights allow under access control), and a
+    TRANSIENT_LOCAL channel reader, which gets the writers' latest reports at once in a fleet
+    without access control (under it, its token and ACKNACKs are refused by the router and it
+    stays silent: docs/security.md). The reader, whose guid the caller may leave out of a
+    graph."""
+    handles.append(transport.subscribe(key_expr, lambda k, p, _a: on_report(k, p)))
+    reader = Reader(transport, key_expr, _HISTORY_QOS, lambda p, info: on_report(info.key, p))
+    readers.append(reader)
+    return reader
+
+
+class CeddpStatsWatch:
+    """The CEDDP's latest ``CeddpStats`` (``watch_reports``), until closed; each one also to
+    ``on_stats`` when given (from Zenoh's or the reader's thread)."""
+
+    def __init__(
+        self,
+        transport: Transport,
+        fleet: str,
+        on_stats: Callable[[CeddpStats], None] | None = None,
+    ) -> None:
+        self._on_stats = on_stats
+        self._lock = threading.Lock()
+        self._latest: CeddpStats | None = None
+        self._arrived = threading.Event()
+        self._handles: list[Handle] = []
+        self._readers: list[Reader] = []
+        try:
+            watch_reports(
+                transport, keys.ceddp_stats_key(fleet), self._on, self._handles, self._readers
+            )
+        except BaseException:
+            self.close()
+            raise
+
+    def _on(self, _key: str, payload: bytes) -> None:
+        try:
+            stats = CEDDP_STATS_DECODER.decode(payload)
+        except DECODE_ERRORS:
+            return
+        with self._lock:
+            if self._latest is None or stats.stamp_ns >= self._latest.stamp_ns:
+                self._latest = stats
+        if self._on_stats is not None:
+            self._on_stats(stats)
+        self._arrived.set()
+
+    @property
+    def guids(self) -> set[str]:
+        return {reader.guid for reader in self._readers}
+
+    def latest(self) -> CeddpStats | None:
+        with self._lock:
+            return self._latest
+
+    def wait(self, timeout_s: float) -> CeddpStats | None:
+        """The latest report, waiting up to ``timeout_s`` for a first one."""
+        self._arrived.wait(timeout_s)
+        return self.latest()
+
+    def close(self) -> None:
+        for reader in self._readers:
+            reader.close()
+        for handle in self._handles:
+            handle.undeclare()
+        self._readers, self._handles = [], []
+
+
 class Discovery:
-    """Watches a fleet on ``transport`` until closed: liveliness tokens of ``arpz/**``, and the
-    robots' announcements and stats, both plain (a ``reliability = "none"`` fleet) and through
-    a TRANSIENT_LOCAL channel reader (a channel fleet's latest reports arrive at once instead of
-    at the next announcement, 2 s away). Keeping it open keeps the graph current, which the
-    streaming commands use for clock offsets."""
+    """Watches a fleet on ``transport`` until closed: liveliness tokens of ``arpz/{fleet}/**``
+    (and of ``arpz/**`` for the names of other fleets on the router, which access control
+    refuses an observer, harmlessly), the robots' announcements and stats and the CEDDP's stats
+    (``watch_reports``). Keeping it open keeps the graph current, which the streaming commands
+    use for clock offsets."""
 
     def __init__(self, transport: Transport, fleet: str) -> None:
         self.observer = FleetObserver(fleet)
         self._handles: list[Handle] = []
         self._readers: list[Reader] = []
+        self._ceddp: CeddpStatsWatch | None = None
         try:
+            # the fleet's own tokens on their own: a subscription to all of arpz/** is refused
+            # whole where access control allows only the fleet's keys (an observer)
             self._handles.append(
-                transport.watch_liveliness(f"{keys.ROOT}/**", self.observer.on_token)
+                transport.watch_liveliness(f"{keys.fleet_prefix(fleet)}/**", self.observer.on_token)
             )
+            self._handles.append(transport.watch_liveliness(f"{keys.ROOT}/**", self._on_any_token))
             self._handles.append(
                 transport.watch_liveliness(f"{ADMIN_SPACE}/**", self.observer.on_ros2_token)
             )
             for section in _REPORT_SECTIONS:
                 expr = f"{keys.fleet_prefix(fleet)}/robot/*/{section}"
-                self._handles.append(
-                    transport.subscribe(expr, lambda k, p, _a: self.observer.on_report(k, p))
-                )
-                reader = Reader(
-                    transport,
-                    expr,
-                    _HISTORY_QOS,
-                    lambda p, info: self.observer.on_report(info.key, p),
+                reader = watch_reports(
+                    transport, expr, self.observer.on_report, self._handles, self._readers
                 )
                 self.observer.ignore_guids.add(reader.guid)
-                self._readers.append(reader)
+            self._ceddp = CeddpStatsWatch(transport, fleet, self.observer.on_ceddp_stats)
+            self.observer.ignore_guids.update(self._ceddp.guids)
         except BaseException:
             self.close()
             raise
+
+    def _on_any_token(self, key: str, alive: bool) -> None:
+        """Tokens of every fleet: only other fleets' names are taken from here."""
+        if not key.startswith(f"{keys.fleet_prefix(self.observer.fleet)}/"):
+            self.observer.on_token(key, alive)
 
     def settle(
         self, *, min_s: float = 0.3, max_s: float = 3.0, stop: threading.Event | None = None
@@ -686,8 +794,12 @@ class Discovery:
         while stop is None or not stop.is_set():
             elapsed = time.monotonic() - start
             robots = self.observer.present_robots()
-            done = elapsed >= min_s and all(
-                self.observer.announced(r) and self.observer.stats_count(r) >= 2 for r in robots
+            done = (
+                elapsed >= min_s
+                and all(
+                    self.observer.announced(r) and self.observer.stats_count(r) >= 2 for r in robots
+                )
+                and (self.observer.ceddp_stats() is not None or not self.observer.ceddp_present())
             )
             if done or elapsed >= max_s:
                 break
@@ -698,6 +810,9 @@ class Discovery:
         return self.observer.graph()
 
     def close(self) -> None:
+        if self._ceddp is not None:
+            self._ceddp.close()
+            self._ceddp = None
         for reader in self._readers:
             reader.close()
         for handle in self._handles:
@@ -724,6 +839,7 @@ def discover(transport: Transport, fleet: str, *, max_s: float = 3.0) -> FleetGr
 
 __all__ = [
     "CEDDP",
+    "CeddpStatsWatch",
     "Discovery",
     "Endpoint",
     "FleetGraph",
@@ -742,6 +858,7 @@ __all__ = [
     "payload_type",
     "resolve",
     "topic_name",
+    "watch_reports",
 ]
 
 

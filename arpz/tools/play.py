@@ -14,6 +14,11 @@ Not published: the CEDDP's commands (``cmd/*``, the CEDDP under test sends its o
 them with the recorded ones), and the robots' stats and QoS acks (they count what the recorded
 robots did, and answered a CEDDP that is not there).
 
+Every form ``arpz record`` writes is read back (``arpz.tools._recording.recorded_message``): the
+ROS 2 messages of sensor topics, the DiagnosticArrays of the announcements, telemetry and
+liveliness tokens, the JSON of the Hello probes and raw samples (``--include-internal``), and
+the msgpack of recordings made before issue 41.
+
 Usage: ``python -m arpz play FILE.mcap [--rate FACTOR] [--loop] [--topics PATTERN ...]``
 (docs/tools.md "Recording and replay").
 """
@@ -40,14 +45,12 @@ from arpz.core import keys
 from arpz.core.config import LARGE_SAMPLE_BYTES, SENSOR_KINDS
 from arpz.core.errors import ArpzError
 from arpz.core.messages import (
-    ANNOUNCE_DECODER,
     DECODE_ERRORS,
-    HELLO_DECODER,
-    LARGE_SAMPLE_DECODER,
-    SAMPLE_DECODER,
-    TELEMETRY_DECODER,
+    Announce,
+    Hello,
     LargeSample,
     Sample,
+    Telemetry,
     encode,
     new_incarnation,
     writer_id,
@@ -57,13 +60,15 @@ from arpz.core.rosmsg.convert import ConversionError, from_cdr
 from arpz.core.throttled_log import ThrottledLog
 from arpz.core.transport import Handle, Transport, TransportError
 from arpz.runtime import startup
-from arpz.tools._recording import Topic, matches, open_client
+from arpz.tools._recording import LIVELINESS, Topic, matches, open_client, recorded_message
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
 
 #: channel kinds published back (sensor kinds too); the others are recorded for reading only
-PLAYED_KINDS = frozenset({*SENSOR_KINDS, "sample", "hello", "telemetry", "announce"})
+PLAYED_KINDS = frozenset(
+    {*SENSOR_KINDS, "sample", "large_sample", "hello", "telemetry", "announce"}
+)
 #: how long play waits for the fleet's readers (the CEDDP) to match its writers before it starts
 MATCH_TIMEOUT_S = 5.0
 #: how long the writers wait for the last messages' acknowledgement at the end
@@ -165,7 +170,8 @@ class Player:
             raise RecordingError(f"{', '.join(map(str, self.files))}: the recording is empty")
         return first, last
 
-    def _messages(self) -> Iterator[tuple[Topic, int, bytes]]:
+    def _messages(self) -> Iterator[tuple[Topic, str, int, bytes]]:
+        """(topic, message encoding, log time, data) of every recorded message, in order."""
         for path in self.files:
             with path.open("rb") as stream:
                 topics: dict[int, Topic | None] = {}
@@ -174,10 +180,10 @@ class Player:
                         topics[channel.id] = _topic(channel.metadata, self.fleet)
                     topic = topics[channel.id]
                     if topic is not None:
-                        yield topic, message.log_time, message.data
+                        yield topic, channel.message_encoding, message.log_time, message.data
 
     def _selected(self, topic: Topic) -> bool:
-        if topic.kind in ("liveliness", "announce"):
+        if topic.kind in (LIVELINESS, "announce"):
             return True
         return topic.kind in PLAYED_KINDS and matches(topic, self.patterns)
 
@@ -202,7 +208,7 @@ class Player:
                 summary = make_reader(stream).get_summary()
             for channel in summary.channels.values() if summary else ():
                 topic = _topic(channel.metadata, self.fleet)
-                if topic is not None and topic.kind != "liveliness" and self._selected(topic):
+                if topic is not None and topic.kind != LIVELINESS and self._selected(topic):
                     topics.setdefault(topic.key, topic)
         # a robot is played when one of its data topics is (its announcement alone is not)
         robots = {t.robot for t in topics.values() if t.kind != "announce"}
@@ -232,11 +238,11 @@ class Player:
         while not stop.is_set():
             start_mono = time.monotonic()
             self._start_wall_ns = time.time_ns()
-            for topic, log_ns, data in self._messages():
+            for topic, encoding, log_ns, data in self._messages():
                 offset_s = (log_ns - self.first_ns) / 1e9 / self.rate
                 if startup.wait_for_stop(stop, start_mono + offset_s - time.monotonic()):
                     return
-                self._publish(topic, log_ns, data)
+                self._publish(topic, encoding, log_ns, data)
             self.loops += 1
             if not self.loop:
                 return
@@ -248,19 +254,26 @@ class Player:
         recording's, scaled by the rate."""
         return self._start_wall_ns + int((stamp_ns - self.first_ns) / self.rate)
 
-    def _publish(self, topic: Topic, log_ns: int, data: bytes) -> None:
+    def _publish(self, topic: Topic, encoding: str, log_ns: int, data: bytes) -> None:
         robot = self._robots.get(topic.robot)
         if robot is None:
             return
-        if topic.kind == "liveliness":
-            self._token(robot, topic.key, bool(msgspec.msgpack.decode(data)))
+        if topic.kind == LIVELINESS:
+            try:
+                alive = recorded_message(topic, encoding, data)
+            except (*DECODE_ERRORS, ConversionError) as exc:
+                throttled.warning(f"token {topic.name}", "%s: not played: %s", topic.name, exc)
+                return
+            self._token(robot, topic.key, alive)
             return
         played = self.played.get(topic.key)
         if played is None:
             return
         writer = writer_id(topic.robot, robot.incarnation)
         try:
-            payload, stamp_ns = self._payload(topic, data, log_ns, writer, robot.incarnation)
+            payload, stamp_ns = self._payload(
+                topic, encoding, data, log_ns, writer, robot.incarnation
+            )
         except (*DECODE_ERRORS, ConversionError, msgspec.ValidationError) as exc:
             played.undecodable += 1
             throttled.warning(f"undecodable {topic.name}", "%s: not played: %s", topic.name, exc)
@@ -275,17 +288,12 @@ class Player:
         return seq
 
     def _payload(
-        self, topic: Topic, data: bytes, log_ns: int, writer: str, incarnation: str
+        self, topic: Topic, encoding: str, data: bytes, log_ns: int, writer: str, incarnation: str
     ) -> tuple[bytes, int]:
         """The message as the robot would send it now: re-stamped, numbered by this writer."""
         kind, restamp = topic.kind, self._restamp
-        if kind == "announce":
-            announce = msgspec.structs.replace(
-                ANNOUNCE_DECODER.decode(data), incarnation=incarnation
-            )
-            return encode(announce), time.time_ns()
-        seq = self._next_seq(topic.key)
         if kind in SENSOR_KINDS:
+            seq = self._next_seq(topic.key)
             reading = from_cdr(kind, data)
             # std_msgs/msg/Bool has no header: its stamp is the log time
             stamp = restamp(log_ns if reading.stamp_ns is None else reading.stamp_ns)
@@ -296,28 +304,29 @@ class Player:
                 else Sample(writer, seq, stamp, value)
             )
             return encode(message), stamp
-        if kind == "sample":
-            try:
-                sample: Sample | LargeSample = SAMPLE_DECODER.decode(data)
-            except DECODE_ERRORS:
-                sample = LARGE_SAMPLE_DECODER.decode(data)
-            stamp = restamp(sample.stamp_ns)
+        recorded = recorded_message(topic, encoding, data)
+        if isinstance(recorded, Announce):
+            again_announce = msgspec.structs.replace(recorded, incarnation=incarnation)
+            return encode(again_announce), time.time_ns()
+        seq = self._next_seq(topic.key)
+        if isinstance(recorded, Sample | LargeSample):
+            stamp = restamp(recorded.stamp_ns)
             again = msgspec.structs.replace(
-                sample, writer=writer, seq=seq, stamp_ns=stamp, changed_ns=0, since_ns=0
+                recorded, writer=writer, seq=seq, stamp_ns=stamp, changed_ns=0, since_ns=0
             )
             return encode(again), stamp
-        if kind == "hello":
-            hello = HELLO_DECODER.decode(data)
-            stamp = restamp(hello.stamp_ns)
+        if isinstance(recorded, Hello):
+            stamp = restamp(recorded.stamp_ns)
             again_hello = msgspec.structs.replace(
-                hello, writer=writer, seq=seq, stamp_ns=stamp, t0_ns=restamp(hello.t0_ns)
+                recorded, writer=writer, seq=seq, stamp_ns=stamp, t0_ns=restamp(recorded.t0_ns)
             )
             return encode(again_hello), stamp
-        telemetry = TELEMETRY_DECODER.decode(data)
-        stamp = restamp(telemetry.stamp_ns)
-        return encode(
-            msgspec.structs.replace(telemetry, writer=writer, seq=seq, stamp_ns=stamp)
-        ), stamp
+        if isinstance(recorded, Telemetry):
+            stamp = restamp(recorded.stamp_ns)
+            return encode(
+                msgspec.structs.replace(recorded, writer=writer, seq=seq, stamp_ns=stamp)
+            ), stamp
+        raise ConversionError(f"a {kind} message is not played")
 
     def _token(self, robot: _RobotState, key: str, alive: bool) -> None:
         handle = robot.tokens.get(key)

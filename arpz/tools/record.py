@@ -3,9 +3,13 @@
 ``Recorder`` joins the fleet as one more reader of every robot's sensor topics, frames, reports
 and commands, through the reliable channel when the fleet runs it (the CEDDP's mode token says
 so) and as a plain subscriber otherwise, so what it could not get is counted by the channel and
-said in the summary, never lost silently. It learns each topic's kind from the robots'
-announcements and writes each key as one MCAP channel (arpz.tools._recording gives the
-layout). The channel callbacks only queue; one thread (``run``) converts and writes.
+said in the summary, never lost silently. Under access control (the CEDDP says so in its stats)
+it reads without writing anything, as an observer's certificate requires: BEST_EFFORT channel
+readers, which send no ACKNACK (losses are still counted from the writers' sequence numbers).
+It learns each topic's kind from the robots' announcements and writes each key as one MCAP
+channel of a standard ROS 2 type (arpz.tools._recording gives the layout); arpz's own messages
+that have none are left out unless ``--include-internal``. The channel callbacks only queue; one
+thread (``run``) converts and writes.
 
 Usage: ``python -m arpz record --out fleet.mcap [--duration S] [TOPIC_PATTERN ...]``
 (docs/tools.md "Recording and replay").
@@ -38,6 +42,7 @@ from arpz.core import keys
 from arpz.core.config import (
     LARGE_KINDS,
     LARGE_SAMPLE_BYTES,
+    SENSOR_KINDS,
     CeddpConfig,
     ConfigError,
     RobotConfig,
@@ -46,18 +51,40 @@ from arpz.core.config import (
 )
 from arpz.core.errors import ArpzError
 from arpz.core.messages import (
-    ANNOUNCE_DECODER,
+    COMMAND_DECODER,
     DECODE_ERRORS,
     LARGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
+    Announce,
+    Command,
+    Hello,
+    LargeSample,
+    QosAck,
+    RobotStats,
+    Sample,
+    Telemetry,
 )
-from arpz.core.protocol.qos import QosProfile
+from arpz.core.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
+from arpz.core.rosmsg.commands import command_cdr, command_type
 from arpz.core.rosmsg.convert import ConversionError, is_exact, to_cdr
+from arpz.core.rosmsg.reports import OK, WARN, report_cdr
 from arpz.core.throttled_log import ThrottledLog
 from arpz.core.transport import Handle, Transport, TransportError
 from arpz.core.version import arpz_version
 from arpz.runtime import startup
-from arpz.tools._recording import McapSink, Topic, matches, open_client, report_kind
+from arpz.tools._recording import (
+    INTERNAL_MESSAGES,
+    LIVELINESS,
+    REPORT_MESSAGES,
+    McapSink,
+    Topic,
+    internal_json,
+    liveliness_report,
+    matches,
+    open_client,
+    report_kind,
+)
+from arpz.tools.fleet_graph import CeddpStatsWatch
 
 log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
@@ -67,11 +94,14 @@ throttled = ThrottledLog(log)
 _UNANNOUNCED_WAIT_S = 3.0
 #: how long the recorder waits for the CEDDP's mode token before it decides the mode
 _MODE_WAIT_S = 2.0
+#: how long it then waits for the CEDDP's stats (every metrics_period_s, 0.5 s by default) to
+#: learn whether access control is in force
+_STATS_WAIT_S = 3.0
 #: samples waiting for the writing thread; beyond, the channel's readers wait (backpressure:
 #: the channel recovers or counts what it then cannot deliver)
 _QUEUE_LIMIT = 100_000
 
-SENSOR, FRAME, COMMAND, REPORT, LIVELINESS = "sensor", "frame", "command", "report", "liveliness"
+SENSOR, FRAME, COMMAND, REPORT = "sensor", "frame", "command", "report"
 
 
 @dataclass
@@ -121,7 +151,12 @@ def _robot_of(key: str) -> str:
 
 
 class Recorder:
-    """Records one fleet into an ``McapSink``. Thread: ``run`` writes; callbacks only queue."""
+    """Records one fleet into an ``McapSink``. Thread: ``run`` writes; callbacks only queue.
+
+    ``include_internal``: keep arpz's own messages that have no standard ROS 2 type (the Hello
+    probe, samples of a topic no announcement named) as JSON channels, instead of leaving them
+    out. ``read_only``: read without writing anything to the fleet (BEST_EFFORT readers); None:
+    decide from the CEDDP's stats (on under access control)."""
 
     def __init__(
         self,
@@ -134,6 +169,9 @@ class Recorder:
         mode: str | None = None,
         camera_size: tuple[int, int] | None = None,
         mode_wait_s: float = _MODE_WAIT_S,
+        include_internal: bool = False,
+        read_only: bool | None = None,
+        stats_wait_s: float = _STATS_WAIT_S,
         clock_ns: Callable[[], int] = time.time_ns,
     ) -> None:
         self.transport = transport
@@ -145,6 +183,11 @@ class Recorder:
         #: (width, height) of the fleet's camera frames; None: guessed from each frame's length
         self.camera_size = camera_size
         self.mode_wait_s = mode_wait_s
+        self.include_internal = include_internal
+        self.read_only = read_only
+        #: why read_only is what it is (said in the summary)
+        self.read_only_reason = "--read-only" if read_only else ""
+        self.stats_wait_s = stats_wait_s
         self._clock_ns = clock_ns
         self._queue: queue.Queue[_Item] = queue.Queue(_QUEUE_LIMIT)
         self._lock = threading.Lock()
@@ -163,6 +206,8 @@ class Recorder:
         self.unattributed_lost = 0
         self.skipped = 0
         self.unknown_keys = 0
+        #: arpz's own messages left out (no ``include_internal``), per MCAP topic
+        self.left_out: dict[str, int] = {}
         self._readers: list[Reader] = []
         self._frames: FrameReader | None = None
         self._handles: list[Handle] = []
@@ -203,9 +248,45 @@ class Recorder:
         log.warning("no CEDDP mode token within %.1f s: recording through the channel", wait_s)
         return "channel"
 
+    def decide_read_only(self, ceddp_present: bool) -> bool:
+        """Read only when the CEDDP reports access control in force: the recorder then holds an
+        observer's certificate at most, whose rights refuse a reader's token and ACKNACKs, so a
+        RELIABLE reader would never be matched and would record nothing."""
+        if not ceddp_present:
+            self.read_only_reason = "no CEDDP seen: access control unknown"
+            return False
+        watch = CeddpStatsWatch(self.transport, self.fleet)
+        try:
+            stats = watch.wait(self.stats_wait_s)
+        finally:
+            watch.close()
+        if stats is None:
+            self.read_only_reason = f"no CEDDP stats within {self.stats_wait_s:g} s"
+            return False
+        if stats.access_control:
+            self.read_only_reason = "the CEDDP reports access control in force"
+            return True
+        self.read_only_reason = "the CEDDP reports no access control"
+        return False
+
+    def _reader_profile(self, profile: QosProfile) -> QosProfile:
+        """What the recorder asks for: the fleet's profile, or read-only BEST_EFFORT VOLATILE
+        (matches every writer, sends no ACKNACK, no history is replayed to it)."""
+        if not self.read_only:
+            return profile
+        return msgspec.structs.replace(
+            profile,
+            reliability=ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.VOLATILE,
+        )
+
     def start(self) -> None:
         """Decide the mode, then open every reader and liveliness watch."""
         self.mode = self.mode or self.decide_mode()
+        if self.read_only is None:
+            with self._lock:
+                ceddp = any("/ceddp/mode/" in k for k in self._modes)
+            self.read_only = self.mode == "channel" and self.decide_read_only(ceddp)
         fleet, t = self.fleet, self.traffic
         prefix = keys.fleet_prefix(fleet)
         exprs = {
@@ -225,7 +306,7 @@ class Recorder:
                     Reader(
                         self.transport,
                         expr,
-                        profiles[source],
+                        self._reader_profile(profiles[source]),
                         self._data_callback(source),
                         events=ReaderEventCallbacks(message_lost=self._on_lost),
                     )
@@ -236,7 +317,7 @@ class Recorder:
             self._frames = FrameReader(
                 self.transport,
                 keys.all_frames(fleet),
-                t.frames_qos,
+                self._reader_profile(t.frames_qos),
                 self._on_frame,
                 max_frame_bytes=LARGE_SAMPLE_BYTES,
             )
@@ -309,12 +390,15 @@ class Recorder:
     def _selected(self, topic: Topic) -> bool:
         """Announcements and liveliness are always recorded (play needs them); the patterns
         select among the rest, matched against the MCAP topic or the arpz key."""
-        return topic.kind in ("announce", "liveliness") or matches(topic, self.patterns)
+        return topic.kind in ("announce", LIVELINESS) or matches(topic, self.patterns)
 
-    def _topic(self, key: str, robot: str, kind: str, source: str) -> Topic | None:
+    def _tally(
+        self, key: str, robot: str, kind: str, source: str, command_type: str | None = None
+    ) -> TopicTally | None:
+        """The tally of ``key``'s channel, made on its first message (None: not selected)."""
         tally = self.tallies.get(key)
         if tally is not None:
-            return tally.topic
+            return tally
         t = self.traffic
         channel = self.mode == "channel"
         qos: QosProfile | None = {
@@ -326,12 +410,12 @@ class Recorder:
         }[source]
         if kind == "hello":
             qos = t.hello_qos or t.sensor_qos
-        topic = Topic(key, robot, kind, qos if channel else None)
+        topic = Topic(key, robot, kind, qos if channel else None, command_type)
         if not self._selected(topic):
             self.skipped += 1
             return None
-        self.tallies[key] = TopicTally(topic)
-        return topic
+        tally = self.tallies[key] = TopicTally(topic)
+        return tally
 
     def _handle(self, item: _Item) -> None:
         parsed = keys.parse_robot_key(item.key)
@@ -340,26 +424,22 @@ class Recorder:
             return
         robot, what, name = parsed
         if item.source == LIVELINESS:
-            self._write_raw(item, robot, "liveliness", sequence=0, stamp_ns=item.arrival_ns)
+            self._liveliness(item, robot)
         elif item.source in (SENSOR, FRAME):
             self._sensor(item, robot, name)
         elif item.source == COMMAND:
-            self._write_raw(item, robot, "hello" if name == keys.HELLO else "command")
+            if name == keys.HELLO:
+                self._internal(item, robot, "hello")
+            else:
+                self._command(item, robot)
         else:
             kind = report_kind(what)
             if kind is None or name:
                 self.unknown_keys += 1
                 return
-            if kind == "announce":
-                self._announce(item, robot)
-            self._write_raw(item, robot, kind)
+            self._report(item, robot, what, kind)
 
-    def _announce(self, item: _Item, robot: str) -> None:
-        try:
-            announce = ANNOUNCE_DECODER.decode(item.payload)
-        except DECODE_ERRORS as exc:
-            throttled.warning(f"announce {robot}", "undecodable announcement of %s: %s", robot, exc)
-            return
+    def _learn_kinds(self, announce: Announce, robot: str) -> None:
         for info in announce.sensors:
             self.kinds[(robot, info.topic)] = info.kind
         for key in [k for k in self._pending if _robot_of(k) == robot]:
@@ -372,27 +452,40 @@ class Recorder:
         for key in list(self._pending):
             if force or now - self._pending_since[key] >= _UNANNOUNCED_WAIT_S:
                 for item in self._pending.pop(key):
-                    self._write_raw(item, _robot_of(key), "sample")
+                    self._internal(item, _robot_of(key), self._raw_sample_kind(item))
                 del self._pending_since[key]
+
+    def _raw_sample_kind(self, item: _Item) -> str:
+        """``sample`` or ``large_sample`` (a camera frame or point cloud) for a sample recorded
+        as it came; a key keeps the kind of its channel."""
+        tally = self.tallies.get(item.key)
+        if tally is not None:
+            return tally.topic.kind
+        if item.source == FRAME:
+            return "large_sample"
+        try:
+            SAMPLE_DECODER.decode(item.payload)
+        except DECODE_ERRORS:
+            return "large_sample"
+        return "sample"
 
     def _sensor(self, item: _Item, robot: str, name: str) -> None:
         if name == keys.HELLO:
-            self._write_raw(item, robot, "hello")
+            self._internal(item, robot, "hello")
             return
         kind = self.kinds.get((robot, name))
         if kind is None:
             if item.key in self.tallies:  # recorded raw already: stay on that channel
-                self._write_raw(item, robot, self.tallies[item.key].topic.kind)
+                self._internal(item, robot, self.tallies[item.key].topic.kind)
                 return
             self._pending_since.setdefault(item.key, time.monotonic())
             self._pending.setdefault(item.key, []).append(item)
             return
-        topic = self._topic(item.key, robot, kind, item.source)
-        if topic is None:
+        if kind not in SENSOR_KINDS:  # a kind with no ROS 2 type: recorded as it came
+            self._internal(item, robot, self._raw_sample_kind(item))
             return
-        tally = self.tallies[item.key]
-        if not topic.standard:
-            self._write_raw(item, robot, topic.kind)
+        tally = self._tally(item.key, robot, kind, item.source)
+        if tally is None:
             return
         try:
             decoder = LARGE_SAMPLE_DECODER if kind in LARGE_KINDS else SAMPLE_DECODER
@@ -408,48 +501,99 @@ class Recorder:
                 kind, sample.value, stamp_ns=sample.stamp_ns, frame_id=f"{robot}/{name}", size=size
             )
         except (*DECODE_ERRORS, ConversionError) as exc:
-            tally.undecodable += 1
-            throttled.warning(
-                f"undecodable {item.key}", "%s: sample not recorded: %s", item.key, exc
-            )
+            self._undecodable(tally, item, exc)
             return
         if not is_exact(kind, sample.value):
             tally.rounded += 1
         self._count_plain_gap(item.key, sample.writer, sample.seq, tally)
+        self._write(tally, item, data, log_ns=sample.stamp_ns, sequence=sample.seq)
+
+    def _undecodable(self, tally: TopicTally, item: _Item, exc: Exception) -> None:
+        tally.undecodable += 1
+        throttled.warning(f"undecodable {item.key}", "%s: not recorded: %s", item.key, exc)
+
+    def _write(
+        self, tally: TopicTally, item: _Item, data: bytes, *, log_ns: int, sequence: int
+    ) -> None:
         tally.messages += 1
         tally.bytes += len(data)
         self.sink.write(
-            topic, data, log_ns=sample.stamp_ns, publish_ns=item.arrival_ns, sequence=sample.seq
+            tally.topic, data, log_ns=log_ns, publish_ns=item.arrival_ns, sequence=sequence
         )
 
-    def _write_raw(
-        self,
-        item: _Item,
-        robot: str,
-        kind: str,
-        *,
-        sequence: int | None = None,
-        stamp_ns: int | None = None,
-    ) -> None:
-        topic = self._topic(item.key, robot, kind, item.source)
-        if topic is None:
+    def _command(self, item: _Item, robot: str) -> None:
+        """A CEDDP command as the standard type of its value (the channel's first command's)."""
+        try:
+            command = COMMAND_DECODER.decode(item.payload)
+            ros_type = command_type(command.value)
+        except (*DECODE_ERRORS, ConversionError) as exc:
+            tally = self._tally(item.key, robot, "command", COMMAND)
+            if tally is not None:
+                self._undecodable(tally, item, exc)
             return
-        tally = self.tallies[item.key]
-        if stamp_ns is None:
-            header = _header(item.payload)
-            if header is None:
-                sequence, stamp_ns = 0, item.stamp_ns or item.arrival_ns
-            else:
-                sequence, stamp_ns = header
-        tally.messages += 1
-        tally.bytes += len(item.payload)
-        self.sink.write(
-            topic,
-            item.payload,
-            log_ns=stamp_ns,
-            publish_ns=item.arrival_ns,
-            sequence=sequence or 0,
-        )
+        tally = self._tally(item.key, robot, "command", COMMAND, ros_type)
+        if tally is None:
+            return
+        try:
+            data = command_cdr(command.value, tally.topic.command_type or ros_type)
+        except ConversionError as exc:
+            self._undecodable(tally, item, exc)
+            return
+        self._write(tally, item, data, log_ns=command.stamp_ns, sequence=command.seq)
+
+    def _report(self, item: _Item, robot: str, what: str, kind: str) -> None:
+        """A robot's report as a DiagnosticArray of its fields."""
+        tally = self._tally(item.key, robot, kind, REPORT)
+        if tally is None:
+            return
+        try:
+            report = msgspec.msgpack.decode(item.payload, type=REPORT_MESSAGES[kind])
+            stamp_ns = getattr(report, "stamp_ns", None) or item.stamp_ns or item.arrival_ns
+            summary, level = _report_summary(report)
+            data = report_cdr(
+                report,
+                name=f"{robot}/{what}",
+                hardware_id=robot,
+                summary=summary,
+                stamp_ns=stamp_ns,
+                level=level,
+            )
+        except (*DECODE_ERRORS, msgspec.ValidationError, ConversionError) as exc:
+            self._undecodable(tally, item, exc)
+            return
+        if isinstance(report, Announce):
+            self._learn_kinds(report, robot)
+        self._write(tally, item, data, log_ns=stamp_ns, sequence=getattr(report, "seq", 0))
+
+    def _liveliness(self, item: _Item, robot: str) -> None:
+        tally = self._tally(item.key, robot, LIVELINESS, LIVELINESS)
+        if tally is None:
+            return
+        alive = bool(msgspec.msgpack.decode(item.payload))
+        data = liveliness_report(tally.topic, alive, item.arrival_ns)
+        self._write(tally, item, data, log_ns=item.arrival_ns, sequence=0)
+
+    def _internal(self, item: _Item, robot: str, kind: str) -> None:
+        """arpz's own message with no ROS 2 type: JSON with ``include_internal``, else left out
+        (counted per topic)."""
+        if not self.include_internal:
+            name = Topic(item.key, robot, kind, None).name
+            self.left_out[name] = self.left_out.get(name, 0) + 1
+            return
+        source = COMMAND if kind == "hello" and "/cmd/" in item.key else item.source
+        tally = self._tally(item.key, robot, kind, source)
+        if tally is None:
+            return
+        try:
+            message = msgspec.msgpack.decode(item.payload, type=INTERNAL_MESSAGES[kind])
+            assert isinstance(message, Hello | Sample | LargeSample | Command)
+            data = internal_json(kind, message)
+        except (*DECODE_ERRORS, msgspec.ValidationError) as exc:
+            self._undecodable(tally, item, exc)
+            return
+        if isinstance(message, Sample | LargeSample):
+            self._count_plain_gap(item.key, message.writer, message.seq, tally)
+        self._write(tally, item, data, log_ns=message.stamp_ns, sequence=message.seq)
 
     def _count_plain_gap(self, key: str, writer: str, seq: int, tally: TopicTally) -> None:
         """Plain mode has no channel: a gap in the payload's seq of one writer is a loss."""
@@ -480,6 +624,7 @@ class Recorder:
                 "key": t.topic.key,
                 "kind": t.topic.kind,
                 "type": t.topic.type_name,
+                "encoding": t.topic.encoding,
                 "messages": t.messages,
                 "bytes": t.bytes,
                 "lost": t.lost,
@@ -507,6 +652,9 @@ class Recorder:
         return {
             "fleet": self.fleet,
             "mode": self.mode,
+            "read_only": bool(self.read_only),
+            "read_only_reason": self.read_only_reason,
+            "include_internal": self.include_internal,
             "files": [str(p) for p in self.sink.files],
             "duration_s": round((self._clock_ns() - self.started_ns) / 1e9, 3),
             "messages": sum(t.messages for t in self.tallies.values()),
@@ -514,9 +662,33 @@ class Recorder:
             "unattributed_lost": self.unattributed_lost,
             "skipped_by_pattern": self.skipped,
             "unknown_keys": self.unknown_keys,
+            "internal_left_out": dict(sorted(self.left_out.items())),
             "topics": topics,
             "channel": channel,
         }
+
+
+def _report_summary(report: msgspec.Struct) -> tuple[str, int]:
+    """The DiagnosticStatus message and level of a robot's report: one sentence, and WARN for
+    what ``arpz doctor`` would warn about in it (INCOMPATIBLE_QOS, a refused QoS assignment,
+    a collision)."""
+    if isinstance(report, Announce):
+        return (
+            f"{len(report.sensors)} sensor(s), {len(report.commands)} command(s), "
+            f"{report.mode} mode",
+            OK,
+        )
+    if isinstance(report, RobotStats):
+        what = "final report" if report.final else "report"
+        if report.incompatible_qos:
+            return f"{what}: INCOMPATIBLE_QOS: {'; '.join(report.incompatible_qos)}", WARN
+        return f"{what}: {sum(t.sent for t in report.topics.values())} samples sent", OK
+    if isinstance(report, QosAck):
+        level = OK if report.status == "applied" else WARN
+        return f"QoS epoch {report.epoch} {report.status}: {report.reason}".rstrip(": "), level
+    assert isinstance(report, Telemetry)
+    where = f"x {report.x_m:.2f} m, y {report.y_m:.2f} m, theta {report.theta_rad:.2f} rad"
+    return (f"collided at {where}", WARN) if report.collided else (where, OK)
 
 
 def format_summary(summary: dict[str, Any]) -> str:
@@ -529,19 +701,28 @@ def format_summary(summary: dict[str, Any]) -> str:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     lines = ["  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True)).rstrip() for r in rows]
     files = ", ".join(summary["files"])
+    read_only = ", read-only" if summary["read_only"] else ""
     lines.append(
         f"{summary['messages']} messages in {summary['duration_s']:.1f} s ({summary['mode']} "
-        f"mode), {summary['lost']} lost during the recording -> {files}"
+        f"mode{read_only}), {summary['lost']} lost during the recording -> {files}"
     )
+    left_out = summary["internal_left_out"]
+    if left_out:
+        lines.append(
+            f"left out {sum(left_out.values())} of arpz's own messages with no ROS 2 type "
+            f"({', '.join(f'{n} {t}' for t, n in left_out.items())}): --include-internal "
+            "keeps them as JSON"
+        )
     return "\n".join(lines)
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="python -m arpz record",
-        description="Record a running fleet's sensor topics and commands into MCAP (the rosbag2 "
-        "profile: ROS 2 tools and Foxglove open it). Stops on SIGINT or after --duration, then "
-        "prints messages and losses per topic.",
+        description="Record a running fleet's sensor topics, commands and robot reports into "
+        "MCAP (the rosbag2 profile, every channel a standard ROS 2 type in CDR: ROS 2 tools and "
+        "Foxglove read it whole). Stops on SIGINT or after --duration, then prints messages and "
+        "losses per topic.",
     )
     startup.add_fleet_client_options(parser)
     parser.add_argument("--out", required=True, type=Path, metavar="FILE.mcap")
@@ -566,6 +747,20 @@ def build_parser() -> argparse.ArgumentParser:
         help="the fleet's CEDDP (or a robot's) config: read with its [*_qos] profiles and store "
         "them as each topic's QoS (default: arpz's default profiles, which a fleet that changed "
         "them does not use)",
+    )
+    parser.add_argument(
+        "--include-internal",
+        action="store_true",
+        help="also keep arpz's own messages that have no ROS 2 type (the Hello probe, samples of "
+        "a topic no announcement named) as JSON channels, which MCAP readers and Foxglove "
+        "decode but ROS 2 tools do not",
+    )
+    parser.add_argument(
+        "--read-only",
+        action="store_true",
+        help="write nothing to the fleet: BEST_EFFORT readers, no ACKNACK, no resend (default: "
+        "so when the CEDDP reports access control in force, as an observer's certificate "
+        "requires)",
     )
     startup.add_json_option(parser, "the summary")
     startup.add_version_option(parser)
@@ -635,12 +830,15 @@ def main(argv: list[str] | None = None) -> int:
         traffic=traffic,
         patterns=args.patterns,
         camera_size=camera_size,
+        include_internal=args.include_internal,
+        read_only=True if args.read_only else None,
     )
     try:
         recorder.start()
+        read_only = f", read-only: {recorder.read_only_reason}" if recorder.read_only else ""
         print(
-            f"recording fleet '{args.fleet}' from {','.join(endpoints)} ({recorder.mode} mode) "
-            f"into {args.out}",
+            f"recording fleet '{args.fleet}' from {','.join(endpoints)} ({recorder.mode} mode"
+            f"{read_only}) into {args.out}",
             file=sys.stderr,
             flush=True,
         )

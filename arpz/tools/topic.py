@@ -121,6 +121,13 @@ def stream_loop(
     """Open the topic's reader and feed its messages to ``make``'s handler until ``--duration``,
     ``--count`` or a signal; figures every second, the counters at the end."""
     topic = ctx.graph.topic(args.topic)
+    if args.reliable and ctx.graph.read_only:
+        return fail(
+            TOOL,
+            "--reliable: the CEDDP reports access control in force, under which a tool holds an "
+            "observer's rights at most: a RELIABLE reader's token and ACKNACKs would be refused "
+            "and it would read nothing; drop --reliable (docs/security.md, the observer)",
+        )
     if args.reliable and any(w.qos is not None and not w.qos.reliable for w in topic.writers):
         return fail(
             TOOL,

@@ -1,9 +1,11 @@
 """``arpz record`` and ``arpz play`` against real fleets through a real router.
 
-1. A robot with every sensor kind (the seven of seed 001 Table 1, a camera and a point cloud) is
-   recorded while a CEDDP runs; the file is read back with INDEPENDENT readers (the mcap library
-   with mcap-ros2-support's CDR decoder, and rosbags' rosbag2 reader), and its counts are
-   checked against the robot's own final counters.
+1. A robot with every sensor kind (the seven of seed 001 Table 1, a camera and a point cloud) and
+   the Hello probe is recorded while a CEDDP runs; the file is read back WHOLE with INDEPENDENT
+   readers (mcap-ros2-support's ``read_ros2_messages`` and its CDR decoder, rosbags' rosbag2
+   reader and its AnyReader), and its counts are checked against the robot's own final counters.
+   A second recorder with ``--include-internal`` runs beside it: its file is read whole by the
+   mcap library, the JSON channels by a JSON decoder.
 2. The hallway mission is recorded, commands included, and played into a fresh CEDDP running
    the same planner: the commands it sends are the recorded ones.
 """
@@ -13,15 +15,18 @@ from __future__ import annotations
 import bisect
 import json
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
-import msgspec
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
+from arpz.core.messages import RobotStats
+from arpz.core.rosmsg.convert import deserialize
+from arpz.core.rosmsg.reports import DIAGNOSTIC_ARRAY, message_from_cdr
 from tests.integration.fleet import Process, ceddp, settle
 
 pytestmark = pytest.mark.integration
@@ -72,14 +77,35 @@ def messages(path: Path) -> dict[str, list[tuple[Any, Any, Any]]]:
     return out
 
 
+def read_ros2_whole(path: Path) -> list[Any]:
+    """Every message of the file, decoded by mcap-ros2-support's high-level reader with no
+    topic filter (it raises on the first channel it cannot decode). The module warns that it is
+    deprecated in favour of the decoder factory (the other reads here): it is what a user of
+    the library calls, so it is called."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        from mcap_ros2.reader import read_ros2_messages
+
+        return list(read_ros2_messages(path))
+
+
+def message_count(path: Path) -> int:
+    with path.open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None and summary.statistics is not None
+    return int(summary.statistics.message_count)
+
+
 @pytest.fixture(scope="module")
 def every_kind(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A recording of one robot with every sensor kind, from before it started to after its
-    final report (so every sample it sent should be in the file)."""
+    """A recording of one robot with every sensor kind and the Hello probe, from before it
+    started to after its final report (so every sample it sent should be in the file); beside
+    it, ``internal.mcap`` made with ``--include-internal``."""
     tmp = tmp_path_factory.mktemp("every_kind")
     out = tmp / "fleet.mcap"
     with ceddp(tmp) as (_, endpoint):
         recorder = record(endpoint, out, tmp, "--camera-size", "64x48")
+        internal = record(endpoint, tmp / "internal.mcap", tmp, "--include-internal")
         kinds = {name: name for name in list(SENSORS)[:7]} | {
             "cam": "camera",
             "cloud": "pointcloud",
@@ -91,12 +117,16 @@ def every_kind(tmp_path_factory: pytest.TempPathFactory) -> Path:
             for name, kind in kinds.items()
         )
         # no local cache: every reading goes out, so every topic has many samples to count
-        text = f'connect = ["{endpoint}"]\n{sensors}[local_cache]\nenabled = false\n'
+        text = (
+            f'connect = ["{endpoint}"]\n{sensors}[local_cache]\nenabled = false\n'
+            "[hello]\nenabled = true\nrate_hz = 10\n"
+        )
         proc = robot(tmp, "robot1", text)
         settle(3.0)
         assert proc.interrupt() == 0, proc.output()
         settle(0.5)  # the final report reaches the recorder
         assert recorder.interrupt() == 0, recorder.output()
+        assert internal.interrupt() == 0, internal.output()
     return out
 
 
@@ -107,9 +137,12 @@ def test_an_independent_reader_decodes_every_sensor_topic(every_kind: Path) -> N
         summary = reader.get_summary()
         assert summary is not None and summary.statistics is not None
         assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
-        assert {s.name for s in summary.schemas.values()} == set(SENSORS.values())
+        assert {s.name for s in summary.schemas.values()} == {*SENSORS.values(), DIAGNOSTIC_ARRAY}
+        assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
         channels = {c.topic: c for c in summary.channels.values()}
-        # one channel per key: 9 sensors, and the robot's announce, stats, presence and mode
+        assert {c.message_encoding for c in channels.values()} == {"cdr"}
+        # one channel per key: 9 sensors, and the robot's announce, stats, presence and mode;
+        # the Hello probe (no ROS 2 type) is left out
         assert set(channels) == {f"/robot1/{name}" for name in SENSORS} | {
             "/robot1/arpz/announce",
             "/robot1/arpz/stats",
@@ -150,15 +183,66 @@ def test_an_independent_reader_decodes_every_sensor_topic(every_kind: Path) -> N
     assert np.all(np.hypot(xyz[:, 0], xyz[:, 1]) > 1.5)  # the simulated room's walls: 2..6 m
 
 
+def test_mcap_ros2_support_reads_the_whole_file(every_kind: Path) -> None:
+    """No topic filter: every channel, the robot's reports and tokens included, decodes."""
+    decoded = read_ros2_whole(every_kind)
+    assert len(decoded) == message_count(every_kind) > 300
+    by_topic: dict[str, list[Any]] = {}
+    for message in decoded:
+        by_topic.setdefault(message.channel.topic, []).append(message.ros_msg)
+    [presence] = by_topic["/robot1/arpz/presence"][:1]
+    assert presence.status[0].name == "robot1/presence"
+    assert {kv.key: kv.value for kv in presence.status[0].values} == {"alive": "true"}
+    announce = by_topic["/robot1/arpz/announce"][0].status[0]
+    values = {kv.key: kv.value for kv in announce.values}
+    assert {values[f"sensors[{i}].topic"] for i in range(9)} == set(SENSORS)
+    assert announce.hardware_id == "robot1"
+    final = [s.status[0] for s in by_topic["/robot1/arpz/stats"] if "final" in s.status[0].message]
+    assert len(final) == 1 and final[0].level == 0
+
+
+def test_the_hello_probe_is_left_out_and_counted(every_kind: Path) -> None:
+    summary = json.loads(every_kind.with_suffix(".json").read_text())
+    left_out = summary["internal_left_out"]
+    assert left_out["/robot1/hello"] >= 10 and left_out["/robot1/cmd/hello"] >= 10
+
+
+def test_include_internal_keeps_the_hello_probe_as_json(every_kind: Path) -> None:
+    """The --include-internal file: every message of it read by the mcap library, each CDR one
+    decoded as a ROS 2 message and each JSON one by a JSON decoder."""
+    internal = every_kind.with_name("internal.mcap")
+    count = 0
+    encodings: dict[str, set[str]] = {}
+    hellos: dict[str, list[Any]] = {}
+    with internal.open("rb") as stream:
+        reader = make_reader(stream)
+        for schema, channel, message in reader.iter_messages():
+            count += 1
+            assert schema is not None
+            encodings.setdefault(channel.message_encoding, set()).add(schema.encoding)
+            if channel.message_encoding == "json":
+                hellos.setdefault(channel.topic, []).append(json.loads(message.data))
+            else:
+                deserialize(message.data, schema.name)
+    assert count == message_count(internal)
+    assert encodings == {"cdr": {"ros2msg"}, "json": {"jsonschema"}}
+    assert set(hellos) == {"/robot1/hello", "/robot1/cmd/hello"}
+    assert {h["stage"] for h in hellos["/robot1/hello"]} <= {0, 2}
+    assert {h["stage"] for h in hellos["/robot1/cmd/hello"]} <= {1, 3}
+    assert all(h["origin"] == "robot1" for h in hellos["/robot1/hello"])
+    summary = json.loads(internal.with_suffix(".json").read_text())
+    assert summary["internal_left_out"] == {} and summary["include_internal"]
+
+
 def test_the_counts_match_the_robots_own_counters(every_kind: Path) -> None:
     recorded = messages(every_kind)
-    stats = [msgspec.msgpack.decode(m.data) for _, _, m in recorded["/robot1/arpz/stats"]]
-    final = [s for s in stats if s["final"]]
+    stats = [message_from_cdr(RobotStats, m.data) for _, _, m in recorded["/robot1/arpz/stats"]]
+    final = [s for s in stats if s.final]
     assert len(final) == 1, "the robot's final report is in the recording"
     summary = json.loads(every_kind.with_suffix(".json").read_text())
     for name in SENSORS:
         topic = f"/robot1/{name}"
-        sent = final[0]["topics"][name]["sent"]
+        sent = final[0].topics[name].sent
         assert sent >= 20, name
         assert summary["topics"][topic]["lost"] == 0, name
         # every sample the robot sent during the recording is in the file, once
@@ -168,6 +252,9 @@ def test_the_counts_match_the_robots_own_counters(every_kind: Path) -> None:
 
 
 def test_rosbags_opens_the_recording_as_a_rosbag2(every_kind: Path) -> None:
+    """rosbags' rosbag2 Reader and its AnyReader (which types the messages from the file's own
+    definitions) decode every message of every connection."""
+    from rosbags.highlevel import AnyReader
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
 
@@ -176,13 +263,20 @@ def test_rosbags_opens_the_recording_as_a_rosbag2(every_kind: Path) -> None:
     with Reader(every_kind) as bag:
         by_topic = {c.topic: c for c in bag.connections}
         assert by_topic["/robot1/lidar"].msgtype == "sensor_msgs/msg/LaserScan"
+        assert by_topic["/robot1/arpz/stats"].msgtype == DIAGNOSTIC_ARRAY
         assert by_topic["/robot1/cam"].ext.offered_qos_profiles[0].depth == 1  # frames_qos
-        cdr = [c for c in bag.connections if c.ext.serialization_format == "cdr"]
-        for connection, _, raw in bag.messages(connections=cdr):
+        assert {c.ext.serialization_format for c in bag.connections} == {"cdr"}
+        for connection, _, raw in bag.messages():
             store.deserialize_cdr(raw, connection.msgtype)
             counts[connection.topic] = counts.get(connection.topic, 0) + 1
     recorded = messages(every_kind)
-    assert counts == {f"/robot1/{n}": len(recorded[f"/robot1/{n}"]) for n in SENSORS}
+    assert counts == {topic: len(items) for topic, items in recorded.items()}
+    any_counts: dict[str, int] = {}
+    with AnyReader([every_kind]) as bag:
+        for connection, _, raw in bag.messages():
+            bag.deserialize(raw, connection.msgtype)
+            any_counts[connection.topic] = any_counts.get(connection.topic, 0) + 1
+    assert any_counts == counts
 
 
 # -- record, play, same decisions ----------------------------------------------------------------
@@ -199,14 +293,17 @@ PLAY_TIMEOUT_S = TURN_TIMEOUT_S + 30.0
 
 
 def commands(path: Path) -> dict[str, list[tuple[int, tuple[float, float]]]]:
-    """robot -> [(stamp_ns, (v, omega))] of the CEDDP's velocity commands in a recording."""
+    """robot -> [(stamp_ns, (v, omega))] of the CEDDP's velocity commands in a recording: each
+    a geometry_msgs/msg/Twist whose log time is the command's stamp."""
     out: dict[str, list[tuple[int, tuple[float, float]]]] = {}
     for topic, items in messages(path).items():
         if topic.endswith("/cmd/velocity"):
-            for _, channel, message in items:
-                assert channel.message_encoding == "msgpack"
-                _, _, stamp_ns, (v, omega) = msgspec.msgpack.decode(message.data)
-                out.setdefault(topic.split("/")[1], []).append((stamp_ns, (v, omega)))
+            for schema, _, message in items:
+                assert schema.name == "geometry_msgs/msg/Twist"
+                twist = deserialize(message.data, schema.name)
+                out.setdefault(topic.split("/")[1], []).append(
+                    (message.log_time, (twist.linear.x, twist.angular.z))
+                )
     return out
 
 

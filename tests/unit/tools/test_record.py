@@ -9,8 +9,11 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import msgspec
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import Writer as McapWriter
+from mcap_ros2.decoder import DecoderFactory
 from rosbags.rosbag2.metadata import parse_qos
 
 from arpz.channel.io import Inlet, Outlet
@@ -18,16 +21,26 @@ from arpz.core import keys
 from arpz.core.config import TrafficQos
 from arpz.core.messages import (
     ANNOUNCE_DECODER,
+    HELLO_DECODER,
     SAMPLE_DECODER,
     Announce,
+    CeddpStats,
     Command,
+    Hello,
     Sample,
     TopicInfo,
     encode,
 )
 from arpz.core.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
+from arpz.core.rosmsg.commands import TWIST
 from arpz.tools import record as record_tool
-from arpz.tools._recording import McapSink, Topic, offered_qos_yaml, split_path
+from arpz.tools._recording import (
+    MSGPACK,
+    McapSink,
+    Topic,
+    offered_qos_yaml,
+    split_path,
+)
 from arpz.tools.play import Player, RecordingError, recording_files
 from arpz.tools.record import Recorder
 from arpz.transport.memory import MemoryBus, MemoryTransport
@@ -110,22 +123,27 @@ def by_topic(path: Path) -> dict[str, list[tuple[object, object]]]:
     return out
 
 
-def test_sensor_topics_become_ros2_channels_and_the_rest_stays_arpz(
-    bus: MemoryBus, tmp_path: Path
-) -> None:
+def test_every_channel_is_a_standard_ros2_type_by_default(bus: MemoryBus, tmp_path: Path) -> None:
+    """Sensor topics, commands, reports and tokens are all CDR of standard ROS 2 types, so
+    mcap-ros2-support reads the whole file with no topic filter; the Hello probe (no ROS 2
+    type) is left out and counted."""
     out = tmp_path / "r.mcap"
     rec = recorder(bus, out)
     robot = FakeRobot(MemoryTransport(bus))
     robot.send_announce()
     wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
     sent = [robot.send("lidar", 2.37), robot.send("lidar", 2.38), robot.send("pir", "detect")]
-    command = Command("ceddp:1", 1, time.time_ns(), [0.8, 0.0])
+    command = Command("ceddp:1", 1, time.time_ns(), [0.8, -0.25])
     ceddp = Outlet(
         MemoryTransport(bus), keys.command_key(FLEET, "robot1", "velocity"), TRAFFIC.command_qos
     )
-    wait_until(lambda: ceddp.matched, what="the command reader")
+    hello = Outlet(
+        MemoryTransport(bus), keys.sensor_key(FLEET, "robot1", keys.HELLO), TRAFFIC.sensor_qos
+    )
+    wait_until(lambda: ceddp.matched and hello.matched, what="the command and Hello readers")
     ceddp.send(encode(command), command.stamp_ns)
-    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 7)
+    hello.send(encode(Hello("robot1:abc", 1, time.time_ns(), "robot1", 1, 1, 0)), time.time_ns())
+    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 7 and rec.left_out)
     files = rec.close()
     assert files == [out]
     topics = by_topic(out)
@@ -137,33 +155,75 @@ def test_sensor_topics_become_ros2_channels_and_the_rest_stays_arpz(
         "/robot1/arpz/presence",
         "/robot1/arpz/mode/channel",
     }
+    assert {c.message_encoding for c, _ in (v[0] for v in topics.values())} == {"cdr"}  # type: ignore[attr-defined]
     channel, message = topics["/robot1/lidar"][0]
-    assert channel.message_encoding == "cdr"  # type: ignore[attr-defined]
     assert channel.metadata["arpz_key"] == "arpz/t/robot/robot1/sensor/lidar"  # type: ignore[attr-defined]
     assert message.log_time == sent[0].stamp_ns and message.sequence == 1  # type: ignore[attr-defined]
     assert message.publish_time >= message.log_time  # type: ignore[attr-defined]
-    channel, message = topics["/robot1/cmd/velocity"][0]
-    assert channel.message_encoding == "msgpack"  # type: ignore[attr-defined]
-    assert channel.metadata["arpz_type"] == "arpz.core.messages.Command"  # type: ignore[attr-defined]
-    assert message.data == encode(command) and message.log_time == command.stamp_ns  # type: ignore[attr-defined]
+    with out.open("rb") as stream:  # the whole file, no topic filter
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        decoded = {c.topic: (s, m, ros) for s, c, m, ros in reader.iter_decoded_messages()}
+    schema, message, twist = decoded["/robot1/cmd/velocity"]
+    assert schema.name == TWIST  # type: ignore[union-attr]
+    assert (twist.linear.x, twist.angular.z) == (0.8, -0.25)
+    assert message.log_time == command.stamp_ns and message.sequence == 1
+    schema, _, announce = decoded["/robot1/arpz/announce"]
+    assert schema.name == "diagnostic_msgs/msg/DiagnosticArray"  # type: ignore[union-attr]
+    values = {kv.key: kv.value for kv in announce.status[0].values}
+    assert values["sensors[0].kind"] == "lidar" and values["commands[1]"] == "velocity"
+    assert announce.status[0].hardware_id == "robot1"
+    assert decoded["/robot1/arpz/presence"][2].status[0].values[0].value == "true"
     summary = rec.summary()
     assert summary["topics"]["/robot1/lidar"]["messages"] == 2
     assert summary["lost"] == 0
-    assert "sensor_msgs/msg/LaserScan" in record_tool.format_summary(summary)
+    assert summary["internal_left_out"] == {"/robot1/hello": 1}
+    text = record_tool.format_summary(summary)
+    assert "sensor_msgs/msg/LaserScan" in text and "--include-internal" in text
 
 
-def test_a_topic_never_announced_is_recorded_as_arpz_samples(
-    bus: MemoryBus, tmp_path: Path
-) -> None:
+def test_include_internal_keeps_arpz_messages_as_json(bus: MemoryBus, tmp_path: Path) -> None:
+    """The Hello probe and the samples of a topic no announcement named: JSON channels with a
+    JSON Schema, each message the object of the arpz message's fields."""
+    rec = recorder(bus, tmp_path / "r.mcap", include_internal=True)
+    robot = FakeRobot(MemoryTransport(bus))  # no announcement
+    hello = Outlet(
+        MemoryTransport(bus), keys.sensor_key(FLEET, "robot1", keys.HELLO), TRAFFIC.sensor_qos
+    )
+    wait_until(lambda: robot.outlets["lidar"].matched and hello.matched, what="matching")
+    sample = robot.send("lidar", 1.0)
+    probe = Hello("robot1:abc", 1, time.time_ns(), "robot1", 1, 1, 0)
+    hello.send(encode(probe), probe.stamp_ns)
+    run_until(rec, lambda: not rec._queue.qsize() and rec._pending and rec.tallies)
+    rec.close()  # what still waits for an announcement is written as it came
+    topics = by_topic(tmp_path / "r.mcap")
+    channel, message = topics["/robot1/lidar"][0]
+    assert channel.message_encoding == "json"  # type: ignore[attr-defined]
+    assert channel.metadata["arpz_type"] == "arpz.core.messages.Sample"  # type: ignore[attr-defined]
+    assert msgspec.json.decode(message.data) == msgspec.to_builtins(  # type: ignore[attr-defined]
+        {"writer": sample.writer, "seq": 1, "stamp_ns": sample.stamp_ns, "value": 1.0}
+    ) | {"changed_ns": 0, "since_ns": 0}
+    channel, message = topics["/robot1/hello"][0]
+    assert msgspec.json.decode(message.data)["origin"] == "robot1"  # type: ignore[attr-defined]
+    with (tmp_path / "r.mcap").open("rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert summary is not None
+    schemas = {s.name: s for s in summary.schemas.values()}
+    schema = msgspec.json.decode(schemas["arpz.core.messages.Hello"].data)
+    assert schemas["arpz.core.messages.Hello"].encoding == "jsonschema"
+    assert schema["$defs"]["Hello"]["type"] == "object"
+    assert list(schema["$defs"]["Hello"]["properties"])[:3] == ["writer", "seq", "stamp_ns"]
+    assert rec.summary()["internal_left_out"] == {}
+
+
+def test_a_topic_never_announced_is_left_out_and_counted(bus: MemoryBus, tmp_path: Path) -> None:
     rec = recorder(bus, tmp_path / "r.mcap")
     robot = FakeRobot(MemoryTransport(bus))  # no announcement
     wait_until(lambda: robot.outlets["lidar"].matched, what="matching")
-    sample = robot.send("lidar", 1.0)
+    robot.send("lidar", 1.0)
     run_until(rec, lambda: not rec._queue.qsize() and rec._pending)
-    rec.close()  # what still waits for an announcement is written raw
-    channel, message = by_topic(tmp_path / "r.mcap")["/robot1/lidar"][0]
-    assert channel.metadata["arpz_type"] == "arpz.core.messages.Sample"  # type: ignore[attr-defined]
-    assert SAMPLE_DECODER.decode(message.data) == sample  # type: ignore[attr-defined]
+    rec.close()
+    assert "/robot1/lidar" not in by_topic(tmp_path / "r.mcap")
+    assert rec.summary()["internal_left_out"] == {"/robot1/lidar": 1}
 
 
 def test_patterns_select_topics_but_never_the_announcements(bus: MemoryBus, tmp_path: Path) -> None:
@@ -244,20 +304,12 @@ def test_offered_qos_profiles_read_back_as_rosbag2_qos() -> None:
     assert parse_qos(offered_qos_yaml(best_effort))[0].reliability.name == "BEST_EFFORT"
 
 
-def test_play_publishes_the_recording_as_the_robot_did(bus: MemoryBus, tmp_path: Path) -> None:
-    out = tmp_path / "r.mcap"
-    rec = recorder(bus, out)
-    robot = FakeRobot(MemoryTransport(bus))
-    robot.send_announce()
-    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
-    sent = [robot.send("lidar", 2.37), robot.send("pir", "detect"), robot.send("lidar", 2.5)]
-    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 6)
-    rec.close()
-    for token in robot.tokens:
-        token.undeclare()
-
-    fresh = MemoryBus()  # a new fleet: a CEDDP-like reader of everything a robot sends
-    listener = MemoryTransport(fresh)
+def _played(
+    bus: MemoryBus, recording: Path, rate: float = 8.0
+) -> tuple[list[tuple[str, bytes]], list[tuple[str, bool]]]:
+    """What play publishes of ``recording`` into the fleet on ``bus``, read as a CEDDP would:
+    (key, payload) of every message and (key, alive) of every presence token change."""
+    listener = MemoryTransport(bus)
     got: list[tuple[str, bytes]] = []
     alive: list[tuple[str, bool]] = []
     lock = threading.Lock()
@@ -271,14 +323,30 @@ def test_play_publishes_the_recording_as_the_robot_did(bus: MemoryBus, tmp_path:
         Inlet(listener, keys.all_reports(FLEET), TRAFFIC.report_qos, on_message),
     ]
     listener.watch_liveliness(keys.all_presence(FLEET), lambda k, a: alive.append((k, a)))
-    player = Player(MemoryTransport(fresh), recording_files(out), rate=4.0)
+    player = Player(MemoryTransport(bus), recording_files(recording), rate=rate)
     player.open(match_timeout_s=2.0)
-    started_ns = time.time_ns()
     player.run(threading.Event())
     player.close()
-    wait_until(lambda: len(got) >= 4, what="the replayed messages")
+    wait_until(lambda: len(got) >= player.summary()["published"], what="the replayed messages")
     for inlet in inlets:
         inlet.close()
+    return got, alive
+
+
+def test_play_publishes_the_recording_as_the_robot_did(bus: MemoryBus, tmp_path: Path) -> None:
+    out = tmp_path / "r.mcap"
+    rec = recorder(bus, out)
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: all(o.matched for o in robot.outlets.values()), what="matching")
+    sent = [robot.send("lidar", 2.37), robot.send("pir", "detect"), robot.send("lidar", 2.5)]
+    run_until(rec, lambda: sum(t.messages for t in rec.tallies.values()) >= 6)
+    rec.close()
+    for token in robot.tokens:
+        token.undeclare()
+
+    started_ns = time.time_ns()
+    got, alive = _played(MemoryBus(), out, rate=4.0)  # into a new fleet
     announce = [ANNOUNCE_DECODER.decode(p) for k, p in got if k.endswith("/announce")]
     assert announce and announce[0].incarnation != "abc"  # a replay is a new incarnation
     samples = [SAMPLE_DECODER.decode(p) for k, p in got if "/sensor/" in k]
@@ -290,7 +358,7 @@ def test_play_publishes_the_recording_as_the_robot_did(bus: MemoryBus, tmp_path:
     assert samples[2].stamp_ns - samples[0].stamp_ns == pytest.approx(recorded_gap / 4, abs=2)
     assert ("arpz/t/robot/robot1/presence", True) in alive
     assert alive[-1] == ("arpz/t/robot/robot1/presence", False)  # the robot left at the end
-    assert player.summary()["published"] == 4
+    assert len(got) == 4  # the announcement and the three samples
 
 
 def test_play_says_what_is_wrong_with_a_file(tmp_path: Path) -> None:
@@ -367,3 +435,97 @@ def test_the_recorded_qos_can_be_the_fleets_own(tmp_path: Path) -> None:
     bad.write_text('fleet = "f"\n[sensor_qos]\ndepth = "deep"\n')
     with pytest.raises(ConfigError, match=r"sensor_qos\.depth"):
         _fleet_traffic(bad)
+
+
+def test_play_reads_the_internal_json_channels(bus: MemoryBus, tmp_path: Path) -> None:
+    """A recording with --include-internal: the Hello probes (JSON) are played back, as the
+    announcement (a DiagnosticArray) and the sensor samples (CDR) are."""
+    out = tmp_path / "r.mcap"
+    rec = recorder(bus, out, include_internal=True)
+    robot = FakeRobot(MemoryTransport(bus))
+    hello = Outlet(
+        MemoryTransport(bus), keys.sensor_key(FLEET, "robot1", keys.HELLO), TRAFFIC.sensor_qos
+    )
+    robot.send_announce()
+    wait_until(lambda: robot.outlets["lidar"].matched and hello.matched, what="matching")
+    robot.send("lidar", 2.5)
+    hello.send(encode(Hello("robot1:abc", 1, time.time_ns(), "robot1", 9, 5, 0)), time.time_ns())
+    run_until(rec, lambda: "arpz/t/robot/robot1/sensor/hello" in rec.tallies)
+    rec.close()
+    got, _ = _played(MemoryBus(), out)
+    [probe] = [HELLO_DECODER.decode(p) for k, p in got if k.endswith("/sensor/hello")]
+    assert (probe.origin, probe.origin_seq, probe.seq) == ("robot1", 9, 1)
+    assert probe.writer != "robot1:abc"  # a new incarnation
+    assert [SAMPLE_DECODER.decode(p).value for k, p in got if k.endswith("/lidar")] == [2.5]
+
+
+def test_play_reads_a_recording_made_before_issue_41(tmp_path: Path) -> None:
+    """The earlier layout: reports, tokens and raw samples as arpz msgpack on schemaless
+    ``msgpack`` channels."""
+    old = tmp_path / "old.mcap"
+    announce = Announce("robot1", "abc", [TopicInfo("pir", "pir", 10.0, "str")], [])
+    sample = Sample("robot1:abc", 4, time.time_ns(), "detect")
+    records = [
+        ("arpz/t/robot/robot1/presence", "liveliness", None, msgspec.msgpack.encode(True)),
+        ("arpz/t/robot/robot1/announce", "announce", TRAFFIC.report_qos, encode(announce)),
+        ("arpz/t/robot/robot1/sensor/pir", "sample", TRAFFIC.sensor_qos, encode(sample)),
+    ]
+    with old.open("wb") as stream:
+        writer = McapWriter(stream)
+        writer.start(profile="ros2", library="arpz record (before issue 41)")
+        writer.add_metadata("arpz", {"fleet": FLEET})
+        for i, (key, kind, qos, data) in enumerate(records):
+            metadata = {
+                "arpz_key": key,
+                "arpz_kind": kind,
+                "arpz_qos": msgspec.json.encode(qos).decode() if qos else "none",
+            }
+            channel = writer.register_channel(key, MSGPACK, 0, metadata)
+            writer.add_message(channel, log_time=sample.stamp_ns + i, data=data, publish_time=0)
+        writer.finish()  # type: ignore[no-untyped-call]
+    got, _ = _played(MemoryBus(), old)
+    assert [ANNOUNCE_DECODER.decode(p).robot for k, p in got if k.endswith("/announce")] == [
+        "robot1"
+    ]
+    [pir] = [SAMPLE_DECODER.decode(p) for k, p in got if k.endswith("/pir")]
+    assert (pir.value, pir.seq) == ("detect", 1)
+
+
+def test_under_access_control_the_recorder_reads_without_writing(
+    bus: MemoryBus, tmp_path: Path
+) -> None:
+    """The CEDDP says access control is in force: the recorder's readers are BEST_EFFORT (no
+    ACKNACK, which an observer's certificate may not send), and it still records."""
+    ceddp = MemoryTransport(bus)
+    token = ceddp.declare_token(keys.ceddp_mode_key(FLEET, "channel"))
+    stats = Outlet(ceddp, keys.ceddp_stats_key(FLEET), None)
+    stop = threading.Event()
+
+    def report() -> None:
+        while not stop.wait(0.05):
+            message = CeddpStats(stamp_ns=time.time_ns(), cpu_percent=1.0, topics=[])
+            stats.send(encode(msgspec.structs.replace(message, access_control=True)), 0)
+
+    thread = threading.Thread(target=report)
+    thread.start()
+    try:
+        sink = McapSink(tmp_path / "r.mcap", split_bytes=0, split_s=0.0, metadata={})
+        rec = Recorder(MemoryTransport(bus), FLEET, sink, mode_wait_s=1.0, stats_wait_s=2.0)
+        rec.start()
+    finally:
+        stop.set()
+        thread.join()
+        token.undeclare()
+    assert rec.mode == "channel" and rec.read_only
+    assert rec.read_only_reason == "the CEDDP reports access control in force"
+    assert {r.qos.reliability for r in rec._readers} == {ReliabilityPolicy.BEST_EFFORT}
+    robot = FakeRobot(MemoryTransport(bus))
+    robot.send_announce()
+    wait_until(lambda: robot.outlets["lidar"].matched, what="matching")
+    robot.send("lidar", 1.0)
+    run_until(rec, lambda: "arpz/t/robot/robot1/sensor/lidar" in rec.tallies)
+    rec.close()
+    assert rec.summary()["read_only"]
+    # the channel kept the fleet's QoS for play, not the recorder's own
+    channel, _ = by_topic(tmp_path / "r.mcap")["/robot1/lidar"][0]
+    assert msgspec.json.decode(channel.metadata["arpz_qos"])["reliability"] == "reliable"  # type: ignore[attr-defined]
