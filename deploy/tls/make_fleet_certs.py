@@ -158,6 +158,10 @@ def access_control(
     explicitly: the command data (``cmd/*``) and the command writers' own traffic (writer
     tokens, heartbeats, resends and GAPs).
 
+    An observer (``--observer``) may subscribe to every key of the fleet, liveliness tokens
+    included, and query the CEDDP's clock; it may put, delete and declare nothing, so the arpz
+    tools it runs read without writing (docs/security.md, "The observer").
+
     The CEDDP's own session lives inside the router and is not a remote subject, so no rule
     applies to it: it sees and may send everything. ``by`` is ``cert_common_names`` (mTLS) or
     ``usernames`` (user/password).
@@ -166,10 +170,10 @@ def access_control(
     subjects: list[dict[str, object]] = []
     policies: list[dict[str, object]] = []
     fleet_root = f"arpz/{fleet}"
+    clock = f"{fleet_root}/ceddp/clock"
     for robot in robots:
         own = f"{fleet_root}/robot/{robot}"
         qos_reader = f"{fleet_root}/ceddp/qos/rel"
-        clock = f"{fleet_root}/ceddp/clock"
         # Exactly the keys a robot writes (docs/protocol.md), not its whole subtree: an allow
         # applies to a put whose key expression it includes, so with `{own}/**` a wildcard put
         # such as `{own}/*/velocity` was allowed while the `cmd/*` deny (which does not include
@@ -226,11 +230,18 @@ def access_control(
             {"id": f"{robot}-policy", "rules": [r["id"] for r in own_rules], "subjects": [robot]}
         )
     for observer in observers:
-        # read-only: a dashboard, a logger, examples/raw_subscriber.py; it can send nothing
+        # Read-only: `arpz topic`, `record`, `doctor`, a dashboard, a logger. It may subscribe
+        # to the whole fleet, its liveliness tokens included, and put nothing: no sample, no
+        # command, no token, no ACKNACK, so it cannot even acknowledge a sample in another
+        # reader's name. The arpz tools read in a way that needs no more (BEST_EFFORT readers,
+        # plain subscriptions: docs/security.md). Its one request is the clock exchange, for
+        # `arpz topic delay`: a query to the CEDDP's clock and its reply, which change nothing.
         watch = [f"{fleet_root}/**"]
         own_rules = [
             _rule(f"{observer}-subscribe", ROBOT_SUBSCRIBES, "ingress", watch),
             _rule(f"{observer}-receive", ROBOT_RECEIVES, "egress", watch),
+            _rule(f"{observer}-clock-query", ["query"], "ingress", [clock]),
+            _rule(f"{observer}-clock-reply", ["declare_queryable", "reply"], "egress", [clock]),
         ]
         rules.extend(own_rules)
         subjects.append({"id": observer, by: [observer]})
