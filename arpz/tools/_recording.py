@@ -12,8 +12,8 @@ Foxglove): a ``cdr`` channel whose schema is the full ``ros2msg`` definition of 
   (arpz.core.rosmsg.reports: exact, so ``play`` turns them back into what the robot sent).
 - arpz's own messages that have no standard type (the Hello probe, and sensor samples whose kind
   no announcement named) are left out, and counted; with ``--include-internal`` they are kept as
-  ``json`` channels with a ``jsonschema`` schema (MCAP's well-known encodings: the mcap library,
-  Foxglove and any JSON reader take them; ROS 2 tools do not).
+  schemaless ``json`` channels (MCAP's well-known encoding: the mcap library, Foxglove and any
+  JSON reader take them; ROS 2 tools skip them), their JSON Schema in the channel metadata.
 
 Recordings made before (issue 41) kept everything but the sensor topics as arpz's msgpack on
 schemaless ``msgpack`` channels; ``play`` still reads them. Channel metadata: ``arpz_key`` (the
@@ -175,14 +175,18 @@ class Topic:
             return _message_name(LargeSample if self.kind in LARGE_KINDS else Sample)
         return _message_name({**REPORT_MESSAGES, **INTERNAL_MESSAGES}[self.kind])
 
-    def schema(self) -> tuple[str, str, bytes]:
-        """(name, encoding, data) of the channel's MCAP schema."""
+    def schema(self) -> tuple[str, str, bytes] | None:
+        """(name, encoding, data) of the channel's MCAP schema; None for a JSON channel, which
+        is schemaless (MCAP allows it for ``json``): rosbags' reader knows the schema encodings
+        ``ros2msg``, ``ros2idl`` and ``omgidl`` only and refuses a whole file holding a
+        ``jsonschema`` one (``KeyError: 'jsonschema'``), where it lists a schemaless channel and
+        reads the rest. The JSON Schema is in the channel's ``arpz_json_schema`` metadata."""
         if self.encoding == CDR:
             return self.type_name, "ros2msg", message_definition(self.type_name).encode()
-        return self.type_name, "jsonschema", json_schema(INTERNAL_MESSAGES[self.kind])
+        return None
 
     def metadata(self) -> dict[str, str]:
-        return {
+        metadata = {
             "arpz_key": self.key,
             "arpz_kind": self.kind,
             "arpz_type": self.type_name,
@@ -190,6 +194,9 @@ class Topic:
             "arpz_qos": msgspec.json.encode(self.qos).decode() if self.qos else "none",
             "offered_qos_profiles": offered_qos_yaml(self.qos),
         }
+        if self.encoding == JSON:
+            metadata["arpz_json_schema"] = json_schema(INTERNAL_MESSAGES[self.kind]).decode()
+        return metadata
 
 
 def json_schema(message_type: type[msgspec.Struct]) -> bytes:
@@ -359,8 +366,9 @@ class McapSink:
         if channel is not None:
             return channel
         schema = self._schemas.get(topic.type_name, 0)
-        if not schema:
-            schema = writer.register_schema(*topic.schema())
+        definition = topic.schema()
+        if not schema and definition is not None:
+            schema = writer.register_schema(*definition)
             self._schemas[topic.type_name] = schema
         channel = writer.register_channel(topic.name, topic.encoding, schema, topic.metadata())
         self._channels[topic.key] = channel

@@ -752,8 +752,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--include-internal",
         action="store_true",
         help="also keep arpz's own messages that have no ROS 2 type (the Hello probe, samples of "
-        "a topic no announcement named) as JSON channels, which MCAP readers and Foxglove "
-        "decode but ROS 2 tools do not",
+        "a topic no announcement named) as schemaless JSON channels, which MCAP readers and "
+        "Foxglove decode and ROS 2 tools skip",
     )
     parser.add_argument(
         "--read-only",

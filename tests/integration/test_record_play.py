@@ -209,27 +209,37 @@ def test_the_hello_probe_is_left_out_and_counted(every_kind: Path) -> None:
 
 def test_include_internal_keeps_the_hello_probe_as_json(every_kind: Path) -> None:
     """The --include-internal file: every message of it read by the mcap library, each CDR one
-    decoded as a ROS 2 message and each JSON one by a JSON decoder."""
+    decoded as a ROS 2 message and each JSON one by a JSON decoder; rosbags still reads every
+    CDR message of it (the JSON channels are schemaless, which it lists and skips)."""
+    from rosbags.highlevel import AnyReader
+
     internal = every_kind.with_name("internal.mcap")
     count = 0
     encodings: dict[str, set[str]] = {}
     hellos: dict[str, list[Any]] = {}
     with internal.open("rb") as stream:
-        reader = make_reader(stream)
-        for schema, channel, message in reader.iter_messages():
+        for schema, channel, message in make_reader(stream).iter_messages():
             count += 1
-            assert schema is not None
-            encodings.setdefault(channel.message_encoding, set()).add(schema.encoding)
+            encodings.setdefault(channel.message_encoding, set()).add(
+                schema.encoding if schema else "schemaless"
+            )
             if channel.message_encoding == "json":
                 hellos.setdefault(channel.topic, []).append(json.loads(message.data))
             else:
+                assert schema is not None
                 deserialize(message.data, schema.name)
     assert count == message_count(internal)
-    assert encodings == {"cdr": {"ros2msg"}, "json": {"jsonschema"}}
+    assert encodings == {"cdr": {"ros2msg"}, "json": {"schemaless"}}
     assert set(hellos) == {"/robot1/hello", "/robot1/cmd/hello"}
     assert {h["stage"] for h in hellos["/robot1/hello"]} <= {0, 2}
     assert {h["stage"] for h in hellos["/robot1/cmd/hello"]} <= {1, 3}
     assert all(h["origin"] == "robot1" for h in hellos["/robot1/hello"])
+    cdr_count = count - sum(len(h) for h in hellos.values())
+    with AnyReader([internal]) as bag:
+        cdr = [c for c in bag.connections if c.msgtype != "__schemaless__"]
+        assert len(cdr) == len(bag.connections) - 2
+        decoded = [bag.deserialize(raw, c.msgtype) for c, _, raw in bag.messages(connections=cdr)]
+        assert len(decoded) == cdr_count
     summary = json.loads(internal.with_suffix(".json").read_text())
     assert summary["internal_left_out"] == {} and summary["include_internal"]
 
