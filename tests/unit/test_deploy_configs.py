@@ -1,5 +1,6 @@
 """The example configurations in deploy/ must load and build their drivers."""
 
+import re
 from pathlib import Path
 
 import pytest
@@ -24,3 +25,16 @@ def test_robot_examples_load_and_their_drivers_read(name: str) -> None:
 def test_ceddp_example_loads() -> None:
     config = load_toml(DEPLOY / "ceddp.toml", CeddpConfig)
     assert config.hello.relay == "robot3"
+
+
+def test_every_doc_the_deploy_files_name_exists() -> None:
+    """deploy/ceddp.toml once linked docs/tools-live.md, which did not exist (issue 41)."""
+    named = {
+        match
+        for path in DEPLOY.rglob("*")
+        if path.is_file() and path.suffix in (".toml", ".py", ".json5", ".service", ".md")
+        for match in re.findall(r"docs/[\w./-]+?\.md", path.read_text(encoding="utf-8"))
+    }
+    assert named, "the deploy files name no doc: the pattern is wrong"
+    missing = sorted(doc for doc in named if not (DEPLOY.parent / doc).is_file())
+    assert not missing, missing

@@ -4,6 +4,7 @@ topic the user typed, and matching (no Zenoh: observations in, graph out)."""
 from __future__ import annotations
 
 from contextlib import closing
+from typing import Any
 
 import pytest
 
@@ -11,6 +12,7 @@ from arpz.channel import Writer
 from arpz.core import keys
 from arpz.core.messages import (
     Announce,
+    CeddpStats,
     ClockStats,
     InboundCounters,
     RobotStats,
@@ -258,6 +260,27 @@ def test_list_shows_every_topic_with_type_rate_qos_and_writer() -> None:
         assert cell in row
 
 
+def test_list_shows_a_failing_sensor() -> None:
+    """Issue 41: a robot whose driver raised on every read showed "0.0/5" and nothing else."""
+    obs = channel_fleet()
+    failing = RobotStats(
+        robot="r1",
+        incarnation="abc",
+        stamp_ns=int(101e9),
+        final=False,
+        topics={
+            "lidar": TopicCounters(produced=40, driver_errors=40, driver_exceptions=40),
+            "front": TopicCounters(produced=4, sent=4, late_reads=2),
+        },
+        silent_sensors=["lidar"],
+    )
+    obs.on_report(keys.stats_key(F, "r1"), encode(failing))
+    rows = {line.split()[0]: line for line in list_lines(obs.graph()) if line.startswith("/r1/")}
+    assert "NO READING, 40 driver errors" in rows["/r1/lidar"]
+    assert "2 late reads" in rows["/r1/front"]
+    assert " - " in rows["/r1/stats"]
+
+
 def test_the_clock_offset_comes_from_the_robots_stats() -> None:
     assert clock_offset(None) is None
     no_clock = stats("r1", 1.0, sent=1, delivered=0)
@@ -313,3 +336,47 @@ def test_discovery_over_a_transport_finds_the_reports_and_hides_its_own_readers(
         assert [n.name for n in graph.nodes] == ["r1"]
         assert graph.topic("/r1/stats").readers == ()  # discovery's own reader is hidden
         assert [w.guid for w in graph.topic("/r1/stats").writers] == [stats_out.guid]
+
+
+def test_discovery_learns_from_the_ceddp_that_access_control_is_in_force() -> None:
+    """The CEDDP's stats say whether access control is in force: then a tool holds an
+    observer's rights at most, and the graph says it must read without writing. Discovery
+    waits for them when the CEDDP is present."""
+    bus = MemoryBus()
+    with (
+        closing(MemoryTransport(bus)) as ceddp,
+        closing(MemoryTransport(bus)) as tool,
+        Writer(ceddp, keys.ceddp_stats_key(F), REPORT_QOS) as stats_out,
+    ):
+        ceddp.declare_token(f"{keys.fleet_prefix(F)}/ceddp/presence")
+        with discovering(tool, F) as discovery:
+            assert discovery.settle(max_s=0.5).read_only is False  # no stats yet: unknown
+            stats_out.write(
+                encode(CeddpStats(stamp_ns=1, cpu_percent=0.0, topics=[], access_control=True))
+            )
+            graph = discovery.settle(max_s=5.0)
+        assert graph.read_only and graph.ceddp_stats is not None
+        assert [(n.name, n.alive) for n in graph.nodes] == [("ceddp", True)]
+
+
+def test_discovery_watches_its_own_fleet_apart_from_the_others() -> None:
+    """A subscription to all of arpz/** is refused whole where access control allows only the
+    fleet's keys (an observer): the fleet's tokens come from a watch of arpz/{fleet}/**, and
+    the other fleets' names from the one of arpz/**."""
+    bus = MemoryBus()
+    with closing(MemoryTransport(bus)) as robot, closing(MemoryTransport(bus)) as tool:
+        robot.declare_token(keys.presence_key(F, "r1"))
+        robot.declare_token(keys.presence_key("other", "r9"))
+        watched: list[str] = []
+        real_watch = tool.watch_liveliness
+
+        def watch(expr: str, callback: Any) -> Any:
+            watched.append(expr)
+            return real_watch(expr, callback)
+
+        tool.watch_liveliness = watch  # type: ignore[method-assign]
+        with discovering(tool, F) as discovery:
+            graph = discovery.settle(max_s=0.5)
+        assert f"{keys.fleet_prefix(F)}/**" in watched and f"{keys.ROOT}/**" in watched
+        assert [(n.name, n.alive) for n in graph.nodes] == [("r1", True)]
+        assert graph.other_fleets == ("other",)
