@@ -16,9 +16,11 @@ from typing import Any
 
 import msgspec
 
-from arpz.core.config import CeddpConfig, ConfigError, from_dict, load_toml
+from arpz.ceddp.planner import Planner
+from arpz.core.config import CeddpConfig, ConfigError, PluginConfig, from_dict, load_toml
 from arpz.core.endpoints import DEFAULT_LISTEN, plain_tcp_beside_tls, resolve
 from arpz.core.transport import SessionSettings, TransportError
+from arpz.runtime.plugins import load_class
 from arpz.runtime.startup import add_version_option, configure_logging, stop_on_signals
 from arpz.transport.zenoh import ZenohTransport, config_endpoints, load_zenoh_config, uses_tls
 
@@ -36,6 +38,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--summary-json", help="write a JSON summary here at shutdown")
     parser.add_argument("--duration", type=float, dest="duration_s", help="seconds, 0 = forever")
     parser.add_argument("--no-cache-control", action="store_true")
+    parser.add_argument(
+        "--planner",
+        action="append",
+        default=[],
+        metavar="MODULE:CLASS",
+        help="run this planner class too (repeatable; beside the TOML's [[planners]])",
+    )
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)
 
@@ -51,8 +60,14 @@ def load(args: argparse.Namespace) -> CeddpConfig:
         "cache_control": False if args.no_cache_control else None,
     }
     if args.config is not None:
-        return load_toml(args.config, CeddpConfig, overrides)
-    return from_dict({}, CeddpConfig, overrides, source="command line")
+        config = load_toml(args.config, CeddpConfig, overrides)
+    else:
+        config = from_dict({}, CeddpConfig, overrides, source="command line")
+    given = [from_dict({"class": spec}, PluginConfig, source="--planner") for spec in args.planner]
+    planners = [*config.planners, *given]
+    for i, entry in enumerate(planners):  # a wrong name stops the CEDDP before it starts
+        load_class(entry.cls, Planner, setting=f"planners[{i}] ({entry.cls})")
+    return msgspec.structs.replace(config, planners=planners)
 
 
 def resolve_listen(config: CeddpConfig, source: str) -> CeddpConfig:
@@ -155,7 +170,11 @@ def serve(argv: list[str] | None) -> int:
     dashboard = None
     try:
         dashboard = Dashboard(config.rrd, grpc_port=config.grpc_port)
-        server = CeddpServer(config, transport, dashboard=dashboard)
+        try:
+            server = CeddpServer(config, transport, dashboard=dashboard)
+        except ConfigError as exc:  # a configured planner that cannot be made
+            print(f"arpz ceddp: error: bad configuration: {exc}", file=sys.stderr)
+            return 2
         try:
             server.start()
         except ConfigError as exc:  # a live view's port in use (docs/tools.md "Live views")

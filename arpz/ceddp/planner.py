@@ -1,24 +1,34 @@
-"""The planner interface of the CEDDP, and the Hello relay of seed 001 Fig. 9.
+"""The planner interface of the CEDDP, a team's planners from config, and the Hello relay of
+seed 001 Fig. 9.
 
 A planner sees only what cache control let through (``on_reading``), Hello probes
-(``on_hello``) and fleet changes (``on_robot``); it acts by sending commands through a
-``CommandSink``. It runs on the CEDDP's ingest worker thread, never on a Zenoh callback, so it
+(``on_hello``) and fleet changes (``on_robot``); it acts by sending commands through its
+``commands`` sink. It runs on the CEDDP's ingest worker thread, never on a Zenoh callback, so it
 may take its time, but a slow planner delays ingest (which is measured and reported).
+
+A team's planners are named in the CEDDP's TOML (``[[planners]] class = "mylab.dock:Dock"``,
+docs/nodes.md) and run behind a ``GuardedPlanner``: an exception in one is counted, logged with
+its traceback once per cause, and never stops the CEDDP or the planners beside it.
 """
 
 from __future__ import annotations
 
+import collections
 import logging
 import threading
 import time
+import traceback
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import msgspec
 
 from arpz.core import keys
+from arpz.core.errors import ConfigError
 from arpz.core.messages import Hello, SensorValue, Telemetry
 from arpz.core.throttled_log import ThrottledLog
+from arpz.runtime.plugins import load_class
 
 log = logging.getLogger(__name__)
 _throttled = ThrottledLog(log)
@@ -40,11 +50,22 @@ class CommandSink(Protocol):
 
 
 class Planner:
-    """Base planner: ignores everything. Subclass and override what you need."""
+    """Base planner: ignores everything. Subclass and override what you need.
+
+    A planner named in the CEDDP's config is made as ``cls(options)`` (the TOML's ``options``
+    table) and given the fleet's command sink as ``self.commands`` before ``start``."""
 
     #: set True to be told of readings cache control discarded (``on_unchanged``): a planner that
     #: judges freshness needs to know an unchanged topic is still alive
     wants_unchanged: bool = False
+
+    def __init__(self, options: Mapping[str, Any] | None = None) -> None:
+        self.options: Mapping[str, Any] = options or {}
+        self.commands: CommandSink | None = None
+
+    def attach(self, commands: CommandSink) -> None:
+        """Hand the planner the sink its commands go through (before ``start``)."""
+        self.commands = commands
 
     def on_unchanged(self, robot: str, topic: str, stamp_ns: int) -> None:
         """A reading equal to the cached one arrived (and was discarded) at source time stamp_ns."""
@@ -154,3 +175,109 @@ class HelloRelay(Planner):
             hello, writer=self.writer, seq=seq, stamp_ns=time.time_ns(), stage=stage
         )
         self.sink.send(robot, keys.HELLO, msgspec.msgpack.encode(hop))
+
+
+#: at most this many distinct causes are kept per planner (a planner raising a new message on
+#: every reading must not grow the CEDDP's memory); more are counted under "other causes"
+MAX_CAUSES = 32
+
+
+class GuardedPlanner(Planner):
+    """A team's planner, kept from taking the CEDDP down with it.
+
+    Every callback runs inside ``try``: an exception is counted (per cause: the callback and the
+    exception's type and message), logged with its traceback the first time that cause is seen,
+    then once a minute with the count while it lasts; the CEDDP, its ingest and the other
+    planners go on. ``faults()`` is what the summary and the status page show."""
+
+    def __init__(self, inner: Planner, name: str, on_first: Callable[[str], None]) -> None:
+        super().__init__(inner.options)
+        self.inner = inner
+        self.name = name
+        self.wants_unchanged = inner.wants_unchanged
+        self._on_first = on_first
+        self._lock = threading.Lock()
+        self._causes: collections.Counter[str] = collections.Counter()
+        self.errors = 0
+        self._throttled = ThrottledLog(log, interval_s=60.0)
+
+    def _call(self, callback: str, *args: Any) -> None:
+        try:
+            getattr(self.inner, callback)(*args)
+        except Exception as exc:  # a team's code: anything may come out of it
+            self._fault(callback, exc)
+
+    def _fault(self, callback: str, exc: Exception) -> None:
+        cause = f"{callback}: {type(exc).__name__}: {exc}"[:200]
+        with self._lock:
+            self.errors += 1
+            first = cause not in self._causes
+            if first and len(self._causes) >= MAX_CAUSES:
+                cause, first = "other causes", False
+            self._causes[cause] += 1
+            count = self._causes[cause]
+        if first:
+            log.error(
+                "planner %s raised in %s (counted; the CEDDP goes on):\n%s",
+                self.name,
+                callback,
+                "".join(traceback.format_exception(exc)).rstrip(),
+            )
+            self._on_first(f"planner {self.name} raised {cause} (traceback in the log)")
+        else:
+            self._throttled.warning(
+                f"{self.name} {cause}", "planner %s: %s, %d times", self.name, cause, count
+            )
+
+    def faults(self) -> dict[str, object]:
+        with self._lock:
+            return {"errors": self.errors, "causes": dict(self._causes)}
+
+    def attach(self, commands: CommandSink) -> None:
+        self.inner.attach(commands)
+
+    def start(self) -> None:
+        self._call("start")
+
+    def stop(self) -> None:
+        self._call("stop")
+
+    def on_telemetry(self, robot: str, telemetry: Telemetry) -> None:
+        self._call("on_telemetry", robot, telemetry)
+
+    def on_reading(self, reading: Reading) -> None:
+        self._call("on_reading", reading)
+
+    def on_unchanged(self, robot: str, topic: str, stamp_ns: int) -> None:
+        self._call("on_unchanged", robot, topic, stamp_ns)
+
+    def on_hello(self, robot: str, hello: Hello) -> None:
+        self._call("on_hello", robot, hello)
+
+    def on_robot(self, robot: str, alive: bool) -> None:
+        self._call("on_robot", robot, alive)
+
+    def tick(self, now_s: float) -> None:
+        self._call("tick", now_s)
+
+
+def make_planner(
+    spec: str,
+    options: Mapping[str, Any],
+    commands: CommandSink,
+    *,
+    setting: str,
+    on_first_fault: Callable[[str], None],
+) -> GuardedPlanner:
+    """The planner ``spec`` names, made with its options, attached and guarded."""
+    cls = load_class(spec, Planner, setting=setting)
+    try:
+        planner = cls(options)
+    except Exception as exc:
+        raise PlannerConfigError(f"{setting}: {spec}({dict(options)!r}) raised {exc!r}") from exc
+    planner.attach(commands)
+    return GuardedPlanner(planner, spec.rpartition(":")[2], on_first_fault)
+
+
+class PlannerConfigError(ConfigError):
+    """A configured planner that cannot be made from its options."""

@@ -35,7 +35,7 @@ from arpz.ceddp.intake import SensorIntake
 from arpz.ceddp.metrics import MetricsTicker
 from arpz.ceddp.mission import MissionRunner
 from arpz.ceddp.pacing import Pacer
-from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner
+from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner, make_planner
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, resolve, robot_summary
@@ -97,6 +97,8 @@ class CeddpServer:
         dashboard: DashboardLike | None = None,
         planner: Planner | None = None,
     ) -> None:
+        """``planner``: one planner of the caller's beside the built-in ones and the config's
+        ``[[planners]]`` (which run guarded: an exception in one is counted, not fatal)."""
         self.config = config
         self.transport = transport
         self.dashboard = dashboard
@@ -112,6 +114,18 @@ class CeddpServer:
             self.sink, writer_id("ceddp", self.incarnation), relay=config.hello.relay
         )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
+        #: the team's planners of ``[[planners]]`` (docs/nodes.md), each behind a guard
+        self.team_planners = [
+            make_planner(
+                entry.cls,
+                entry.options,
+                self.sink,
+                setting=f"planners[{i}]",
+                on_first_fault=lambda text: self._event(text, "ERROR"),
+            )
+            for i, entry in enumerate(config.planners)
+        ]
+        self.planners.extend(self.team_planners)
         if config.overload.planner_cost_us > 0:
             self.planners.append(CostlyPlanner(config.overload.planner_cost_us))
         self.mission: MissionRunner | None = None
@@ -468,6 +482,7 @@ class CeddpServer:
             },
             "mission": self.mission.summary() if self.mission is not None else None,
             "ros2": self.bridge.stats() if self.bridge is not None else None,
+            "planners": {p.name: p.faults() for p in self.team_planners},
             "events": list(self.events),
             "events_dropped": self.events_dropped,
         }

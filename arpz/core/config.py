@@ -569,6 +569,19 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
 _ROS2_KEY = re.compile(r"^[a-z0-9][a-z0-9_\-]*$")
 
 
+class PluginConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """A team's class named in a config: ``class = "mylab.dock:DockPlanner"`` and the
+    ``options`` table it is made with (docs/nodes.md)."""
+
+    cls: str = msgspec.field(name="class")
+    options: dict[str, Any] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        module, sep, name = self.cls.partition(":")
+        if not (module and sep and name):
+            raise ValueError(f"class must be 'module.path:ClassName', got {self.cls!r}")
+
+
 class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     fleet: str = "default"
     #: where robots connect; empty: the endpoints of ``zenoh_config``, or DEFAULT_LISTEN without
@@ -624,6 +637,8 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     clock: CeddpClockConfig = msgspec.field(default_factory=CeddpClockConfig)
     #: the ROS 2 bridge (docs/ros2.md); off unless ``enabled``
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
+    #: a team's planners (``[[planners]]``, docs/nodes.md), beside the built-in ones
+    planners: list[PluginConfig] = msgspec.field(default_factory=list)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 
