@@ -40,6 +40,7 @@ from arpz.core.messages import (
     Announce,
     RobotStats,
     encode,
+    writer_id,
 )
 from arpz.core.throttled_log import ThrottledLog
 
@@ -61,11 +62,31 @@ _REPORT_KINDS = ("stats", "announce", "qos", "telemetry")
 MAX_INCARNATIONS = 16
 #: a robot's outages (away and back as the same incarnation) kept for the summary
 MAX_OUTAGES = 64
+#: a second process with a robot's id counts as running while it reported this recently
+DUPLICATE_LIVE_S = 10.0
 
 BUDGET_DECODER = msgspec.msgpack.Decoder(BudgetChange)
 
 #: (text, level) -> None: a fleet event, for the log, the dashboard and the summary
 EventSink = Callable[[str, str], None]
+
+
+@dataclass
+class Duplicate:
+    """An incarnation of a robot that ran while another was followed: two processes with one
+    robot_id. Its samples are dropped (``Ingest.drop_writer``) until the one followed stops."""
+
+    incarnation: str
+    #: when it was found (monotonic s) and when it last reported
+    since_s: float
+    last_report_s: float
+    #: its reports since it was found (never applied)
+    reports: int = 0
+    #: its final report came: it stopped
+    stopped: bool = False
+
+    def live(self, now_s: float) -> bool:
+        return not self.stopped and now_s - self.last_report_s < DUPLICATE_LIVE_S
 
 
 @dataclass
@@ -97,8 +118,22 @@ class RobotRecord:
     #: times it was away and came back as the same incarnation, with how long (s), newest
     #: MAX_OUTAGES
     outages: list[float] = field(default_factory=list)
+    #: the incarnation followed now: its reports are the robot's, its samples counted ("":
+    #: none reported yet); a report of a new one is a restart, and it is followed from then on
+    incarnation: str = ""
+    #: every incarnation reported, with when it was first (monotonic s), at most
+    #: MAX_INCARNATIONS
+    seen: dict[str, float] = field(default_factory=dict)
+    #: incarnations found running beside the one followed (the same robot_id twice)
+    duplicates: dict[str, Duplicate] = field(default_factory=dict)
+    #: when the followed incarnation last reported (monotonic s)
+    last_report_s: float = 0.0
+    #: per topic, (decode errors, cache-control discards) when the followed incarnation took
+    #: over: the live views count its own from there
+    baselines: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     def as_report(self) -> RobotReport:
+        now = time.monotonic()
         return RobotReport(
             alive=self.alive,
             joins=self.joins,
@@ -108,7 +143,19 @@ class RobotRecord:
             incompatible=list(self.incompatible),
             incarnations=dict(self.incarnations),
             outages=list(self.outages),
+            incarnation=self.incarnation,
+            duplicates={
+                name: {
+                    "running": d.live(now),
+                    "found_s_ago": round(now - d.since_s, 3),
+                    "reports_ignored": d.reports,
+                }
+                for name, d in self.duplicates.items()
+            },
         )
+
+    def live_duplicates(self, now_s: float) -> list[str]:
+        return [name for name, d in self.duplicates.items() if d.live(now_s)]
 
 
 @dataclass
@@ -241,19 +288,31 @@ class ControlWorker:
                 stats = STATS_DECODER.decode(payload)
                 if record.back_after_s is not None:
                     self._classify_return(robot, record, stats.incarnation)
-                if record.stats is None or not record.stats.final or stats.final:
-                    record.stats = stats
+                followed = self._follows(robot, record, stats.incarnation, stats)
                 known = record.incarnations.get(stats.incarnation)
                 if known is None or not known.final or stats.final:
                     record.incarnations[stats.incarnation] = stats
                     while len(record.incarnations) > MAX_INCARNATIONS:
                         del record.incarnations[next(iter(record.incarnations))]
+                if not followed:
+                    return  # a second process's: kept per incarnation, never the robot's
+                current = record.stats
+                if (
+                    current is None
+                    or current.incarnation != stats.incarnation
+                    or not current.final
+                    or stats.final
+                ):
+                    record.stats = stats
                 if self.clock is not None:
                     self.clock.observe(robot, stats.clock)
                 if self.qos is not None and record.alive:
                     self._measure_link(stats)
             elif kind == "announce":
-                record.announce = ANNOUNCE_DECODER.decode(payload)
+                announce = ANNOUNCE_DECODER.decode(payload)
+                if not self._follows(robot, record, announce.incarnation, None):
+                    return
+                record.announce = announce
                 if self.qos is not None:
                     self.qos.set_sensors(robot, record.announce.sensors)
                 self.ingest.set_kinds(robot, {t.topic: t.kind for t in record.announce.sensors})
@@ -281,6 +340,111 @@ class ControlWorker:
                 record.control_decode_errors,
                 exc,
             )
+
+    # -- incarnations: restarts, and one robot_id in two processes ----------------------------
+
+    def _follows(
+        self, robot: str, record: RobotRecord, incarnation: str, stats: RobotStats | None
+    ) -> bool:
+        """Whether a report of ``incarnation`` is the robot's (the incarnation followed) or
+        a second process's with the same robot_id, whose reports are kept apart and whose
+        samples are dropped. A new incarnation is a restart: followed from its first report.
+        One that was followed before and reports again (a new stats report, not its final
+        one) runs beside the newer: the one that started first is followed, the other is a
+        duplicate, loudly."""
+        now = time.monotonic()
+        duplicate = record.duplicates.get(incarnation)
+        if duplicate is not None:
+            duplicate.reports += 1
+            duplicate.last_report_s = now
+            if stats is not None and stats.final and not duplicate.stopped:
+                duplicate.stopped = True
+                self._event(
+                    f"robot {robot}: the second process (incarnation {incarnation}) stopped; "
+                    f"{self._dropped(robot, incarnation)} of its samples were dropped",
+                    "INFO",
+                )
+            if not self._followed_gone(record, now):
+                return False
+            # the process followed stopped: the other one is the robot now
+            del record.duplicates[incarnation]
+            self.ingest.keep_writer(robot, writer_id(robot, incarnation))
+            self._event(
+                f"robot {robot}: incarnation {record.incarnation} stopped, so the other "
+                f"process (incarnation {incarnation}) is followed from now on",
+                "WARN",
+            )
+            self._switch(robot, record, incarnation, now)
+            return True
+        if incarnation == record.incarnation:
+            record.last_report_s = now
+            return True
+        if incarnation not in record.seen:
+            record.seen[incarnation] = now
+            while len(record.seen) > MAX_INCARNATIONS:
+                del record.seen[next(iter(record.seen))]
+            self._switch(robot, record, incarnation, now)
+            return True
+        # an incarnation followed before another, reporting again
+        known = record.incarnations.get(incarnation)
+        if stats is None or stats.final or (known is not None and stats.stamp_ns <= known.stamp_ns):
+            return False  # an announcement again, its last words, or a report we had
+        self._duplicate_found(robot, record, incarnation, stats, now)
+        return record.incarnation == incarnation
+
+    @staticmethod
+    def _followed_gone(record: RobotRecord, now: float) -> bool:
+        stats = record.stats
+        finished = stats is not None and stats.incarnation == record.incarnation and stats.final
+        return finished or now - record.last_report_s >= DUPLICATE_LIVE_S
+
+    def _switch(self, robot: str, record: RobotRecord, incarnation: str, now: float) -> None:
+        """Follow ``incarnation`` from now on: the live views count its topics from here."""
+        record.baselines = (
+            {
+                m.topic: (m.decode_errors, self.ingest.cache_counters(robot, m.topic).hits)
+                for m in self.ingest.robot_topics(robot)
+            }
+            if record.incarnation
+            else {}
+        )
+        record.incarnation = incarnation
+        record.last_report_s = now
+        record.stats = record.incarnations.get(incarnation)
+
+    def _duplicate_found(
+        self, robot: str, record: RobotRecord, incarnation: str, stats: RobotStats, now: float
+    ) -> None:
+        """``incarnation`` runs beside the one followed: keep the one that started first
+        (each robot's start on the CEDDP's clock; else the one reported first)."""
+        other = record.incarnation
+        other_stats = record.incarnations.get(other)
+        mine, theirs = _started_ns(stats), _started_ns(other_stats)
+        if mine is not None and theirs is not None:
+            keep_mine = mine <= theirs
+        else:
+            keep_mine = record.seen.get(incarnation, now) <= record.seen.get(other, now)
+        keep, drop = (incarnation, other) if keep_mine else (other, incarnation)
+        if keep != record.incarnation:
+            self._switch(robot, record, keep, now)
+        record.duplicates[drop] = Duplicate(drop, since_s=now, last_report_s=now)
+        while len(record.duplicates) > MAX_INCARNATIONS:
+            del record.duplicates[next(iter(record.duplicates))]
+        self.ingest.drop_writer(robot, writer_id(robot, drop))
+        started = {
+            name: _started_text(s) for name, s in ((incarnation, stats), (other, other_stats))
+        }
+        self._event(
+            f"robot {robot}: two processes run as {robot}: incarnation {keep}{started[keep]} "
+            f"and incarnation {drop}{started[drop]}; {drop}'s samples are dropped from now on "
+            "(counted), and both act on every command: stop one, and give each robot its own "
+            "robot_id",
+            "ERROR",
+        )
+
+    def _dropped(self, robot: str, incarnation: str) -> int:
+        writer = writer_id(robot, incarnation)
+        return sum(m.duplicate_dropped.get(writer, 0) for m in self.ingest.robot_topics(robot))
 
     def _measure_link(self, stats: RobotStats) -> None:
         """A report measures the robot's link (resends per send) and, with the sensor reader's
@@ -454,3 +618,18 @@ class ControlWorker:
         self._event(
             f"QoS epoch {message.epoch} ({reason}): T_avg={message.t_avg:.3f}, {rates}", "INFO"
         )
+
+
+def _started_ns(stats: RobotStats | None) -> int | None:
+    """When the robot's incarnation started, on the CEDDP's clock (None: not said)."""
+    if stats is None or not stats.started_ns:
+        return None
+    offset = stats.clock.offset_ns if stats.clock is not None else None
+    return stats.started_ns + (offset or 0)
+
+
+def _started_text(stats: RobotStats | None) -> str:
+    started = _started_ns(stats)
+    if started is None:
+        return ""
+    return f" (started {time.strftime('%H:%M:%S', time.gmtime(started / 1e9))} UTC)"

@@ -38,10 +38,18 @@ log = logging.getLogger(__name__)
 throttled = ThrottledLog(log)
 
 
+#: the robots' sensor health (issue 41), beside ``ROBOT_METRICS``: one series per robot
+HEALTH_METRICS: dict[str, str] = {
+    "driver_errors": "sensor driver errors: reads that gave no reading (cumulative)",
+    "silent_sensors": "sensors with no reading for the robot's last report interval",
+    "duplicate_processes": "other processes running with the robot's id (samples dropped)",
+}
+
+
 def blueprint() -> rrb.Blueprint:
     views: list[rrb.View] = [
         rrb.TimeSeriesView(origin=f"/metrics/{name}", name=title)
-        for name, title in {**TOPIC_METRICS, **ROBOT_METRICS}.items()
+        for name, title in {**TOPIC_METRICS, **ROBOT_METRICS, **HEALTH_METRICS}.items()
     ]
     return rrb.Blueprint(
         rrb.Horizontal(

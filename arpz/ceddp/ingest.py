@@ -77,12 +77,19 @@ class TopicMetrics:
     writer: str = ""
     next_seq: int = 0
     highest_seq: int = 0
-    #: the same writer's share of received, lost and before_join (per incarnation reporting)
+    #: the same writer's share of received, lost, before_join and bytes (per incarnation
+    #: reporting: the status page shows a robot's current incarnation)
     w_received: int = 0
     w_lost: int = 0
     w_before_join: int = 0
-    #: other writers: (next_seq, highest_seq, received, lost, before_join)
-    others: dict[str, tuple[int, int, int, int, int]] = field(default_factory=dict)
+    w_bytes: int = 0
+    #: other writers: (next_seq, highest_seq, received, lost, before_join, bytes)
+    others: dict[str, tuple[int, int, int, int, int, int]] = field(default_factory=dict)
+    #: writers whose samples are dropped (the newer of two processes running with one
+    #: robot_id: ``Ingest.drop_writer``); the robot's set, shared by its topics
+    dropped: set[str] = field(default_factory=set)
+    #: samples dropped so, per writer
+    duplicate_dropped: dict[str, int] = field(default_factory=dict)
     #: the robot's clock offset to this CEDDP's (arpz/ceddp/clock_service.py): latencies and
     #: staleness are measured on the CEDDP's clock; 0 until the robot's first estimate
     clock_offset_ns: int = 0
@@ -146,6 +153,8 @@ class Ingest:
         #: per robot, its clock offset in force (``set_clock_offset``) and its topics
         self.clock_offsets: dict[str, int] = {}
         self._robot_topics: dict[str, list[TopicMetrics]] = {}
+        #: per robot, the writers whose samples are dropped (``drop_writer``)
+        self._dropped: dict[str, set[str]] = {}
 
     def metrics_for(self, key: str) -> TopicMetrics | None:
         metrics = self._by_key.get(key)
@@ -172,6 +181,7 @@ class Ingest:
                     seen_before=self.seen_before.get((robot, topic), {}),
                     clock_offset_ns=self.clock_offsets.get(robot, 0),
                     clock_known=robot in self.clock_offsets,
+                    dropped=self._dropped.setdefault(robot, set()),
                 )
                 self.topics[(robot, topic)] = metrics
                 self._robot_topics.setdefault(robot, []).append(metrics)
@@ -202,6 +212,29 @@ class Ingest:
                 metrics.clock_known = True
                 metrics.clock_uncorrected = metrics.received
             metrics.clock_offset_ns = offset_ns
+
+    def drop_writer(self, robot: str, writer: str) -> None:
+        """From now on drop ``writer``'s samples of every topic of ``robot``, counted in each
+        topic's ``duplicate_dropped`` (call with ``lock`` held): the newer of two processes
+        running with one robot_id, whose readings would interleave with the other's. Its
+        sequence state is kept aside, as any other writer's."""
+        dropped = self._dropped.setdefault(robot, set())
+        dropped.add(writer)
+        for metrics in self._robot_topics.get(robot, ()):
+            metrics.dropped = dropped
+            if metrics.writer == writer:
+                # its samples must never "follow" (the path that skips the checks)
+                self._set_aside(metrics)
+                metrics.writer = ""
+
+    def keep_writer(self, robot: str, writer: str) -> None:
+        """Count ``writer``'s samples again (call with ``lock`` held): the process it
+        was dropped for stopped. The samples dropped meanwhile show as a gap in its seqs."""
+        self._dropped.get(robot, set()).discard(writer)
+
+    def robot_topics(self, robot: str) -> list[TopicMetrics]:
+        """The robot's topics (call with ``lock`` held)."""
+        return list(self._robot_topics.get(robot, ()))
 
     def clock_uncorrected(self, robot: str) -> int:
         """Samples of the robot measured on its own clock: all of them until its first clock
@@ -322,13 +355,19 @@ class Ingest:
         seq = sample.seq
         same_writer = sample.writer is metrics.writer or sample.writer == metrics.writer
         follows = same_writer and seq == metrics.next_seq
-        if not follows and not self._admissible(metrics, sample.writer, seq, arrival_ns, key):
-            return
+        if not follows:
+            if metrics.dropped and sample.writer in metrics.dropped:
+                self._drop(metrics, sample.writer)
+                return
+            if not self._admissible(metrics, sample.writer, seq, arrival_ns, key):
+                return
         metrics.last_arrival_ns = arrival_ns
         if same_writer:
+            size = len(payload)
             metrics.received += 1
             metrics.w_received += 1
-            metrics.bytes += len(payload)
+            metrics.bytes += size
+            metrics.w_bytes += size
             # on the CEDDP's clock: the robot's clock offset taken out (clock_service.py)
             latency_ns = arrival_ns - sample.stamp_ns - metrics.clock_offset_ns
             metrics.latency_ms.add(latency_ns / 1e6)
@@ -376,10 +415,12 @@ class Ingest:
             self._decode_error(metrics, metrics.topic, payload, exc)
             return
         follows = hello.writer == metrics.writer and hello.seq == metrics.next_seq
-        if not follows and not self._admissible(
-            metrics, hello.writer, hello.seq, arrival_ns, metrics.topic
-        ):
-            return
+        if not follows:
+            if metrics.dropped and hello.writer in metrics.dropped:
+                self._drop(metrics, hello.writer)
+                return
+            if not self._admissible(metrics, hello.writer, hello.seq, arrival_ns, metrics.topic):
+                return
         metrics.last_arrival_ns = arrival_ns
         self._account(metrics, hello.writer, hello.seq, hello.stamp_ns, arrival_ns, len(payload))
         self.planner.on_hello(metrics.robot, hello)
@@ -433,6 +474,33 @@ class Ingest:
             )
 
     @staticmethod
+    def _drop(metrics: TopicMetrics, writer: str) -> None:
+        count = metrics.duplicate_dropped.get(writer, 0) + 1
+        metrics.duplicate_dropped[writer] = count
+        if count in (1, 10, 100) or count % 10000 == 0:
+            log.warning(
+                "sample of %s on %s/%s dropped: another process runs with this robot_id "
+                "(%d dropped so far)",
+                writer,
+                metrics.robot,
+                metrics.topic,
+                count,
+            )
+
+    @staticmethod
+    def _set_aside(metrics: TopicMetrics) -> None:
+        """The current writer's sequence state into ``others`` (another writer takes over)."""
+        if metrics.writer:
+            metrics.others[metrics.writer] = (
+                metrics.next_seq,
+                metrics.highest_seq,
+                metrics.w_received,
+                metrics.w_lost,
+                metrics.w_before_join,
+                metrics.w_bytes,
+            )
+
+    @staticmethod
     def _account(
         metrics: TopicMetrics, writer: str, seq: int, stamp_ns: int, arrival_ns: int, size: int
     ) -> None:
@@ -441,14 +509,7 @@ class Ingest:
         metrics.latency_ms.add((arrival_ns - stamp_ns - metrics.clock_offset_ns) / 1e6)
         if writer != metrics.writer:
             previous = metrics.writer
-            if previous:
-                metrics.others[previous] = (
-                    metrics.next_seq,
-                    metrics.highest_seq,
-                    metrics.w_received,
-                    metrics.w_lost,
-                    metrics.w_before_join,
-                )
+            Ingest._set_aside(metrics)
             known = metrics.others.pop(writer, None)
             metrics.writer = writer
             metrics.prev_high = metrics.seen_before.get(writer, 0)
@@ -458,7 +519,7 @@ class Ingest:
                 metrics.before_join += max(seq - 1, 0)
                 metrics.next_seq = seq + 1
                 metrics.highest_seq = seq
-                metrics.w_received, metrics.w_lost = 1, 0
+                metrics.w_received, metrics.w_lost, metrics.w_bytes = 1, 0, size
                 metrics.w_before_join = max(seq - 1, 0)
                 return
             (
@@ -467,8 +528,10 @@ class Ingest:
                 metrics.w_received,
                 metrics.w_lost,
                 metrics.w_before_join,
+                metrics.w_bytes,
             ) = known
         metrics.w_received += 1
+        metrics.w_bytes += size
         if seq == metrics.next_seq:
             metrics.next_seq += 1
             metrics.highest_seq = max(metrics.highest_seq, seq)
@@ -490,7 +553,7 @@ class Ingest:
         """The highest seq received from ``writer`` on this topic (0: none)."""
         if writer == metrics.writer:
             return metrics.highest_seq
-        return metrics.others.get(writer, (0, 0, 0, 0, 0))[1]
+        return metrics.others.get(writer, (0, 0, 0, 0, 0, 0))[1]
 
     def load_previous_run(self, topics: dict[tuple[str, str], dict[str, int]]) -> None:
         """What the previous run of this CEDDP received, per topic and writer (its summary's
@@ -513,6 +576,13 @@ class Ingest:
                 metrics.w_lost + metrics.w_before_join,
             )
         return counts
+
+    @staticmethod
+    def writer_bytes(metrics: TopicMetrics, writer: str) -> int:
+        """The payload bytes received from ``writer`` on this topic."""
+        if writer == metrics.writer:
+            return metrics.w_bytes
+        return metrics.others.get(writer, (0, 0, 0, 0, 0, 0))[5]
 
     def cache_counters(self, robot: str, topic: str) -> CacheControlCounters:
         return self.cache_control.counters.get((robot, topic), CacheControlCounters())

@@ -137,6 +137,13 @@ class MetricsTicker:
                 for slot, m in self.ingest.topics.items()
             ]
             records = {robot: record.stats for robot, record in self.robots.items()}
+            # one robot_id in two processes (arpz/ceddp/control.py): "robot: kept, dropped"
+            moment = time.monotonic()
+            duplicates = {
+                robot: [f"{robot}: {record.incarnation}, {name}" for name in live]
+                for robot, record in self.robots.items()
+                if (live := record.live_duplicates(moment))
+            }
             incompatible = [
                 f"{robot}: {line}"
                 for robot, record in self.robots.items()
@@ -203,6 +210,10 @@ class MetricsTicker:
             inbound = robot_stats.inbound.values()
             row["downlink_lost"] = float(sum(c.lost + c.lifespan_expired for c in inbound))
             row["watchdog_stops"] = float(sum(robot_stats.watchdog_stops.values()))
+            # the health of its sensors: reads that gave no reading, sensors with none lately
+            row["driver_errors"] = float(sum(c.driver_errors for c in robot_stats.topics.values()))
+            row["silent_sensors"] = float(len(robot_stats.silent_sensors))
+            row["duplicate_processes"] = float(len(duplicates.get(robot, ())))
             row["downlink_written"] = float(written.get(robot, 0))
             if self.clock is not None:
                 row.update(self.clock.frame_row(robot))
@@ -249,6 +260,7 @@ class MetricsTicker:
                         self.clock.config.max_offset_ms if self.clock is not None else None
                     ),
                     clock_flagged=flagged,
+                    duplicate_robots=[line for lines in duplicates.values() for line in lines],
                     **self._identity_fields(),
                 )
                 self.stats_out.send(encode(report), report.stamp_ns)

@@ -8,23 +8,28 @@ interval (latency and staleness percentiles, the CEDDP's CPU and load) come from
 ticker's last frame, so a request never takes the ticker's windows away from the dashboard.
 Clock offsets appear when the frame carries them (``clock_offset_ms`` / ``clock_delay_ms``),
 None otherwise.
+
+A robot's counters are its current incarnation's (the one the control worker follows): a
+restarted robot starts from zero with only the topics it has now, and what its earlier
+incarnations did is summed apart (``RobotStatus.previous``), never shown as live.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections import deque
 from collections.abc import Callable, Hashable, Iterable
-from typing import Generic, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 import msgspec
 
 from arpz.ceddp.control import RobotRecord
-from arpz.ceddp.ingest import Ingest
+from arpz.ceddp.ingest import Ingest, TopicMetrics
 from arpz.core.config import CeddpConfig
 from arpz.core.frames import MetricsFrame
-from arpz.core.messages import TopicCounters
+from arpz.core.messages import RobotStats, TopicCounters, writer_id
 from arpz.core.protocol.reader_machine import ReaderStats
 
 #: the row of the CEDDP itself in a MetricsFrame's ``robots`` (metrics.py)
@@ -63,6 +68,26 @@ class TopicStatus(msgspec.Struct, frozen=True, kw_only=True):
     gapped: int
     deadline_missed: int
     write_failures: int
+    #: reads that gave no reading (the driver raised, or its value was refused), reads longer
+    #: than the period, and the last error's text ("": none)
+    driver_errors: int = 0
+    late_reads: int = 0
+    last_driver_error: str = ""
+    #: no reading for the robot's whole last reporting interval
+    silent: bool = False
+
+
+class PreviousIncarnations(msgspec.Struct, frozen=True, kw_only=True):
+    """What a robot's earlier incarnations (before a restart, or a second process with its id)
+    did, summed: not live, and never in the robot's own counters."""
+
+    incarnations: int = 0
+    received: int = 0
+    lost: int = 0
+    bytes: int = 0
+    #: from each one's last report
+    sent: int = 0
+    driver_errors: int = 0
 
 
 class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -100,6 +125,17 @@ class RobotStatus(msgspec.Struct, frozen=True, kw_only=True):
     clock_delay_ms: float | None
     incompatible_qos: list[str]
     topics: list[TopicStatus]
+    #: the incarnation shown (None: none reported yet; then the counters are every writer's)
+    incarnation: str | None = None
+    #: sums over its topics, and the topics with no reading for its last interval
+    driver_errors: int = 0
+    late_reads: int = 0
+    silent_sensors: list[str] = msgspec.field(default_factory=list)
+    #: incarnations running beside the one shown (one robot_id in two processes), and the
+    #: samples of theirs dropped
+    duplicates: list[str] = msgspec.field(default_factory=list)
+    duplicate_dropped: int = 0
+    previous: PreviousIncarnations = msgspec.field(default_factory=PreviousIncarnations)
 
 
 class ChannelStatus(msgspec.Struct, frozen=True, kw_only=True):
@@ -199,7 +235,8 @@ class StatusReader:
         self._channel = channel
         self._views_dropped = views_dropped
         self._started_ns = time.time_ns()
-        self._rates: RateWindow[tuple[str, str]] = RateWindow(RATE_WINDOW_S)
+        #: per (robot, topic, incarnation): a restart's counts start again from zero
+        self._rates: RateWindow[tuple[str, str, str]] = RateWindow(RATE_WINDOW_S)
 
     def kind_of(self, robot: str, topic: str) -> str | None:
         """The sensor kind ``robot`` announced for ``topic`` (None: not announced yet)."""
@@ -215,45 +252,70 @@ class StatusReader:
         with ingest.lock:  # only copies under the lock: the ingest waits for nothing else
             records = {name: _copy(record) for name, record in self.robots.items()}
             copied = [
-                (
+                _Taken(
                     slot,
-                    (m.received, m.bytes),
+                    m.received,
+                    m.bytes,
                     m.lost + m.before_join,
                     m.decode_errors,
                     ingest.cache_counters(*slot).hits,
                     m.last_arrival_ns,
+                    _writers(m),
+                    sum(m.duplicate_dropped.values()),
                 )
                 for slot, m in ingest.topics.items()
                 if slot[1] != "hello"
             ]
-        rates = self._rates.rates(time.monotonic(), {row[0]: row[1] for row in copied})
-        per_robot: dict[str, list[TopicStatus]] = {}
-        for (robot, topic), (received, size), lost, errors, hits, last_ns in sorted(copied):
+        by_robot: dict[str, list[_Taken]] = {}
+        for one in copied:
+            by_robot.setdefault(one.slot[0], []).append(one)
+        rows: dict[str, list[tuple[str, _Counts, _Taken | None]]] = {}
+        previous: dict[str, PreviousIncarnations] = {}
+        counts: dict[tuple[str, str, str], tuple[int, int]] = {}
+        for robot in set(by_robot) | set(records):
             record = records.get(robot)
-            stats = record.stats if record is not None else None
-            counters = stats.topics.get(topic) if stats is not None else None
-            row = frame_topics.get((robot, topic), {})
-            rate_hz, bytes_per_s = rates.get((robot, topic), (None, None))
-            per_robot.setdefault(robot, []).append(
-                TopicStatus(
-                    topic=topic,
-                    kind=_kind(record, topic),
-                    received=received,
-                    bytes=size,
-                    lost=lost,
-                    decode_errors=errors,
-                    cc_discarded=hits,
-                    last_sample_age_s=(
-                        round(max(now_ns - last_ns, 0) / 1e9, 3) if last_ns else None
-                    ),
-                    rate_hz=rate_hz,
-                    bytes_per_s=bytes_per_s,
-                    latency_ms_p50=row.get("latency_ms_p50"),
-                    latency_ms_p99=row.get("latency_ms_p99"),
-                    staleness_ms_p99=row.get("staleness_ms_p99"),
-                    **_robot_side(counters),
+            current = record.incarnation if record is not None else ""
+            mine = {t.slot[1]: t for t in by_robot.get(robot, [])}
+            rows[robot] = []
+            for topic in sorted(_topics_of(robot, record, mine)):
+                found = mine.get(topic)
+                own = _own_counts(found, record, current)
+                rows[robot].append((topic, own, found))
+                counts[(robot, topic, current)] = (own.received, own.bytes)
+            if record is not None and current:
+                previous[robot] = _previous(robot, record, by_robot.get(robot, []))
+        rates = self._rates.rates(time.monotonic(), counts)
+        per_robot: dict[str, list[TopicStatus]] = {}
+        for robot, topic_rows in sorted(rows.items()):
+            record = records.get(robot)
+            stats = _followed_stats(record)
+            current = record.incarnation if record is not None else ""
+            for topic, own, taken in topic_rows:
+                counters = stats.topics.get(topic) if stats is not None else None
+                row = frame_topics.get((robot, topic), {})
+                rate_hz, bytes_per_s = rates.get((robot, topic, current), (None, None))
+                last_ns = taken.last_arrival_ns if taken is not None else 0
+                per_robot.setdefault(robot, []).append(
+                    TopicStatus(
+                        topic=topic,
+                        kind=_kind(record, topic),
+                        received=own.received,
+                        bytes=own.bytes,
+                        lost=own.lost,
+                        decode_errors=own.decode_errors,
+                        cc_discarded=own.cc_discarded,
+                        last_sample_age_s=(
+                            round(max(now_ns - last_ns, 0) / 1e9, 3) if last_ns else None
+                        ),
+                        rate_hz=rate_hz,
+                        bytes_per_s=bytes_per_s,
+                        latency_ms_p50=row.get("latency_ms_p50"),
+                        latency_ms_p99=row.get("latency_ms_p99"),
+                        staleness_ms_p99=row.get("staleness_ms_p99"),
+                        silent=stats is not None and topic in stats.silent_sensors,
+                        **_robot_side(counters),
+                    )
                 )
-            )
         names = sorted((set(per_robot) | set(records)) - {CEDDP_ROW})
         robots = [
             _robot_status(
@@ -261,6 +323,8 @@ class StatusReader:
                 records.get(name, RobotRecord()),
                 per_robot.get(name, []),
                 frame_robots.get(name, {}),
+                previous.get(name, PreviousIncarnations()),
+                sum(t.dropped for t in by_robot.get(name, [])),
             )
             for name in names
         ]
@@ -302,8 +366,40 @@ class StatusReader:
         )
 
 
+class _Taken(NamedTuple):
+    """One topic's counters, copied under the ingest lock."""
+
+    slot: tuple[str, str]
+    received: int
+    bytes: int
+    lost: int
+    decode_errors: int
+    cc_hits: int
+    last_arrival_ns: int
+    #: per writer: (received, lost + before_join, bytes)
+    writers: dict[str, tuple[int, int, int]]
+    #: samples of a second process with the robot's id, dropped
+    dropped: int
+
+
+class _Counts(NamedTuple):
+    received: int
+    bytes: int
+    lost: int
+    decode_errors: int
+    cc_discarded: int
+
+
+def _writers(m: TopicMetrics) -> dict[str, tuple[int, int, int]]:
+    return {
+        w: (received, lost, Ingest.writer_bytes(m, w))
+        for w, (_, received, lost) in Ingest.writer_counts(m).items()
+    }
+
+
 def _copy(record: RobotRecord) -> RobotRecord:
     """The fields the status reads, taken under the lock (the record itself keeps changing)."""
+    now = time.monotonic()
     return RobotRecord(
         alive=record.alive,
         joins=record.joins,
@@ -312,6 +408,72 @@ def _copy(record: RobotRecord) -> RobotRecord:
         announce=record.announce,
         mode=record.mode,
         incompatible=list(record.incompatible),
+        incarnation=record.incarnation,
+        incarnations=dict(record.incarnations),
+        seen=dict(record.seen),
+        # only the live ones (a copy: the originals keep changing)
+        duplicates={
+            name: dataclasses.replace(d) for name, d in record.duplicates.items() if d.live(now)
+        },
+        baselines=dict(record.baselines),
+    )
+
+
+def _followed_stats(record: RobotRecord | None) -> RobotStats | None:
+    """The last report of the incarnation followed (None: none yet)."""
+    if record is None or record.stats is None:
+        return None
+    if record.incarnation and record.stats.incarnation != record.incarnation:
+        return None
+    return record.stats
+
+
+def _topics_of(robot: str, record: RobotRecord | None, arrived: dict[str, _Taken]) -> set[str]:
+    """The robot's topics now: those its current incarnation's samples came on, and those it
+    reports that never sent anything (a sensor whose driver fails: no sample tells of it).
+    Before any report, every topic that arrived."""
+    current = record.incarnation if record is not None else ""
+    if record is None or not current:
+        return set(arrived)
+    own = writer_id(robot, current)
+    names = {t for t, taken in arrived.items() if own in taken.writers}
+    stats = _followed_stats(record)
+    if stats is not None:
+        names.update(t for t, c in stats.topics.items() if c.sent == 0 and t != "hello")
+    return names
+
+
+def _own_counts(taken: _Taken | None, record: RobotRecord | None, current: str) -> _Counts:
+    """A topic's counters for the incarnation followed (every writer's before it reported)."""
+    if taken is None:
+        return _Counts(0, 0, 0, 0, 0)
+    if record is None or not current:
+        return _Counts(taken.received, taken.bytes, taken.lost, taken.decode_errors, taken.cc_hits)
+    received, lost, size = taken.writers.get(writer_id(taken.slot[0], current), (0, 0, 0))
+    errors, hits = record.baselines.get(taken.slot[1], (0, 0))
+    return _Counts(
+        received, size, lost, max(taken.decode_errors - errors, 0), max(taken.cc_hits - hits, 0)
+    )
+
+
+def _previous(robot: str, record: RobotRecord, topics: list[_Taken]) -> PreviousIncarnations:
+    """What the robot's other incarnations did, summed."""
+    current = writer_id(robot, record.incarnation)
+    received = lost = size = 0
+    names = (set(record.seen) | set(record.incarnations)) - {record.incarnation}
+    for taken in topics:
+        for writer, (got, missing, nbytes) in taken.writers.items():
+            if writer != current:
+                names.add(writer.rpartition(":")[2])
+                received, lost, size = received + got, lost + missing, size + nbytes
+    others = [s for name, s in record.incarnations.items() if name != record.incarnation]
+    return PreviousIncarnations(
+        incarnations=len(names),
+        received=received,
+        lost=lost,
+        bytes=size,
+        sent=sum(c.sent for s in others for t, c in s.topics.items() if t != "hello"),
+        driver_errors=sum(c.driver_errors for s in others for c in s.topics.values()),
     )
 
 
@@ -324,7 +486,7 @@ def _kind(record: RobotRecord | None, topic: str) -> str | None:
     return None
 
 
-def _robot_side(counters: TopicCounters | None) -> dict[str, int]:
+def _robot_side(counters: TopicCounters | None) -> dict[str, Any]:
     c = counters or TopicCounters()
     return {
         "sent": c.sent,
@@ -333,13 +495,21 @@ def _robot_side(counters: TopicCounters | None) -> dict[str, int]:
         "gapped": c.gapped,
         "deadline_missed": c.deadline_missed,
         "write_failures": c.write_failures,
+        "driver_errors": c.driver_errors,
+        "late_reads": c.late_reads,
+        "last_driver_error": c.last_driver_error,
     }
 
 
 def _robot_status(
-    name: str, record: RobotRecord, topics: list[TopicStatus], row: dict[str, float]
+    name: str,
+    record: RobotRecord,
+    topics: list[TopicStatus],
+    row: dict[str, float],
+    previous: PreviousIncarnations,
+    dropped: int,
 ) -> RobotStatus:
-    stats = record.stats
+    stats = _followed_stats(record)
     received = sum(t.received for t in topics)
     lost = sum(t.lost for t in topics)
     sent = sum(t.sent for t in topics)
@@ -374,6 +544,13 @@ def _robot_status(
         incompatible_qos=record.incompatible
         + [f"(robot side) {line}" for line in (stats.incompatible_qos if stats else [])],
         topics=topics,
+        incarnation=record.incarnation or None,
+        driver_errors=sum(t.driver_errors for t in topics),
+        late_reads=sum(t.late_reads for t in topics),
+        silent_sensors=[t.topic for t in topics if t.silent],
+        duplicates=sorted(record.duplicates),
+        duplicate_dropped=dropped,
+        previous=previous,
     )
 
 

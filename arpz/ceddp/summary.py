@@ -2,10 +2,12 @@
 
 Pure functions over the ingest's per-topic metrics and the robots' own reports. The identities
 they make checkable (and that the demo, the tests and the experiments check) are, per topic:
-``produced == sent + held_back + write_failures`` (the robot's side) and
+``produced == sent + held_back + write_failures + driver_errors`` (the robot's side: every read
+of a driver is produced, and a read that gave no reading is a driver error) and
 ``sent == received + lost`` (the network's side), where ``lost`` counts every sample that did not
 arrive, whatever the cause: sequence gaps, the tail after the last arrival, and what a writer sent
-before this CEDDP was listening.
+before this CEDDP was listening (and, for a second process running with the robot's id, what was
+dropped: ``duplicate_dropped`` says how many of them).
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ TOTALS = (
     "sent",
     "held_back",
     "write_failures",
+    "driver_errors",
+    "late_reads",
     "frames_skipped",
     "late_periods",
     "retransmitted",
@@ -39,6 +43,7 @@ TOTALS = (
     "decode_errors",
     "implausible_seq",
     "implausible_lost",
+    "duplicate_dropped",
 )
 
 
@@ -63,6 +68,11 @@ class RobotReport:
     clock: dict[str, Any] | None = None
     #: how long (s) each time the robot was unreachable and came back as the same incarnation
     outages: list[float] = field(default_factory=list)
+    #: the incarnation the CEDDP follows ("": none reported)
+    incarnation: str = ""
+    #: incarnations found running beside it (one robot_id in two processes): whether each runs
+    #: still, how long ago it was found, how many of its reports were ignored
+    duplicates: dict[str, dict[str, Any]] = field(default_factory=dict)
 
 
 def incarnation_summary(
@@ -74,7 +84,7 @@ def incarnation_summary(
     rows: dict[str, dict[str, Any]] = {}
     for incarnation, stats in incarnations.items():
         writer = writer_id(robot, incarnation)
-        sent = received = lost = 0
+        sent = received = lost = dropped = 0
         for topic, counters in stats.topics.items():
             if topic == "hello":
                 continue
@@ -84,13 +94,19 @@ def incarnation_summary(
                 Ingest.writer_counts(m).get(writer, (0, 0, 0)) if m else (0, 0, 0)
             )
             received += got
+            # what was dropped (a second process's samples) never counted as received: it is
+            # in the seqs past ``highest``, so in the tail, or a gap once its turn came
+            dropped += m.duplicate_dropped.get(writer, 0) if m else 0
             tail = max(counters.last_seq - highest, 0) if stats.final else 0
             lost += missing + tail
         rows[incarnation] = {
             "final": stats.final,
+            "started_ns": stats.started_ns,
             "sent": sent,
             "received": received,
             "lost": lost,
+            # of lost: dropped because another process ran with this robot_id
+            "duplicate_dropped": dropped,
             "reconciled": (sent == received + lost) if stats.final else None,
         }
     return rows
@@ -211,6 +227,14 @@ def topic_summary(
         "sent": counters.sent if counters else 0,
         "held_back": counters.held_back if counters else 0,
         "write_failures": counters.write_failures if counters else 0,
+        # reads that gave no reading (the driver raised, or its value was refused)
+        "driver_errors": counters.driver_errors if counters else 0,
+        "driver_exceptions": counters.driver_exceptions if counters else 0,
+        "values_refused": counters.values_refused if counters else 0,
+        "last_driver_error": counters.last_driver_error if counters else "",
+        # reads that took longer than the sensor's period (sent all the same)
+        "late_reads": counters.late_reads if counters else 0,
+        "silent": bool(stats and m.topic in stats.silent_sensors),
         # of write_failures: a camera's frames replaced by newer ones while its link was busy
         "frames_skipped": counters.frames_skipped if counters else 0,
         # sensing periods the robot's scheduler ran late and skipped
@@ -226,6 +250,9 @@ def topic_summary(
         "lost": lost,
         "implausible_lost": excess,
         "implausible_seq": m.implausible_seq,
+        # samples of a second process with the robot's id, dropped (counted in ``lost`` of
+        # its incarnation)
+        "duplicate_dropped": sum(m.duplicate_dropped.values()),
         "writers_over_limit": m.writers_over_limit,
         "oversize": m.oversize,
         "repeated_from_previous_run": m.repeated_from_previous_run,
@@ -294,6 +321,19 @@ def robot_summary(
     """Call with ``ingest.lock`` held; ``defer``: percentiles as ``Deferred`` (see ``resolve``)."""
     stats = report.stats
     mine = sorted((t, m) for (r, t), m in ingest.topics.items() if r == robot)
+    if stats is not None:
+        # a sensor that never sent anything (its driver failing) has no samples here, but has
+        # its row (not a topic another CEDDP of the mesh ingests: its rows are that one's)
+        arrived = {t for t, _ in mine}
+        mine = sorted(
+            mine
+            + [
+                (t, TopicMetrics(robot, t))
+                for t, c in stats.topics.items()
+                if t not in arrived and t != "hello" and c.sent == 0 and c.produced > 0
+            ],
+            key=lambda pair: pair[0],
+        )
     # each topic's samples taken once, for its own figures and the robot's pooled ones
     samples = {t: (Samples(m.latency_ms), Samples(m.staleness_ms)) for t, m in mine}
     topics = {
@@ -317,6 +357,11 @@ def robot_summary(
         "leaves": report.leaves,
         "outages_s": [round(d, 3) for d in report.outages],
         "final_stats": bool(stats and stats.final),
+        # the incarnation followed (its report is the one above), and any second process
+        # found running with this robot_id (its samples dropped)
+        "incarnation": report.incarnation,
+        "duplicates": dict(report.duplicates),
+        "silent_sensors": list(stats.silent_sensors) if stats else [],
         **{key: sum(row[key] for row in sensors) for key in TOTALS},
         "latency_ms_p50": latency_p50,
         "latency_ms_p99": latency_p99,

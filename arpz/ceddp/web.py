@@ -54,6 +54,12 @@ TOPIC_COUNTERS: tuple[tuple[str, str, str], ...] = (
     ("arpz_robot_gapped", "Samples the robot answered with GAP (NACKed too late: lost)", "gapped"),
     ("arpz_robot_deadline_missed", "Offered-deadline misses the robot reports", "deadline_missed"),
     ("arpz_robot_write_failures", "Readings the robot's full history refused", "write_failures"),
+    (
+        "arpz_robot_driver_errors",
+        "Reads of the sensor's driver that gave no reading (it raised, or its value was refused)",
+        "driver_errors",
+    ),
+    ("arpz_robot_late_reads", "Reads that took longer than the sensor's period", "late_reads"),
 )
 #: (metric name, help, TopicStatus field, scale) of the per-topic gauges of the last interval
 TOPIC_GAUGES: tuple[tuple[str, str, str, float], ...] = (
@@ -74,6 +80,36 @@ TOPIC_GAUGES: tuple[tuple[str, str, str, float], ...] = (
         "Seconds since the topic's last sample arrived",
         "last_sample_age_s",
         1.0,
+    ),
+    (
+        "arpz_robot_sensor_silent",
+        "1 while the sensor gave no reading for the robot's whole last reporting interval",
+        "silent",
+        1.0,
+    ),
+)
+#: (metric name, help, PreviousIncarnations field) of the counters of a robot's earlier
+#: incarnations, summed (a restart starts the per-topic counters again from zero)
+PREVIOUS_COUNTERS: tuple[tuple[str, str, str], ...] = (
+    (
+        "arpz_robot_previous_samples_received",
+        "Samples the CEDDP received from the robot's earlier incarnations",
+        "received",
+    ),
+    (
+        "arpz_robot_previous_samples_lost",
+        "Samples of the robot's earlier incarnations lost",
+        "lost",
+    ),
+    (
+        "arpz_robot_previous_samples_sent",
+        "Samples the robot's earlier incarnations reported sent",
+        "sent",
+    ),
+    (
+        "arpz_robot_previous_driver_errors",
+        "Driver errors the robot's earlier incarnations reported",
+        "driver_errors",
     ),
 )
 #: (metric name, help, RobotStatus field, scale) of the per-robot gauges
@@ -167,6 +203,38 @@ def _robot_metrics(robots: list[RobotStatus]) -> Iterable[Metric]:
             if value is not None:
                 gauge.add_metric([robot.robot], value * scale)
         yield gauge
+    info = GaugeMetricFamily(
+        "arpz_robot_incarnation_info",
+        "The robot's incarnation whose counters are shown (a restart is a new one)",
+        labels=["robot", "incarnation"],
+    )
+    earlier = GaugeMetricFamily(
+        "arpz_robot_previous_incarnations",
+        "Earlier incarnations of the robot (restarts, or a second process with its id)",
+        labels=["robot"],
+    )
+    duplicates = GaugeMetricFamily(
+        "arpz_robot_duplicate_processes",
+        "Other processes running with the robot's id now (their samples are dropped)",
+        labels=["robot"],
+    )
+    dropped = CounterMetricFamily(
+        "arpz_robot_duplicate_dropped",
+        "Samples of another process with the robot's id, dropped",
+        labels=["robot"],
+    )
+    for robot in robots:
+        if robot.incarnation is not None:
+            info.add_metric([robot.robot, robot.incarnation], 1.0)
+        earlier.add_metric([robot.robot], robot.previous.incarnations)
+        duplicates.add_metric([robot.robot], len(robot.duplicates))
+        dropped.add_metric([robot.robot], robot.duplicate_dropped)
+    yield from (info, earlier, duplicates, dropped)
+    for name, text, field in PREVIOUS_COUNTERS:
+        counter = CounterMetricFamily(name, text, labels=["robot"])
+        for robot in robots:
+            counter.add_metric([robot.robot], getattr(robot.previous, field))
+        yield counter
     rtt = GaugeMetricFamily(
         "arpz_robot_hello_rtt_seconds",
         "Hello round trip (four hops through the CEDDP)",
@@ -356,17 +424,23 @@ h2{font-size:15px;margin:14px 0 6px}small{color:#667}
 <th>D</th><th>rate (Hz)</th><th>received</th><th>lost</th><th>loss</th><th>sent</th>
 <th>retransmitted</th><th>gapped</th><th>deadline misses</th><th>latency p99 (ms)</th>
 <th>staleness p99 (ms)</th><th>last sample (s ago)</th><th>clock offset (ms)</th>
-<th>clock delay (ms)</th><th>CPU %</th></tr></thead><tbody></tbody></table></div>
+<th>clock delay (ms)</th><th>CPU %</th><th>driver errors</th><th>silent sensors</th>
+<th>incarnation</th><th>earlier incarnations</th></tr></thead><tbody></tbody></table></div>
 <h2>Topics</h2>
 <div class="scroll"><table id="topics"><thead><tr><th>robot / topic</th><th>kind</th>
 <th>rate (Hz)</th><th>received</th><th>lost</th><th>retransmitted</th><th>deadline misses</th>
 <th>latency p50 (ms)</th><th>latency p99 (ms)</th><th>staleness p99 (ms)</th>
-<th>last sample (s ago)</th></tr></thead>
+<th>last sample (s ago)</th><th>driver errors</th><th>late reads</th><th>last driver error</th>
+</tr></thead>
 <tbody></tbody></table></div>
-<small>Counters are cumulative since the CEDDP started; rates are over the last 2 s, percentiles
-of the last metrics interval. "—": not measured (yet). Link quality: retransmitted and gapped
-are the robot's reliable channel's own counters (gapped: NACKed after its history let the sample
-go).</small>
+<small>Counters are a robot's current incarnation's (a restart starts them from zero; earlier
+incarnations are summed apart: "earlier incarnations" is how many, and what the CEDDP received
+from them); rates are over the last 2 s, percentiles of the last metrics interval. "—": not
+measured (yet). Link quality: retransmitted and gapped are the robot's reliable channel's own
+counters (gapped: NACKed after its history let the sample go). Driver errors: reads that gave no
+reading (the driver raised, or its value was refused, NaN included); a silent sensor gave none
+for the robot's whole last report interval. A robot id two processes run with is flagged red:
+the newer one's samples are dropped.</small>
 </main>
 <script>
 "use strict";
@@ -435,18 +509,35 @@ function render(s) {
       num(r.received), num(r.lost), pct(r.loss_ratio), num(r.sent), num(r.retransmitted),
       num(r.gapped), num(r.deadline_missed), num(r.latency_ms_p99, 1),
       num(r.staleness_ms_p99, 1), num(r.last_sample_age_s, 1), num(r.clock_offset_ms, 2),
-      num(r.clock_delay_ms, 2), num(r.cpu_percent, 1)], "robot-" + r.robot);
+      num(r.clock_delay_ms, 2), num(r.cpu_percent, 1), num(r.driver_errors),
+      cell(r.silent_sensors.join(", ") || dash, "l"), cell(r.incarnation || dash, "l"),
+      r.previous.incarnations ? r.previous.incarnations + " (received " +
+        num(r.previous.received) + ")" : dash], "robot-" + r.robot);
     tr.dataset.received = String(r.received);
-    if (r.incompatible_qos.length) {
+    tr.dataset.incarnation = r.incarnation || "";
+    const bad = r.incompatible_qos.slice();
+    if (r.duplicates.length) bad.push("robot id used by another process too (incarnation " +
+      r.duplicates.join(", ") + "): its samples are dropped (" + r.duplicate_dropped + ")");
+    if (bad.length) {
       tr.className = "bad";
-      tr.title = r.incompatible_qos.join("\\n");
+      tr.title = bad.join("\\n");
+    } else if (r.silent_sensors.length || r.driver_errors > 0) {
+      tr.className = "warn";
+      tr.title = "driver errors: see the topics";
     } else if (r.loss_ratio > 0.01 || r.deadline_missed > 0) tr.className = "warn";
     return tr;
   }));
-  topics.replaceChildren(...s.robots.flatMap(r => r.topics.map(t => row([
-    r.robot + " / " + t.topic, cell(t.kind || dash, "l"), num(t.rate_hz, 1), num(t.received),
-    num(t.lost), num(t.retransmitted), num(t.deadline_missed), num(t.latency_ms_p50, 1),
-    num(t.latency_ms_p99, 1), num(t.staleness_ms_p99, 1), num(t.last_sample_age_s, 1)]))));
+  topics.replaceChildren(...s.robots.flatMap(r => r.topics.map(t => {
+    const tr = row([
+      r.robot + " / " + t.topic, cell(t.kind || dash, "l"), num(t.rate_hz, 1), num(t.received),
+      num(t.lost), num(t.retransmitted), num(t.deadline_missed), num(t.latency_ms_p50, 1),
+      num(t.latency_ms_p99, 1), num(t.staleness_ms_p99, 1), num(t.last_sample_age_s, 1),
+      num(t.driver_errors), num(t.late_reads), cell(t.last_driver_error || dash, "l")],
+      "topic-" + r.robot + "-" + t.topic);
+    if (t.silent) tr.className = "bad";
+    else if (t.driver_errors > 0 || t.late_reads > 0) tr.className = "warn";
+    return tr;
+  })));
 }
 async function poll() {
   try {

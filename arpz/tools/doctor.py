@@ -16,6 +16,10 @@ presence tokens) and prints one line per check, ``OK``, ``WARN`` or ``FAIL`` and
   CEDDP says about itself);
 - ``qos``: INCOMPATIBLE_QOS seen by the CEDDP or by any robot;
 - ``delivery``: topics with deadline misses, losses, confirmed gaps or refused writes;
+- ``sensors``: sensors that gave no reading for a robot's last report interval (failed),
+  driver errors and late reads since a robot started (warned);
+- ``robot ids``: a robot id two processes run with (the CEDDP's finding, or two incarnations
+  reporting in turn while the doctor listened);
 - ``clock ROBOT``: each robot's clock offset to the CEDDP against the bound.
 
 Exit codes: 0 when no check failed (warnings allowed), 1 when one did (the router unreachable
@@ -102,6 +106,8 @@ class Observation:
     #: fleets with a CEDDP on this router (to name the right one when --fleet is wrong)
     fleets_seen: set[str] = field(default_factory=set)
     decode_errors: int = 0
+    #: per robot, the incarnations of its reports in the order they came (a change run once)
+    report_order: dict[str, list[str]] = field(default_factory=dict)
 
 
 # -- the rules ------------------------------------------------------------------------------------
@@ -112,6 +118,7 @@ def diagnose(obs: Observation, *, max_offset_ms: float | None = None) -> list[Ch
     ``max_offset_ms``: the clock bound to apply (None: the CEDDP's, else 50 ms)."""
     checks = [ceddp_check(obs), robots_check(obs), versions_check(obs)]
     checks += [access_control_check(obs), qos_check(obs), delivery_check(obs)]
+    checks += [sensors_check(obs), robot_ids_check(obs)]
     bound = max_offset_ms
     if bound is None and obs.ceddp_stats is not None:
         bound = obs.ceddp_stats.clock_max_offset_ms
@@ -166,6 +173,15 @@ def robots_check(obs: Observation) -> Check:
         )
     if stopped:
         return Check(WARN, "robots", f"{names}: {', '.join(stopped)} stopped while listening")
+    quiet = {r: s.silent_sensors for r, s in sorted(obs.robot_stats.items()) if s.silent_sensors}
+    if quiet:
+        which = "; ".join(f"{r}'s {', '.join(topics)}" for r, topics in quiet.items())
+        return Check(
+            WARN,
+            "robots",
+            f"{len(reporting)} present and reporting ({names}), but sensors give no reading: "
+            f"{which} (see 'sensors')",
+        )
     return Check(OK, "robots", f"{len(reporting)} present and reporting: {names}")
 
 
@@ -253,8 +269,65 @@ def delivery_check(obs: Observation) -> Check:
     if problems:
         more = f" (+{len(problems) - 8} more)" if len(problems) > 8 else ""
         return Check(WARN, "delivery", "; ".join(problems[:8]) + more)
-    topics = sum(len(s.topics) for s in obs.robot_stats.values())
+    silent = sum(len(s.silent_sensors) for s in obs.robot_stats.values())
+    topics = sum(len(s.topics) for s in obs.robot_stats.values()) - silent
+    if silent:
+        return Check(
+            WARN,
+            "delivery",
+            f"no deadline misses or loss on {topics} topics; {silent} gave no reading to "
+            "deliver (see 'sensors')",
+        )
     return Check(OK, "delivery", f"no deadline misses or loss on {topics} topics")
+
+
+def sensors_check(obs: Observation) -> Check:
+    """Sensors with no reading for their robot's last interval (failed), and those whose
+    driver raised, gave a refused value or read late since the robot started (warned)."""
+    failed: list[str] = []
+    warned: list[str] = []
+    for robot, stats in sorted(obs.robot_stats.items()):
+        for topic, c in sorted(stats.topics.items()):
+            last = f"; last: {c.last_driver_error}" if c.last_driver_error else ""
+            errors = (
+                f"{c.driver_errors} reads of {c.produced} gave no reading "
+                f"({c.driver_exceptions} raised, {c.values_refused} refused{last})"
+                if c.driver_errors
+                else ""
+            )
+            late = f"{c.late_reads} reads took longer than its period" if c.late_reads else ""
+            said = ", ".join(x for x in (errors, late) if x)
+            if topic in stats.silent_sensors:
+                failed.append(
+                    f"{robot}/{topic}: no reading for its last report interval"
+                    + (f": {said}" if said else " (not read)")
+                )
+            elif said:
+                warned.append(f"{robot}/{topic}: {said}")
+    if failed or warned:
+        lines = failed + warned
+        more = f" (+{len(lines) - 6} more)" if len(lines) > 6 else ""
+        return Check(FAIL if failed else WARN, "sensors", "; ".join(lines[:6]) + more)
+    count = sum(len(s.topics) for s in obs.robot_stats.values())
+    return Check(OK, "sensors", f"{count} sensors read without driver errors")
+
+
+def robot_ids_check(obs: Observation) -> Check:
+    """A robot id two processes run with: the CEDDP says so, or their reports came in turn."""
+    found = list(obs.ceddp_stats.duplicate_robots) if obs.ceddp_stats else []
+    seen = {line.split(":", 1)[0] for line in found}
+    for robot, order in sorted(obs.report_order.items()):
+        if robot not in seen and len(set(order)) < len(order):  # A, B, then A again
+            found.append(f"{robot}: {', '.join(dict.fromkeys(order))} (reporting in turn)")
+    if found:
+        return Check(
+            FAIL,
+            "robot ids",
+            f"two processes run with one robot_id: {'; '.join(found)}: the CEDDP drops the "
+            "newer one's samples and both act on every command; stop one, and give each robot "
+            "its own robot_id",
+        )
+    return Check(OK, "robot ids", "each robot id is used by one process")
 
 
 def clock_checks(obs: Observation, bound_ms: float) -> list[Check]:
@@ -431,8 +504,13 @@ class _Listener:
             with self.lock:
                 self.obs.decode_errors += 1
             return
+        robot = parsed[0] if parsed else stats.robot
         with self.lock:
-            self.obs.robot_stats[parsed[0] if parsed else stats.robot] = stats
+            self.obs.robot_stats[robot] = stats
+            order = self.obs.report_order.setdefault(robot, [])
+            if not stats.final and (not order or order[-1] != stats.incarnation):
+                order.append(stats.incarnation)
+                del order[:-16]
 
     def on_ceddp_stats(self, _key: str, payload: bytes, _attachment: bytes | None) -> None:
         try:
@@ -502,6 +580,7 @@ def listen(transport: ZenohTransport, obs: Observation, timeout_s: float) -> Obs
             robots_present=set(obs.robots_present),
             robot_stats=dict(obs.robot_stats),
             fleets_seen=set(obs.fleets_seen),
+            report_order={r: list(order) for r, order in obs.report_order.items()},
         )
 
 
@@ -562,6 +641,9 @@ def report(checks: list[Check], obs: Observation | None, code: int) -> dict[str,
                 "clock_delay_ms": None
                 if clock is None or clock.delay_ns is None
                 else clock.delay_ns / 1e6,
+                "incarnation": stats.incarnation,
+                "silent_sensors": list(stats.silent_sensors),
+                "driver_errors": {t: c.driver_errors for t, c in stats.topics.items()},
             }
     ceddp = msgspec.to_builtins(obs.ceddp_stats) if obs and obs.ceddp_stats else None
     return {

@@ -13,6 +13,7 @@ from typing import IO, Any, Final
 
 import msgspec
 
+from arpz.core import keys
 from arpz.core.messages import (
     ANNOUNCE_DECODER,
     CEDDP_STATS_DECODER,
@@ -114,13 +115,35 @@ def qos_text(endpoints: tuple[Endpoint, ...]) -> str:
     return "; ".join(dict.fromkeys(e.describe_qos() for e in endpoints)) or "-"
 
 
+def health_text(graph: FleetGraph, topic: TopicEntry) -> str:
+    """A sensor topic's health from its robot's last report: "ok", "NO READING" (none for the
+    robot's last report interval), driver errors and late reads since the robot started; "-"
+    for other topics and sensors not reported yet."""
+    parsed = keys.parse_robot_key(topic.key)
+    if parsed is None or parsed[1] not in ("sensor", "frames") or parsed[2] == keys.HELLO:
+        return "-"
+    robot, _, name = parsed
+    stats = graph.stats.get(robot)
+    counters = stats.topics.get(name) if stats is not None else None
+    if stats is None or counters is None:
+        return "-"
+    said = []
+    if name in stats.silent_sensors:
+        said.append("NO READING")
+    if counters.driver_errors:
+        said.append(f"{counters.driver_errors} driver errors")
+    if counters.late_reads:
+        said.append(f"{counters.late_reads} late reads")
+    return ", ".join(said) or "ok"
+
+
 def list_lines(graph: FleetGraph) -> list[str]:
     """``topic list``'s text: the nodes, then one row per topic."""
     nodes = ", ".join(
         f"{n.name} ({n.mode or 'mode ?'}{'' if n.alive else ', gone'})" for n in graph.nodes
     )
     lines = [f"fleet {graph.fleet}: {nodes or 'no nodes'}"]
-    rows = [("TOPIC", "TYPE", "ARPZ TYPE", "RATE Hz", "QOS", "WRITERS")]
+    rows = [("TOPIC", "TYPE", "ARPZ TYPE", "RATE Hz", "HEALTH", "QOS", "WRITERS")]
     for t in graph.topics:
         rows.append(
             (
@@ -128,6 +151,7 @@ def list_lines(graph: FleetGraph) -> list[str]:
                 t.ros_type or "-",
                 arpz_type_text(t),
                 rate_text(t),
+                health_text(graph, t),
                 qos_text(t.writers),
                 writers_text(t.writers),
             )
@@ -138,6 +162,10 @@ def list_lines(graph: FleetGraph) -> list[str]:
         lines.append("  ".join([*cells, row[-1]]).rstrip())
     lines.append(
         "RATE: measured by the writer over its last report / announced (configured or assigned)"
+    )
+    lines.append(
+        "HEALTH: a sensor's driver errors (reads that gave no reading) and late reads since its "
+        "robot started; NO READING: none for the robot's last report interval"
     )
     if graph.ros2:
         lines.append("ROS 2 (rmw_zenoh) on the same router:")

@@ -231,3 +231,48 @@ def test_tls_is_said_to_be_off_or_checked() -> None:
     assert tls_summary(obs, ["tls/h:1"], {}).level == WARN
     check = tls_summary(obs, ["tls/h:1"], {"root_ca_certificate": "ca.pem"})
     assert check.level == OK and "the CEDDP reports TLS on" in check.message
+
+
+def test_a_robot_whose_only_driver_raises_is_not_present_and_well() -> None:
+    """Issue 41: it was "present and reporting" with "no deadline misses or loss"."""
+    failing = TopicCounters(
+        produced=25,
+        driver_errors=25,
+        driver_exceptions=25,
+        last_driver_error="OSError: [Errno 5] Input/output error",
+    )
+    broken = robot("r2", topics={"temp": failing}, silent_sensors=["temp"])
+    checks = by_name(diagnose(observe([robot("r1"), broken], ceddp())))
+    assert checks["sensors"].level == FAIL
+    assert checks["sensors"].message == (
+        "r2/temp: no reading for its last report interval: 25 reads of 25 gave no reading "
+        "(25 raised, 0 refused; last: OSError: [Errno 5] Input/output error)"
+    )
+    assert checks["robots"].level == WARN and "r2's temp" in checks["robots"].message
+    assert checks["delivery"].level == WARN
+    assert "1 gave no reading to deliver" in checks["delivery"].message
+
+
+def test_past_driver_errors_and_late_reads_are_warned() -> None:
+    counters = TopicCounters(produced=100, sent=97, driver_errors=3, values_refused=3, late_reads=2)
+    checks = by_name(diagnose(observe([robot("r1", topics={"temp": counters})], ceddp())))
+    assert checks["sensors"].level == WARN
+    assert "r1/temp: 3 reads of 100 gave no reading (0 raised, 3 refused)" in (
+        checks["sensors"].message
+    )
+    assert "2 reads took longer than its period" in checks["sensors"].message
+    assert checks["robots"].level == OK
+
+
+def test_one_robot_id_in_two_processes_fails() -> None:
+    said = by_name(diagnose(observe([robot("r1")], ceddp(duplicate_robots=["r1: aaaa, bbbb"]))))
+    assert said["robot ids"].level == FAIL and "r1: aaaa, bbbb" in said["robot ids"].message
+    # the doctor's own ears: the robot's reports came from two incarnations in turn
+    heard = by_name(
+        diagnose(observe([robot("r1")], ceddp(), report_order={"r1": ["aaaa", "bbbb", "aaaa"]}))
+    )
+    assert heard["robot ids"].level == FAIL and "reporting in turn" in heard["robot ids"].message
+    restarted = by_name(
+        diagnose(observe([robot("r1")], ceddp(), report_order={"r1": ["aaaa", "bbbb"]}))
+    )
+    assert restarted["robot ids"].level == OK
