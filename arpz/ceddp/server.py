@@ -35,7 +35,13 @@ from arpz.ceddp.intake import SensorIntake
 from arpz.ceddp.metrics import MetricsTicker
 from arpz.ceddp.mission import MissionRunner
 from arpz.ceddp.pacing import Pacer
-from arpz.ceddp.planner import CostlyPlanner, HelloRelay, Planner, make_planner
+from arpz.ceddp.planner import (
+    CostlyPlanner,
+    HelloRelay,
+    Planner,
+    PlannerCommands,
+    make_planner,
+)
 from arpz.ceddp.qos_control import QosController
 from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, resolve, robot_summary
@@ -115,11 +121,12 @@ class CeddpServer:
         )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
         #: the team's planners of ``[[planners]]`` (docs/nodes.md), each behind a guard
+        commands = PlannerCommands(self.sink, writer_id("ceddp", self.incarnation))
         self.team_planners = [
             make_planner(
                 entry.cls,
                 entry.options,
-                self.sink,
+                commands,
                 setting=f"planners[{i}]",
                 on_first_fault=lambda text: self._event(text, "ERROR"),
             )

@@ -24,8 +24,8 @@ ENV = {"PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", ""
 def test_configured_planners_get_readings_and_a_raising_one_is_contained(tmp_path: Path) -> None:
     out = tmp_path / "counting.json"
     extra = (
-        '[[planners]]\nclass = "tests.integration.team_planners:RaisingPlanner"\n'
-        '[[planners]]\nclass = "tests.integration.team_planners:CountingPlanner"\n'
+        '[[planners]]\nclass = "tests.integration.team_nodes:RaisingPlanner"\n'
+        '[[planners]]\nclass = "tests.integration.team_nodes:CountingPlanner"\n'
         f'options = {{ out = "{out.as_posix()}" }}\n'
     )
     with ceddp(tmp_path, extra=extra, env=ENV) as (server, endpoint):
@@ -70,13 +70,13 @@ def _ceddp_exit(tmp_path: Path, *args: str, toml: str = "") -> subprocess.Comple
 @pytest.mark.parametrize(
     ("args", "toml", "says"),
     [
-        (("--planner", "tests.integration.team_planners:Nope"), "", "has no 'Nope'"),
+        (("--planner", "tests.integration.team_nodes:Nope"), "", "has no 'Nope'"),
         (("--planner", "no_such_module:Planner"), "", "cannot import module 'no_such_module'"),
         (("--planner", "json:JSONDecoder"), "", "is not a subclass of arpz.ceddp.planner.Planner"),
-        (("--planner", "tests.integration.team_planners"), "", "module.path:ClassName"),
+        (("--planner", "tests.integration.team_nodes"), "", "module.path:ClassName"),
         (
             (),
-            '[[planners]]\nclass = "tests.integration.team_planners:NeedsOptions"\n',
+            '[[planners]]\nclass = "tests.integration.team_nodes:NeedsOptions"\n',
             "NeedsOptions({}) raised KeyError('threshold')",
         ),
         ((), "[[planners]]\noptions = { a = 1 }\n", "class"),
@@ -95,11 +95,60 @@ def test_a_planner_on_the_command_line_runs_beside_the_tomls(tmp_path: Path) -> 
     out = tmp_path / "counting.json"
     toml = (
         'summary_json = "summary.json"\n'
-        '[[planners]]\nclass = "tests.integration.team_planners:CountingPlanner"\n'
+        '[[planners]]\nclass = "tests.integration.team_nodes:CountingPlanner"\n'
         f'options = {{ out = "{out.as_posix()}" }}\n'
     )
-    spec = "tests.integration.team_planners:RaisingPlanner"
+    spec = "tests.integration.team_nodes:RaisingPlanner"
     done = _ceddp_exit(tmp_path, "--planner", spec, toml=toml)
     assert done.returncode == 0, done.stderr
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert sorted(summary["planners"]) == ["CountingPlanner", "RaisingPlanner"]
+
+
+def test_a_planners_commands_reach_a_configured_actuator(tmp_path: Path) -> None:
+    applied = tmp_path / "applied.json"
+    extra = '[[planners]]\nclass = "tests.integration.team_nodes:Commander"\n'
+    with ceddp(tmp_path, extra=extra, env=ENV) as (server, endpoint):
+        actuator = (
+            '[actuator]\nclass = "tests.integration.team_nodes:FileActuator"\n'
+            f'options = {{ out = "{applied.as_posix()}" }}\n'
+        )
+        config = write_robot(tmp_path, "robot1", endpoint, preset="machine1", extra=actuator)
+        with robots(tmp_path, [config], env=ENV) as (robot,):
+            wait_until(
+                lambda: applied.exists() and json.loads(applied.read_text())["applied"] >= 20,
+                timeout_s=30,
+            )
+            assert robot.interrupt() == 0
+        assert server.interrupt() == 0
+    state = json.loads(applied.read_text())
+    assert state["name"] == "velocity" and state["value"] == [0.25, -0.5]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    velocity = summary["robots"]["robot1"]["downlink"]["velocity"]
+    assert velocity["written"] >= 20 and velocity["reconciled"], velocity
+
+
+@pytest.mark.parametrize(
+    ("actuator", "says"),
+    [
+        ("tests.integration.team_nodes:Mute", "set commands to the names it acts on"),
+        ("tests.integration.team_nodes:FileActuator", "FileActuator({}) raised KeyError('out')"),
+        (
+            "tests.integration.team_nodes:Commander",
+            "is not a subclass of arpz.robot.actuation.Actuator",
+        ),
+    ],
+)
+def test_a_wrong_actuator_stops_the_robot_before_it_connects(
+    tmp_path: Path, actuator: str, says: str
+) -> None:
+    done = subprocess.run(
+        [sys.executable, "-m", "arpz.robot", "--robot-id", "r1", "--actuator", actuator],
+        cwd=tmp_path,
+        env={**os.environ, **ENV},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "bad configuration" in done.stderr and says in done.stderr, done.stderr
