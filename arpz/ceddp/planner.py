@@ -26,7 +26,7 @@ import msgspec
 
 from arpz.core import keys
 from arpz.core.errors import ConfigError
-from arpz.core.messages import Hello, SensorValue, Telemetry
+from arpz.core.messages import Command, CommandValue, Hello, SensorValue, Telemetry
 from arpz.core.throttled_log import ThrottledLog
 from arpz.runtime.plugins import load_class
 
@@ -49,6 +49,29 @@ class CommandSink(Protocol):
         """Publish ``payload`` on the robot's ``cmd/{name}`` key."""
 
 
+class PlannerCommands:
+    """What a team's planner sends commands through (``self.commands``): ``send`` a value on a
+    robot's ``cmd/{name}``, which the robot's actuator gets as a ``Command`` (a float, bool,
+    string or list of floats; ``[v, omega]`` on "velocity"). Every command is counted by the
+    CEDDP's downlink and reconciled with what the robot received, as the built-in planners'
+    are; a command for a name the robot did not announce is refused and counted.
+
+    One instance is shared by every configured planner, so that the command seqs of one key
+    stay one sequence (a receiver in plain mode counts its loss from them)."""
+
+    def __init__(self, sink: CommandSink, writer: str) -> None:
+        self.sink = sink
+        self.writer = writer
+        self._seqs: dict[tuple[str, str], int] = {}
+        self._lock = threading.Lock()
+
+    def send(self, robot: str, name: str, value: CommandValue) -> None:
+        with self._lock:
+            seq = self._seqs[(robot, name)] = self._seqs.get((robot, name), 0) + 1
+        command = Command(self.writer, seq, time.time_ns(), value)
+        self.sink.send(robot, name, msgspec.msgpack.encode(command))
+
+
 class Planner:
     """Base planner: ignores everything. Subclass and override what you need.
 
@@ -61,9 +84,9 @@ class Planner:
 
     def __init__(self, options: Mapping[str, Any] | None = None) -> None:
         self.options: Mapping[str, Any] = options or {}
-        self.commands: CommandSink | None = None
+        self.commands: PlannerCommands | None = None
 
-    def attach(self, commands: CommandSink) -> None:
+    def attach(self, commands: PlannerCommands) -> None:
         """Hand the planner the sink its commands go through (before ``start``)."""
         self.commands = commands
 
@@ -233,7 +256,7 @@ class GuardedPlanner(Planner):
         with self._lock:
             return {"errors": self.errors, "causes": dict(self._causes)}
 
-    def attach(self, commands: CommandSink) -> None:
+    def attach(self, commands: PlannerCommands) -> None:
         self.inner.attach(commands)
 
     def start(self) -> None:
@@ -264,7 +287,7 @@ class GuardedPlanner(Planner):
 def make_planner(
     spec: str,
     options: Mapping[str, Any],
-    commands: CommandSink,
+    commands: PlannerCommands,
     *,
     setting: str,
     on_first_fault: Callable[[str], None],

@@ -263,6 +263,19 @@ class LinkConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
             )
 
 
+class PluginConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """A team's class named in a config: ``class = "mylab.dock:DockPlanner"`` and the
+    ``options`` table it is made with (docs/nodes.md)."""
+
+    cls: str = msgspec.field(name="class")
+    options: dict[str, Any] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        module, sep, name = self.cls.partition(":")
+        if not (module and sep and name):
+            raise ValueError(f"class must be 'module.path:ClassName', got {self.cls!r}")
+
+
 class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
@@ -279,6 +292,9 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
     #: simulate the body in a 2-D world (None: a real robot, or sensors only)
     sim: SimConfig | None = None
+    #: the team's actuator (``[actuator] class = "mylab.base:Base"``, docs/nodes.md); None: a
+    #: robot that only senses (or the simulated body's, with ``sim``)
+    actuator: PluginConfig | None = None
     watchdog: WatchdogConfig = msgspec.field(default_factory=WatchdogConfig)
     clock: RobotClockConfig = msgspec.field(default_factory=RobotClockConfig)
     link: LinkConfig = msgspec.field(default_factory=LinkConfig)
@@ -325,6 +341,11 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
             )
         if self.duration_s < 0:
             raise ValueError("duration_s must be >= 0 (0 = run until stopped)")
+        if self.sim is not None and self.actuator is not None:
+            raise ValueError(
+                "actuator and sim both drive the robot: the simulated body has its own actuator; "
+                "give one of them"
+            )
 
 
 class CeddpHelloConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -567,19 +588,6 @@ class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_onl
 
 
 _ROS2_KEY = re.compile(r"^[a-z0-9][a-z0-9_\-]*$")
-
-
-class PluginConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
-    """A team's class named in a config: ``class = "mylab.dock:DockPlanner"`` and the
-    ``options`` table it is made with (docs/nodes.md)."""
-
-    cls: str = msgspec.field(name="class")
-    options: dict[str, Any] = msgspec.field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        module, sep, name = self.cls.partition(":")
-        if not (module and sep and name):
-            raise ValueError(f"class must be 'module.path:ClassName', got {self.cls!r}")
 
 
 class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):

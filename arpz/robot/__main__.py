@@ -24,6 +24,7 @@ from arpz.core.transport import (
     TransportError,
     client_link_defaults,
 )
+from arpz.robot.actuation import make_actuator
 from arpz.robot.agent import DuplicateRobotError, RobotAgent, check_robot_id_free
 from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensors.factory import DriverError
@@ -63,6 +64,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="write this robot's own summary here (its counts, its link's drops), atomically, "
         "at exit and after each drop and reconnection",
     )
+    parser.add_argument(
+        "--actuator",
+        metavar="MODULE:CLASS",
+        help="the team's actuator class (overrides the TOML's [actuator]; docs/nodes.md)",
+    )
     parser.add_argument("--log-level", default="INFO")
     return parser.parse_args(argv)
 
@@ -92,6 +98,8 @@ def load(args: argparse.Namespace) -> RobotConfig:
         extra["local_cache"] = {"enabled": False}
     if args.sim:
         extra["sim"] = {"world": args.sim}
+    if args.actuator:
+        extra["actuator"] = {"class": args.actuator}
     if extra:
         import msgspec
 
@@ -116,6 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         config = msgspec.structs.replace(
             config, connect=resolve(config.connect, from_file, DEFAULT_CONNECT)
         )
+        actuator = make_actuator(config.actuator) if config.actuator is not None else None
     except ConfigError as exc:
         flag = " (given by --connect)" if args.connect and "connect[" in str(exc) else ""
         print(f"arpz robot: error: bad configuration: {exc}{flag}", file=sys.stderr)
@@ -163,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         base_dir = args.config.parent if args.config is not None else Path.cwd()
         try:
-            agent = RobotAgent(config, transport, base_dir=base_dir)
+            agent = RobotAgent(config, transport, base_dir=base_dir, actuator=actuator)
         except (DriverError, TraceError, ValueError) as exc:
             print(
                 f"arpz robot: error: bad configuration: {args.config or 'command line'}: {exc}",

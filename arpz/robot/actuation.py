@@ -12,15 +12,25 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
+from arpz.core.config import PluginConfig
+from arpz.core.errors import ConfigError
 from arpz.core.messages import Command
+from arpz.runtime.plugins import load_class
 
 
 class Actuator:
+    """Base of every actuator. A team's actuator named in the robot's TOML (``[actuator]``) is
+    made as ``cls(options)``; it sets ``commands`` to the command names it acts on."""
+
     #: the command names this actuator acts on: the robot reads ``cmd/{name}`` for each (through
     #: the reliable channel) and announces them, so the CEDDP opens a writer for each
     commands: Sequence[str] = ()
+
+    def __init__(self, options: Mapping[str, Any] | None = None) -> None:
+        self.options: Mapping[str, Any] = options or {}
 
     def apply(self, name: str, command: Command) -> None:
         """Act on one command (``name`` is the command topic, e.g. "velocity")."""
@@ -70,3 +80,25 @@ class RecordingActuator(Actuator):
 
     def stop(self) -> None:
         self.stopped = True
+
+
+class ActuatorConfigError(ConfigError):
+    """A configured actuator that cannot be made, or that acts on no command."""
+
+
+def make_actuator(entry: PluginConfig) -> Actuator:
+    """The actuator ``[actuator]`` names, made with its options (before the robot connects, so
+    that a wrong name or option stops it with a clear error)."""
+    cls = load_class(entry.cls, Actuator, setting=f"actuator ({entry.cls})")
+    try:
+        actuator = cls(entry.options)
+    except Exception as exc:
+        raise ActuatorConfigError(
+            f"actuator: {entry.cls}({dict(entry.options)!r}) raised {exc!r}"
+        ) from exc
+    if not actuator.commands or isinstance(actuator.commands, str):
+        raise ActuatorConfigError(
+            f"actuator {entry.cls}: set commands to the names it acts on, such as "
+            f"('velocity',), got {actuator.commands!r}"
+        )
+    return actuator

@@ -127,9 +127,12 @@ def ceddp(
 
 
 @contextmanager
-def robots(tmp: Path, configs: list[Path]) -> Iterator[list[Process]]:
+def robots(
+    tmp: Path, configs: list[Path], env: dict[str, str] | None = None
+) -> Iterator[list[Process]]:
     procs = [
-        Process(path.stem, ["-m", "arpz.robot", "--config", str(path)], tmp) for path in configs
+        Process(path.stem, ["-m", "arpz.robot", "--config", str(path)], tmp, env)
+        for path in configs
     ]
     try:
         for proc in procs:
