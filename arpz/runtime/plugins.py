@@ -28,8 +28,8 @@ def load_class(spec: str, base: type[T], *, setting: str) -> type[T]:
         module = importlib.import_module(module_name)
     except ImportError as exc:
         raise PluginError(
-            f"{setting}: cannot import module {module_name!r} ({exc}); is it installed, or on "
-            "PYTHONPATH (the folder of the config is not searched)?"
+            f"{setting}: cannot import module {module_name!r} ({exc}); install it, or run from "
+            "the folder that holds it, or add that folder to PYTHONPATH"
         ) from None
     cls = getattr(module, class_name, None)
     if cls is None:
