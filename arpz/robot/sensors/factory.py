@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib
 import zlib
 from pathlib import Path
 
@@ -11,6 +10,7 @@ from arpz.core.errors import ArpzError
 from arpz.robot.sensors.base import SensorDriver
 from arpz.robot.sensors.replay import ReplayDriver
 from arpz.robot.sensors.simulated import SIMULATED
+from arpz.runtime.plugins import PluginError, load_class
 
 
 class DriverError(ArpzError, ValueError):
@@ -39,22 +39,15 @@ def make_driver(
         return ReplayDriver(
             sensor.kind, trace if trace.is_absolute() else base_dir / trace, sensor.options, seed
         )
-    module_name, sep, class_name = sensor.driver.partition(":")
-    if not sep:
+    if ":" not in sensor.driver:
         raise DriverError(
             f"sensor {sensor.name!r}: driver must be 'sim', 'replay' or 'module.path:ClassName', "
             f"got {sensor.driver!r}"
         )
     try:
-        cls = getattr(importlib.import_module(module_name), class_name)
-    except (ImportError, AttributeError) as exc:
-        raise DriverError(
-            f"sensor {sensor.name!r}: cannot load driver {sensor.driver!r}: {exc}"
-        ) from None
-    if not (isinstance(cls, type) and issubclass(cls, SensorDriver)):
-        raise DriverError(
-            f"sensor {sensor.name!r}: {sensor.driver!r} is not a SensorDriver subclass"
-        )
+        cls = load_class(sensor.driver, SensorDriver, setting=f"sensor {sensor.name!r}: driver")
+    except PluginError as exc:
+        raise DriverError(str(exc)) from None
     if cls.kind and cls.kind != sensor.kind:
         raise DriverError(
             f"sensor {sensor.name!r}: driver {sensor.driver!r} reads {cls.kind!r}, "
