@@ -145,7 +145,7 @@ def test_user_driver_by_import_path_and_errors() -> None:
             robot_seed=0,
             base_dir=Path(),
         )
-    with pytest.raises(DriverError, match="cannot import module 'nowhere.mod'"):
+    with pytest.raises(DriverError, match=r"cannot import module 'nowhere\.mod'"):
         make_driver(
             SensorConfig(name="p", kind="pir", driver="nowhere.mod:X"),
             robot_id="r",
