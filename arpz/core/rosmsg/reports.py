@@ -15,7 +15,7 @@ token that vanished), and ``values`` every field of the message as a key/value p
   (value ""); a map key with ``.``, ``[``, ``]``, ``{``, ``}`` or ``%`` in it is %-escaped;
 - a value is its text: strings as they are, ``true``/``false``, integers in decimal, floats
   as Python's ``repr`` (the shortest text that gives the same float back; ``inf``, ``nan``),
-  ``null`` for None.
+  ``null`` for None, bytes in base64.
 
 ``to_fields`` / ``from_fields`` are the same fields as plain Python values (a struct's field
 names, not msgpack's arrays), for the JSON form of ``arpz record --include-internal``. Going
@@ -27,6 +27,7 @@ for every arpz message (tested with each of them); a struct encoded as a msgpack
 
 from __future__ import annotations
 
+import base64
 import re
 from collections.abc import Iterable, Mapping
 from typing import Any, Final, TypeVar
@@ -117,6 +118,8 @@ def _text(value: Any) -> str:
         return repr(value)  # the shortest text of the same float; inf, -inf, nan
     if isinstance(value, int | str):
         return str(value)
+    if isinstance(value, bytes | bytearray):
+        return base64.b64encode(value).decode()  # as JSON writes bytes, and msgspec reads them
     raise ConversionError(f"a {type(value).__name__} has no text form in a KeyValue")
 
 
