@@ -392,6 +392,15 @@ class RobotAgent:
         # The final report carries the channel's last counters; through the channel the robot
         # waits (bounded) for the CEDDP's acknowledgement, so reconciliation never misses it.
         self._publish_stats(final=True)
+        for sensor in self.sensors:  # the run's last word on a failing sensor
+            if sensor.driver_errors:
+                log.warning(
+                    "sensor %s: %d of %d reads gave no reading in this run (last: %s)",
+                    sensor.config.name,
+                    sensor.driver_errors,
+                    sensor.cache.counters.produced + sensor.driver_errors,
+                    sensor.last_driver_error,
+                )
         self.final_acknowledged = self._stats_out.close(_FINAL_REPORT_WAIT_S)
         if not self.final_acknowledged:
             log.warning(
@@ -633,7 +642,8 @@ class DuplicateRobotError(ArpzError):
 
 
 #: how long a starting robot waits for the router to tell it of a presence token on its key
-PRESENCE_HISTORY_S = 0.5
+#: (the router answers in one round trip: 5 ms on loopback; every robot start pays this wait)
+PRESENCE_HISTORY_S = 0.3
 
 
 class _OtherRun:

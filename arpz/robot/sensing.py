@@ -366,8 +366,8 @@ def _driver_error(sensor: SensorChannel, writer: str, cause: str, text: str) -> 
     throttled.log(
         logging.ERROR,
         f"{writer} {sensor.config.name} {cause}",
-        "sensor %s: driver error: %s (%d reads gave no reading so far)",
+        "sensor %s: driver error #%d: %s",
         sensor.config.name,
-        text,
         sensor.driver_errors,
+        text,
     )
