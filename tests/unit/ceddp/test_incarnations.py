@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from prometheus_client import generate_latest
 
+from arpz.ceddp.dashboard import HEALTH_METRICS
 from arpz.ceddp.server import CeddpServer
 from arpz.ceddp.web import registry_for
 from arpz.core import keys
@@ -183,3 +184,5 @@ def test_a_sensor_whose_driver_fails_shows_though_nothing_arrived() -> None:
     server.metrics.tick()
     frame = server.metrics.last_frame
     assert frame is not None and frame.robots["r1"]["driver_errors"] == 9.0
+    # every health series the dashboard's blueprint has a view for is in the frame
+    assert set(HEALTH_METRICS) <= set(frame.robots["r1"])
