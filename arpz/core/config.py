@@ -11,7 +11,7 @@ import math
 import re
 import tomllib
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Final, Literal, TypeVar
 
 import msgspec
 
@@ -30,7 +30,16 @@ from arpz.core.traffic import (
 )
 
 SensorKind = Literal[
-    "lidar", "dht11", "imu", "ultrasonic", "flame", "pir", "light", "camera", "pointcloud"
+    "lidar",
+    "dht11",
+    "imu",
+    "ultrasonic",
+    "flame",
+    "pir",
+    "light",
+    "camera",
+    "pointcloud",
+    "message",
 ]
 SENSOR_KINDS: tuple[str, ...] = (
     "lidar",
@@ -42,6 +51,13 @@ SENSOR_KINDS: tuple[str, ...] = (
     "light",
     "camera",
     "pointcloud",
+)
+#: the kind of a typed sensor (``type = "sensor_msgs/msg/NavSatFix"``): its readings are whole
+#: messages of that ROS 2 type (arpz.core.msgtypes, docs/nodes.md)
+MESSAGE_KIND: Final = "message"
+#: typed messages that travel as large samples (fragments on ``frames/{topic}``), as cameras do
+LARGE_TYPES: frozenset[str] = frozenset(
+    {"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/PointCloud2"}
 )
 #: kinds whose readings are large (a 640x480 RGB frame is 921 600 bytes): through the reliable
 #: channel they travel as fragments (``arpz.channel.FrameWriter``) on ``frames/{topic}``
@@ -55,7 +71,11 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     """One sensor of a robot, published on ``arpz/{fleet}/robot/{robot}/sensor/{name}``."""
 
     name: str
-    kind: SensorKind
+    #: one of seed 001's nine scalar kinds (SENSOR_KINDS); left out with ``type``
+    kind: SensorKind = MESSAGE_KIND
+    #: a ROS 2 message type ("sensor_msgs/msg/NavSatFix"): the sensor's readings are whole
+    #: messages of it, from a driver class (docs/nodes.md)
+    type: str | None = None
     rate_hz: float = 10.0
     #: "sim" (seeded simulated driver), "replay" (plays ``trace``), or "module.path:ClassName"
     driver: str = "sim"
@@ -70,14 +90,16 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     #: of the CEDDP): its share of the rate budget grows in proportion (docs/qos-optimiser.md)
     priority: float = 1.0
     seed: int | None = None
-    #: a NaN or infinity from the driver: "refuse" (a driver error, counted, never a sample) or
-    #: "pass" (sent like any reading)
-    nan: Literal["refuse", "pass"] = "refuse"
+    #: a NaN or infinity from the driver: "refuse" (a driver error, counted, never a sample; in a
+    #: typed message, in its scalar float fields), "refuse_all" (a typed message's arrays too:
+    #: REP 117 lets a LaserScan's ranges hold them, so they pass by default) or "pass"
+    nan: Literal["refuse", "refuse_all", "pass"] = "refuse"
     #: free-form options handed to the driver (e.g. a GPIO pin for a hardware driver)
     options: dict[str, Any] = msgspec.field(default_factory=dict)
 
     def __post_init__(self) -> None:
         keys.check_chunk(self.name, what="sensor name")
+        self._check_type()
         if self.name == "hello":
             raise ValueError("'hello' is reserved for the Hello round-trip probe")
         if not self.rate_hz > 0:
@@ -90,11 +112,41 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"priority must be a finite number > 0, got {self.priority}")
         if self.driver == "replay" and not self.trace:
             raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
+        if self.kind == MESSAGE_KIND and self.driver in ("sim", "replay"):
+            raise ValueError(
+                f"sensor {self.name!r} of type {self.type}: a typed sensor reads through a driver "
+                "class: driver = 'module.path:ClassName' (docs/nodes.md)"
+            )
         if self.driver == "replay" and self.kind in LARGE_KINDS:
             raise ValueError(
                 f"a {self.kind} sensor cannot replay a trace (traces hold text values): use "
                 "driver 'sim' or a driver class (docs/sensors.md)"
             )
+
+    def _check_type(self) -> None:
+        if self.type is None:
+            if self.kind == MESSAGE_KIND:
+                raise ValueError(
+                    f"sensor {self.name!r} needs a kind (one of {', '.join(SENSOR_KINDS)}) or a "
+                    'type (a ROS 2 message type such as "sensor_msgs/msg/NavSatFix")'
+                )
+            return
+        parts = self.type.split("/")
+        if len(parts) != 3 or parts[1] != "msg" or not all(parts):
+            raise ValueError(
+                f"sensor {self.name!r}: type must be a ROS 2 message type package/msg/Name, such "
+                f'as "sensor_msgs/msg/NavSatFix", got {self.type!r}'
+            )
+        if self.kind != MESSAGE_KIND:
+            raise ValueError(
+                f"sensor {self.name!r}: give kind (one of the nine scalar kinds) or type (a ROS 2 "
+                f"message type), not both (kind {self.kind!r}, type {self.type!r})"
+            )
+
+    @property
+    def large(self) -> bool:
+        """Its readings travel as large samples (fragments on ``frames/{topic}``)."""
+        return self.kind in LARGE_KINDS or self.type in LARGE_TYPES
 
 
 class LocalCacheConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
@@ -288,6 +340,9 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     #: publish rate of the preset's sensors
     preset_rate_hz: float = 10.0
     sensors: list[SensorConfig] = msgspec.field(default_factory=list)
+    #: folders of a team's ``.msg`` files (``PACKAGE/msg/NAME.msg``, as ROS 2 lays them out),
+    #: relative to the config's folder; the CEDDP needs the same (docs/nodes.md)
+    msg_paths: list[str] = msgspec.field(default_factory=list)
     local_cache: LocalCacheConfig = msgspec.field(default_factory=LocalCacheConfig)
     hello: HelloConfig = msgspec.field(default_factory=HelloConfig)
     #: simulate the body in a 2-D world (None: a real robot, or sensors only)
@@ -647,6 +702,8 @@ class CeddpConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     ros2: Ros2Config = msgspec.field(default_factory=Ros2Config)
     #: a team's planners (``[[planners]]``, docs/nodes.md), beside the built-in ones
     planners: list[PluginConfig] = msgspec.field(default_factory=list)
+    #: folders of a team's ``.msg`` files, as the robots' (docs/nodes.md)
+    msg_paths: list[str] = msgspec.field(default_factory=list)
     #: 0 = run until SIGINT/SIGTERM
     duration_s: float = 0.0
 

@@ -18,8 +18,8 @@ A driver hands a message in as an instance of the generated Struct, as a dict of
 as any object with the fields as attributes (a rosbags or rclpy message); ``check`` turns each
 into the Struct or raises ``MessageValueError`` naming the field: a missing or unknown field, a
 wrong type, an integer out of its type's range, and a NaN or infinity in a scalar float field
-(``nan = "scalars"``, the default: REP 117 lets a ``LaserScan``'s ranges hold inf and NaN, so
-sequences pass), in any float field (``"refuse"``) or in none (``"pass"``). A message whose type
+(``nan = "refuse"``, the default: REP 117 lets a ``LaserScan``'s ranges hold inf and NaN, so
+sequences pass), in any float field (``"refuse_all"``) or in none (``"pass"``). A message whose type
 has a ``std_msgs/msg/Header`` named ``header`` may leave it out: the robot stamps it.
 """
 
@@ -48,8 +48,10 @@ DISTRIBUTIONS: Final[dict[str, Stores]] = {
     "jazzy": Stores.ROS2_JAZZY,
     "kilted": Stores.ROS2_KILTED,
 }
-NanPolicy = Literal["scalars", "refuse", "pass"]
-NAN_POLICIES: Final[tuple[str, ...]] = ("scalars", "refuse", "pass")
+#: where a NaN or infinity is refused: scalar float fields ("refuse", the default: REP 117 lets a
+#: LaserScan's ranges hold inf and NaN), every float field ("refuse_all"), or nowhere ("pass")
+NanPolicy = Literal["refuse", "refuse_all", "pass"]
+NAN_POLICIES: Final[tuple[str, ...]] = ("refuse", "refuse_all", "pass")
 
 _INT_RANGES: Final[dict[str, tuple[int, int]]] = {
     "int8": (-(2**7), 2**7 - 1),
@@ -361,7 +363,7 @@ class MessageTypes:
         name: str,
         message: object,
         *,
-        nan: NanPolicy = "scalars",
+        nan: NanPolicy = "refuse",
         stamp_ns: int | None = None,
         frame_id: str = "",
     ) -> msgspec.Struct:
@@ -393,7 +395,7 @@ class MessageTypes:
                 f"{name}: a float32 field holds a value beyond float32"
             ) from None
         if nan != "pass":
-            self._check_finite(name, checked, sequences=nan == "refuse", path=name)
+            self._check_finite(name, checked, sequences=nan == "refuse_all", path=name)
         return checked
 
     def _to_float32(self, name: str, message: Any) -> None:

@@ -93,12 +93,12 @@ def test_a_missing_field_is_refused(types: MessageTypes) -> None:
         types.check(NAVSAT, fields, stamp_ns=1)
 
 
-def test_nan_policy_scalars_lets_a_scans_inf_through_refuse_does_not(types: MessageTypes) -> None:
+def test_nan_policy_refuse_lets_a_scans_inf_through_refuse_all_does_not(types: MessageTypes) -> None:
     ranges = np.array([1.0, math.inf, math.nan], dtype=np.float32)
     kept = types.check(SCAN, scan(ranges), stamp_ns=1)
     assert kept.ranges[1] == math.inf and math.isnan(kept.ranges[2])
     with pytest.raises(MessageValueError, match="ranges holds a NaN"):
-        types.check(SCAN, scan(ranges), stamp_ns=1, nan="refuse")
+        types.check(SCAN, scan(ranges), stamp_ns=1, nan="refuse_all")
     passed = types.check(NAVSAT, navsat(latitude=math.nan), stamp_ns=1, nan="pass")
     assert math.isnan(passed.latitude)
 
