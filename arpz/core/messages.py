@@ -59,6 +59,21 @@ class LargeSample(msgspec.Struct, array_like=True, frozen=True):
     since_ns: int = 0
 
 
+class MessageSample(msgspec.Struct, array_like=True, frozen=True):
+    """A typed sensor's reading (``[[sensors]] type = "sensor_msgs/msg/NavSatFix"``): a ``Sample``
+    whose value is a whole message of the topic's ROS 2 type, as the msgpack array of
+    ``arpz.core.msgtypes`` (fields in definition order), with the same layout and meaning of
+    every other field. The type is the one the robot announced for the topic (``TopicInfo``), so
+    the value stays undecoded (``msgspec.Raw``) until a reader that knows it asks."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    value: msgspec.Raw
+    changed_ns: int = 0
+    since_ns: int = 0
+
+
 class Hello(msgspec.Struct, array_like=True, frozen=True):
     """The round-trip probe of seed 001 Figure 9, one hop of it.
 
@@ -325,6 +340,10 @@ class TopicInfo(msgspec.Struct, frozen=True):
     #: a sensor above it (``rate_hz`` is the rate in force, which an assignment lowers); None:
     #: an older robot
     configured_rate_hz: float | None = None
+    #: the topic's ROS 2 message type and its RIHS01 hash as ROS 2 computes it (a typed sensor's
+    #: own; a scalar kind's standard type, docs/protocol.md); "": an older robot
+    msg_type: str = ""
+    type_hash: str = ""
 
 
 class Announce(msgspec.Struct, frozen=True):
@@ -436,6 +455,7 @@ DECODE_ERRORS: Final = (msgspec.DecodeError, UnicodeDecodeError, RecursionError)
 SAMPLE_ENCODER: Final = msgspec.msgpack.Encoder()
 SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(Sample)
 LARGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(LargeSample)
+MESSAGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(MessageSample)
 HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
 COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
