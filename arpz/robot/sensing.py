@@ -296,7 +296,7 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
     took_s = perf_counter() - started
     try:
         value = check_value(config.kind, raw)
-        if type(value) is float and not math.isfinite(value) and config.nan == "refuse":
+        if type(value) is float and not math.isfinite(value) and config.nan != "pass":
             raise DriverValueError(
                 f'a {config.kind} driver returned {value} (nan = "pass" in its [[sensors]] '
                 "entry sends NaN and infinity)"

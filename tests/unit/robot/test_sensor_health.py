@@ -73,6 +73,13 @@ def test_every_read_is_produced_and_the_ones_without_a_reading_are_driver_errors
     assert all(b"nan" not in p and b"inf" not in p for p in sensor.output.sent)  # type: ignore[union-attr]
 
 
+def test_refuse_all_refuses_a_scalar_nan_too() -> None:
+    sensor = _channel([math.nan, 1.0], nan="refuse_all")
+    sense(sensor, 0.0, "r1:abc")
+    sense(sensor, 0.1, "r1:abc")
+    assert (sensor.counters().sent, sensor.counters().values_refused) == (1, 1)
+
+
 def test_nan_pass_sends_nan_and_infinity_as_readings() -> None:
     sensor = _channel([math.nan, -math.inf], nan="pass")
     sense(sensor, 0.0, "r1:abc")
