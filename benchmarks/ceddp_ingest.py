@@ -32,19 +32,22 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable, Iterator
+from functools import partial
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from arpz.ceddp.dashboard import Dashboard
+from arpz.ceddp.server import CeddpServer
+from arpz.channel import QOS_RELIABLE_ALL
+from arpz.core.config import CeddpConfig
+from arpz.core.transport import SessionSettings
+from arpz.perf.zenoh_baselines import ZenohCounter, open_session
+from arpz.tools.launch import free_port
+from arpz.transport.zenoh import ZenohTransport
 
-from arpz.ceddp.dashboard import Dashboard  # noqa: E402
-from arpz.ceddp.server import CeddpServer  # noqa: E402
-from arpz.channel import QOS_RELIABLE_ALL  # noqa: E402
-from arpz.core.config import CeddpConfig  # noqa: E402
-from arpz.core.transport import SessionSettings  # noqa: E402
-from arpz.perf.zenoh_baselines import ZenohCounter, open_session  # noqa: E402
-from arpz.transport.zenoh import ZenohTransport  # noqa: E402
-from tests.support import free_port  # noqa: E402
+#: progress lines, printed as they come
+SAY = partial(print, flush=True)
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: The channel publishers' batch delay (``--publisher-batch-delay-ms``). The benchmark measures
 #: the CEDDP, so its publishers must not set the rate: each publisher process here holds 18
@@ -58,6 +61,7 @@ import sys, time
 from arpz.core.messages import Sample, encode
 from arpz.core.transport import SessionSettings
 from arpz.transport.zenoh import ZenohTransport
+
 endpoint, count, index, path = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), sys.argv[4]
 t = ZenohTransport.open(SessionSettings(mode="client", connect=[endpoint]), timeout_s=10)
 topics = [(f"robot{r}", name) for r in range(1, 4)
@@ -168,21 +172,24 @@ def wait_count(
     raise RuntimeError(f"only {get()} of {total} samples arrived within {timeout_s} s")
 
 
-def run_raw(total: int, publishers: int) -> float:
-    """A plain zenoh-python router session whose subscriber callback only counts."""
+def run_raw(total: int, publishers: int) -> tuple[float, float]:
+    """A plain zenoh-python router session whose subscriber callback only counts: samples/s,
+    and this process's CPU a sample (us) while it took them in, as ``run_arpz``'s CEDDP's."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = open_session(SessionSettings(mode="router", listen=[endpoint]))
     try:
         sub = ZenohCounter(session, "arpz/bench/robot/*/sensor/*")
         try:
             procs, t0 = start_publishers(endpoint, total // publishers, publishers)
+            cpu0 = time.process_time()
             t1 = wait_count(lambda: sub.count, total, 120, procs)
+            cpu_s = time.process_time() - cpu0
             stop_publishers(procs)
         finally:
             sub.close()
     finally:
         session.close()  # type: ignore[no-untyped-call]
-    return total / (t1 - t0)
+    return total / (t1 - t0), cpu_s / total * 1e6
 
 
 @contextlib.contextmanager
@@ -232,10 +239,39 @@ def run_arpz(
         "dup": duplicates,
         # CPU a sample, microseconds: the CEDDP while it took the samples in, the publishers
         # from their start to their end (what they cost a sample, acknowledgements included)
-        "ceddp_us": round(ceddp_cpu_s / total * 1e6, 1),
+        "ceddp_us": round(ceddp_cpu_s / total * 1e6, 2),
         "publishers_us": round(publishers_cpu_s / total * 1e6, 1),
     }
     return total / (t1 - t0), info
+
+
+def measure(
+    total: int,
+    publishers: int,
+    paths: list[str],
+    rounds: int,
+    batch_delay_s: float = BULK_BATCH_DELAY_S,
+    log: Callable[[str], object] = SAY,
+) -> tuple[list[float], dict[str, list[float]], dict[str, list[float]]]:
+    """Samples/s a round, the raw subscriber's and the CEDDP's on each path, and the CPU a
+    sample (us) of each ("raw" and the paths). Each round runs raw, then every path, so a
+    round's figures share a window of the host."""
+    raw_rates: list[float] = []
+    arpz_rates: dict[str, list[float]] = {p: [] for p in paths}
+    cpu_us: dict[str, list[float]] = {p: [] for p in ["raw", *paths]}
+    with tempfile.TemporaryDirectory() as tmp:
+        for round_ in range(1, rounds + 1):
+            raw, raw_cpu = run_raw(total, publishers)
+            raw_rates.append(raw)
+            cpu_us["raw"].append(raw_cpu)
+            line = f"round {round_}/{rounds}: raw {raw:,.0f} samples/s ({raw_cpu:.2f} us CPU)"
+            for path in paths:
+                rate, info = run_arpz(total, publishers, Path(tmp), path, batch_delay_s)
+                arpz_rates[path].append(rate)
+                cpu_us[path].append(info["ceddp_us"])
+                line += f"; arpz {path} {rate:,.0f} samples/s ({rate / raw:.2f}x) {info}"
+            log(line)
+    return raw_rates, arpz_rates, cpu_us
 
 
 def main() -> int:
@@ -262,20 +298,9 @@ def main() -> int:
     args = parser.parse_args()
     paths = [p for p in args.paths.split(",") if p]
     total = args.samples // args.publishers * args.publishers
-    raw_rates: list[float] = []
-    arpz_rates: dict[str, list[float]] = {p: [] for p in paths}
-    with tempfile.TemporaryDirectory() as tmp:
-        for round_ in range(1, args.rounds + 1):
-            raw = run_raw(total, args.publishers)
-            raw_rates.append(raw)
-            line = f"round {round_}/{args.rounds}: raw {raw:,.0f} samples/s"
-            for path in paths:
-                rate, info = run_arpz(
-                    total, args.publishers, Path(tmp), path, args.publisher_batch_delay_ms / 1000
-                )
-                arpz_rates[path].append(rate)
-                line += f"; arpz {path} {rate:,.0f} samples/s ({rate / raw:.2f}x) {info}"
-            print(line, flush=True)
+    raw_rates, arpz_rates, _ = measure(
+        total, args.publishers, paths, args.rounds, args.publisher_batch_delay_ms / 1000
+    )
     raw_m = statistics.median(raw_rates)
     print(f"\n{total} samples from {args.publishers} publisher processes, median of {args.rounds}:")
     print(f"  raw zenoh-python subscriber      : {raw_m:>10,.0f} samples/s")

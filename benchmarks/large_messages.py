@@ -148,14 +148,16 @@ def send(cell: Cell, payloads: list[bytes], write: Callable[[int], object], got:
 
 
 def drain(got: Received, n: int, idle_s: float, cap_s: float) -> None:
-    """Wait until every frame arrived, or none for ``idle_s``, or ``cap_s`` in all."""
-    end = time.monotonic() + cap_s
+    """Wait until every frame arrived, or none for ``idle_s`` (since the last one, or since
+    the drain began if none came), or ``cap_s`` in all."""
+    start = time.monotonic()
+    end = start + cap_s
     while time.monotonic() < end:
         with got.lock:
             if got.count >= n:
                 return
             last = got.last_at
-        if last and time.monotonic() - last > idle_s:
+        if time.monotonic() - (last or start) > idle_s:
             return
         time.sleep(0.05)
 

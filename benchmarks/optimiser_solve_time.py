@@ -19,9 +19,13 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from arpz.ceddp.optimiser import QosLimits, QosSolution, solve_closed, solve_cvxpy
+
+#: progress lines, printed as they come
+SAY = partial(print, file=sys.stderr, flush=True)
 
 SETTINGS: list[tuple[str, list[int]]] = [
     ("6,5,5 (sensor topics)", [6, 5, 5]),
@@ -45,39 +49,49 @@ def _median_s(
     return statistics.median(samples)
 
 
+#: (setting, Rmax, R, D, closed-form s, CVXPY lexicographic s, CVXPY weighted s)
+Row = tuple[str, float, float, int, float, float, float]
+
+
+def measure(
+    closed_reps: int,
+    cvxpy_reps: int,
+    settings: list[tuple[str, list[int]]] = SETTINGS,
+    rmax_hz: tuple[float, ...] = RMAX_HZ,
+    log: Callable[[str], object] = SAY,
+) -> list[Row]:
+    """The median solve of each method in each setting, after a first CVXPY solve (imports,
+    solver start-up) that is not counted."""
+    start = time.perf_counter()
+    solve_cvxpy(QosLimits(rmax_hz=100, rmin_hz=1), [6, 5, 5])
+    log(f"warm-up (first CVXPY solve, imports included): {time.perf_counter() - start:.2f} s")
+    rows: list[Row] = []
+    total = len(settings) * len(rmax_hz)
+    for name, topics in settings:
+        for rmax in rmax_hz:
+            limits = QosLimits(rmax_hz=rmax, rmin_hz=1.0, dmax=5000, dmin=1)
+            closed = solve_closed(limits, topics)
+            cvx = solve_cvxpy(limits, topics)
+            assert cvx.depth == closed.depth, (name, rmax)
+            closed_s = _median_s(solve_closed, limits, topics, closed_reps)
+            cvxpy_s = _median_s(solve_cvxpy, limits, topics, cvxpy_reps)
+            # One weighted MILP, closer to a single CVXPY call as the paper may have made it.
+            one_s = _median_s(solve_cvxpy, limits, topics, cvxpy_reps, weights=(1.0, 1.0))
+            rows.append((name, rmax, closed.rate_hz, closed.depth, closed_s, cvxpy_s, one_s))
+            log(
+                f"[{len(rows)}/{total}] T={name} Rmax={rmax:g} Hz: "
+                f"closed {closed_s * 1e6:.1f} us, cvxpy {cvxpy_s * 1e3:.2f} ms "
+                f"(one stage {one_s * 1e3:.2f} ms), ratio {cvxpy_s / closed_s:.0f}x"
+            )
+    return rows
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--closed-reps", type=int, default=2000)
     parser.add_argument("--cvxpy-reps", type=int, default=30)
     args = parser.parse_args()
-
-    start = time.perf_counter()
-    solve_cvxpy(QosLimits(rmax_hz=100, rmin_hz=1), [6, 5, 5])
-    print(
-        f"warm-up (first CVXPY solve, imports included): {time.perf_counter() - start:.2f} s",
-        file=sys.stderr,
-    )
-
-    rows: list[tuple[str, float, float, int, float, float, float]] = []
-    total = len(SETTINGS) * len(RMAX_HZ)
-    for name, topics in SETTINGS:
-        for rmax_hz in RMAX_HZ:
-            limits = QosLimits(rmax_hz=rmax_hz, rmin_hz=1.0, dmax=5000, dmin=1)
-            closed = solve_closed(limits, topics)
-            cvx = solve_cvxpy(limits, topics)
-            assert cvx.depth == closed.depth, (name, rmax_hz)
-            closed_s = _median_s(solve_closed, limits, topics, args.closed_reps)
-            cvxpy_s = _median_s(solve_cvxpy, limits, topics, args.cvxpy_reps)
-            # One weighted MILP, closer to a single CVXPY call as the paper may have made it.
-            one_s = _median_s(solve_cvxpy, limits, topics, args.cvxpy_reps, weights=(1.0, 1.0))
-            rows.append((name, rmax_hz, closed.rate_hz, closed.depth, closed_s, cvxpy_s, one_s))
-            print(
-                f"[{len(rows)}/{total}] T={name} Rmax={rmax_hz:g} Hz: "
-                f"closed {closed_s * 1e6:.1f} us, cvxpy {cvxpy_s * 1e3:.2f} ms "
-                f"(one stage {one_s * 1e3:.2f} ms), ratio {cvxpy_s / closed_s:.0f}x",
-                file=sys.stderr,
-            )
-
+    rows = measure(args.closed_reps, args.cvxpy_reps)
     print(
         f"Python {platform.python_version()}, {platform.machine()}, "
         f"closed reps {args.closed_reps}, cvxpy reps {args.cvxpy_reps} (medians)\n"

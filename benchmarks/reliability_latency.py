@@ -16,11 +16,17 @@ from __future__ import annotations
 import argparse
 import statistics
 import tempfile
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import numpy as np
 
-from arpz.perf.harness import free_port, perf_router, pingpong
+from arpz.perf.harness import perf_router, pingpong
+from arpz.tools.launch import free_port
+
+#: progress lines, printed as they come
+SAY = partial(print, flush=True)
 
 #: (label, transport, extra flags); "arpz-inline" delivers on the transport thread
 VARIANTS = (
@@ -32,6 +38,44 @@ VARIANTS = (
 TRANSPORTS = tuple(label for label, _, _ in VARIANTS)
 
 
+def measure(
+    rounds: int,
+    count: int,
+    rate_hz: float = 1000.0,
+    variants: tuple[tuple[str, str, tuple[str, ...]], ...] = VARIANTS,
+    keep_samples: bool = False,
+    log: Callable[[str], object] = SAY,
+) -> tuple[dict[str, list[float]], dict[str, list[float]], dict[str, list[np.ndarray]]]:
+    """Per variant, each round's round-trip p50 and p99 (us), and with ``keep_samples`` every
+    round trip of every round. Rounds run every variant in turn."""
+    samples: dict[str, list[np.ndarray]] = {label: [] for label, _, _ in variants}
+    p50: dict[str, list[float]] = {label: [] for label, _, _ in variants}
+    p99: dict[str, list[float]] = {label: [] for label, _, _ in variants}
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    with tempfile.TemporaryDirectory(prefix="arpz-latency-") as tmp, perf_router(endpoint):
+        for round_no in range(rounds):
+            for label, name, flags in variants:
+                out = Path(tmp) / f"{label}-{round_no}.npy"
+                keep = ["--latency-out", str(out)] if keep_samples else []
+                report = pingpong(
+                    transport=name,
+                    connect=endpoint,
+                    count=count,
+                    rate_hz=rate_hz,
+                    extra=["--express", *flags, *keep],
+                )
+                if keep_samples:
+                    samples[label].append(np.load(out))
+                lat = report["latency_us"]
+                p50[label].append(lat["p50"])
+                p99[label].append(lat["p99"])
+                log(
+                    f"  {label:11s} p50 {lat['p50']:8.1f} us  p99 {lat['p99']:8.1f} us  "
+                    f"received {report['received']}/{report['sent']}"
+                )
+    return p50, p99, samples
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--rounds", type=int, default=3)
@@ -39,31 +83,7 @@ def main() -> None:
     ap.add_argument("--rate", type=float, default=1000.0)
     ap.add_argument("--png", type=Path, help="draw the round-trip distributions to this file")
     args = ap.parse_args()
-    tmp = tempfile.TemporaryDirectory(prefix="arpz-latency-")
-    workdir = Path(tmp.name)
-    samples: dict[str, list[np.ndarray]] = {t: [] for t in TRANSPORTS}
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    p50: dict[str, list[float]] = {t: [] for t in TRANSPORTS}
-    p99: dict[str, list[float]] = {t: [] for t in TRANSPORTS}
-    with perf_router(endpoint):
-        for round_no in range(args.rounds):
-            for transport, name, flags in VARIANTS:
-                out = workdir / f"{transport}-{round_no}.npy"
-                report = pingpong(
-                    transport=name,
-                    connect=endpoint,
-                    count=args.count,
-                    rate_hz=args.rate,
-                    extra=["--express", *flags, "--latency-out", str(out)],
-                )
-                samples[transport].append(np.load(out))
-                lat = report["latency_us"]
-                p50[transport].append(lat["p50"])
-                p99[transport].append(lat["p99"])
-                print(
-                    f"  {transport:9s} p50 {lat['p50']:8.1f} us  p99 {lat['p99']:8.1f} us  "
-                    f"received {report['received']}/{report['sent']}"
-                )
+    p50, p99, samples = measure(args.rounds, args.count, args.rate, keep_samples=bool(args.png))
     med50 = {t: statistics.median(v) for t, v in p50.items()}
     med99 = {t: statistics.median(v) for t, v in p99.items()}
     print()
@@ -74,8 +94,6 @@ def main() -> None:
             f"| {t} | {med50[t]:.0f} | {med99[t]:.0f} | {med50[t] / med50['zenoh']:.2f}x "
             f"| {med99[t] / med99['zenoh']:.2f}x |"
         )
-
-    tmp.cleanup()
     if args.png is not None:
         draw(samples, args.png, args.rate)
         print(f"\nwrote {args.png}")

@@ -19,8 +19,14 @@ from __future__ import annotations
 
 import argparse
 import statistics
+from collections.abc import Callable
+from functools import partial
 
-from arpz.perf.harness import free_port, perf_router, pubsub
+from arpz.perf.harness import perf_router, pubsub
+from arpz.tools.launch import free_port
+
+#: progress lines, printed as they come
+SAY = partial(print, flush=True)
 
 #: (label, --transport, extra perf flags)
 RUNS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
@@ -36,19 +42,22 @@ def ratios(values: dict[str, float], label: str) -> str:
     return f"{values[label] / values['zenoh']:.2f}x | {values[label] / values['advanced']:.2f}x"
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--rounds", type=int, default=3)
-    ap.add_argument("--count", type=int, default=200_000, help="samples per run (24 B)")
-    ap.add_argument("--count-kib", type=int, default=200_000, help="samples per run (1 KiB)")
-    args = ap.parse_args()
+def measure(
+    sizes: dict[int, int],
+    rounds: int,
+    runs: tuple[tuple[str, str, tuple[str, ...]], ...] = RUNS,
+    log: Callable[[str], object] = SAY,
+) -> tuple[dict[tuple[int, str], list[float]], dict[tuple[int, str], list[float]]]:
+    """Per (payload size, label), one figure a round: msg/s (0 when a run lost samples) and
+    CPU us a sample (publisher + subscriber). ``sizes``: payload bytes -> samples a run. Rounds
+    run every label in turn, so a round's figures share a window of the host."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     results: dict[tuple[int, str], list[float]] = {}
     cpu: dict[tuple[int, str], list[float]] = {}
     with perf_router(endpoint):
-        for size, count in ((24, args.count), (1024, args.count_kib)):
-            for round_ in range(args.rounds):
-                for label, transport, extra in RUNS:
+        for size, count in sizes.items():
+            for round_ in range(rounds):
+                for label, transport, extra in runs:
                     pub, report = pubsub(
                         transport=transport,
                         pub_connect=endpoint,
@@ -63,11 +72,20 @@ def main() -> None:
                     # CPU per sample, publisher + subscriber processes: stable on a shared host
                     per_msg = pub["cpu_us_per_msg"] + report["cpu_us_per_msg"]
                     cpu.setdefault((size, label), []).append(per_msg)
-                    print(
-                        f"  round {round_ + 1}/{args.rounds} {size:5d} B {label:13s} "
-                        f"{rate:10.0f} msg/s  received {report['received']}",
-                        flush=True,
+                    log(
+                        f"  round {round_ + 1}/{rounds} {size:5d} B {label:13s} "
+                        f"{rate:10.0f} msg/s  received {report['received']}"
                     )
+    return results, cpu
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--count", type=int, default=200_000, help="samples per run (24 B)")
+    ap.add_argument("--count-kib", type=int, default=200_000, help="samples per run (1 KiB)")
+    args = ap.parse_args()
+    results, cpu = measure({24: args.count, 1024: args.count_kib}, args.rounds)
     print()
     print("Throughput, msg/s (median of the rounds), and arpz / raw Zenoh, arpz / Advanced:")
     table(results, "{:.0f}")

@@ -3,7 +3,7 @@
 before, for a run of one sample (a message of a robot at 100 Hz) and of 64 (a batch). Both give
 each sample its own ``DataInfo`` and call a callback that does nothing, in the same run.
 
-    python benchmarks/delivery_cost.py [--samples 400000]
+    python benchmarks/investigations/delivery_cost.py [--samples 400000]
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import sys
 import timeit
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.channel._channel import Channel
 from arpz.core.protocol.actions import DeliverRun

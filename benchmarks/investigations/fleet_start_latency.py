@@ -9,7 +9,8 @@ out of their latencies until a better estimate came:
 
     python -m arpz.perf fleet --robots 50 --topics 8 --rate 100 --processes 4 --duration 60 \\
         --workdir /tmp/fw1
-    python benchmarks/fleet_start_latency.py /tmp/fw1/ceddp0.rrd [--first-s 2] [--top 10]
+    python benchmarks/investigations/fleet_start_latency.py /tmp/fw1/ceddp0.rrd [--first-s 2]
+        [--top 10]
 
 A robot whose p50 was high at first and normal afterwards, with a first clock offset of about
 that much, was mis-corrected, not late.
@@ -22,7 +23,7 @@ import sys
 import warnings
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from arpz.core.frames import TIMELINE  # noqa: E402

@@ -1,6 +1,6 @@
 """What a full garbage collection costs the CEDDP with and without its start-up frozen.
 
-    python benchmarks/gc_freeze.py [--objects 30000] [--rounds 5]
+    python benchmarks/investigations/gc_freeze.py [--objects 30000] [--rounds 5]
 
 Each side runs in a fresh process that imports what a CEDDP imports at start-up (arpz.ceddp's
 server and dashboard: numpy, cvxpy, rerun, pyarrow, zenoh), freezes it or not
@@ -23,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent.parent
+HERE = Path(__file__).resolve().parents[2]
 
 CHILD = """
 import gc, json, sys, time

@@ -1,7 +1,7 @@
 """How long a thread that gave up the GIL waits to get it back while a pure-Python loop runs,
 with the CEDDP's ``Pacer`` in the loop and without (issue 17, stop 36).
 
-    python benchmarks/gil_yield.py [--seconds 1] [--rounds 3]
+    python benchmarks/investigations/gil_yield.py [--seconds 1] [--rounds 3]
 
 The waiting thread stands for the sensor path's delivery thread, which gives the GIL up each
 time it blocks for data; the loop for the metrics tick, the summary or the dashboard's flush.
@@ -17,7 +17,7 @@ import statistics
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.ceddp.pacing import Pacer
 from tests.support import gil_waits_ms

@@ -1,6 +1,7 @@
 """Thread wake-ups of a fleet worker and of its CEDDP at a low rate, per kind of thread.
 
-    python benchmarks/idle_wakeups.py [--base CHECKOUT] [--robots 10] [--rate 1] [--window 10]
+    python benchmarks/investigations/idle_wakeups.py [--base CHECKOUT] [--robots 10] [--rate 1]
+        [--window 10]
 
 Runs ``python -m arpz.perf fleet --robots N --topics 8 --rate HZ --processes 1`` from this
 checkout (and, with ``--base``, from another one, e.g. a ``git worktree`` at the commit before a
@@ -30,7 +31,7 @@ import time
 from pathlib import Path
 from typing import IO
 
-HERE = Path(__file__).resolve().parent.parent
+HERE = Path(__file__).resolve().parents[2]
 
 
 def switches(pid: int) -> dict[int, int]:

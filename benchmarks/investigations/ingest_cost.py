@@ -6,7 +6,7 @@ and misses) in runs of ``--run`` samples of one topic. A real ``CeddpServer`` wi
 and planner behind a router session; no publishers, no channel protocol: only what the CEDDP
 does with a delivered sample. Alternating rounds, the median printed.
 
-    python benchmarks/ingest_cost.py [--runs 200] [--run 64] [--rounds 3]
+    python benchmarks/investigations/ingest_cost.py [--runs 200] [--run 64] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -18,12 +18,11 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from ceddp_ingest import ceddp_server  # benchmarks/: the same CEDDP as the ingest benchmark
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.core.messages import Sample, encode
 from arpz.core.protocol.events import DataInfo
+from benchmarks.ceddp_ingest import ceddp_server  # the same CEDDP as the ingest benchmark
 
 TOPICS = [
     (f"robot{r}", name)

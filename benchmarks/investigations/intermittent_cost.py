@@ -8,7 +8,7 @@ work cost several times more (caches and the scheduler's state gone cold: a busy
 process does not help), which is why the CEDDP's and the robots' CPU a sample in
 ``python -m arpz.perf fleet`` is far above the streaming figures (benchmarks/RESULTS.md, issue 17).
 
-    python benchmarks/intermittent_cost.py [--gaps-ms 0,1,10]
+    python benchmarks/investigations/intermittent_cost.py [--gaps-ms 0,1,10]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from arpz.core.transport import SessionSettings  # noqa: E402

@@ -16,7 +16,7 @@ The summary file is rewritten every ``summary_period_s``: ``write_json_atomicall
 encoder and formatter) against ``json.dumps(indent=2)``, whose indent sends the standard library
 to its pure-Python encoder, on a summary shaped as a fleet's (``--robots``, 8 topics each).
 
-    python benchmarks/metrics_cost.py [--series 2400] [--rows 10] [--rounds 3]
+    python benchmarks/investigations/metrics_cost.py [--series 2400] [--rows 10] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.ceddp.dashboard import Dashboard
 from arpz.ceddp.server import write_json_atomically

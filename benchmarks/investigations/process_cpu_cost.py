@@ -8,7 +8,7 @@ the channels' workers and zenoh-python's callback threads do), against ``PROCESS
 (arpz.robot.process_cpu), which reads at most once every 0.2 s for all the robots of a
 process: the time a second a worker's dozen robots spend reading, either way.
 
-    python benchmarks/process_cpu_cost.py [--calls 300]
+    python benchmarks/investigations/process_cpu_cost.py [--calls 300]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.robot.process_cpu import MIN_INTERVAL_S
 

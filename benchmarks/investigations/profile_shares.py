@@ -1,17 +1,17 @@
 """Where a process spends its Python time, from a py-spy profile: the share of samples by
 thread and by function (inclusive and self).
 
-How stop 27 of issue 17 found the CEDDP's cost a robot (benchmarks/RESULTS.md): run a fleet,
+How stop 27 of issue 17 found the CEDDP's cost a robot (README.md here): run a fleet,
 sample its CEDDP with py-spy (``pip install py-spy``; root, or ptrace allowed) holding the GIL
 only, so that the shares are of Python time, not of threads waiting:
 
     python -m arpz.perf fleet --robots 25 --topics 8 --rate 1 --duration 45 --workdir /tmp/f &
     py-spy record --pid "$(pgrep -f 'arpz.ceddp --config /tmp/f')" --duration 20 --rate 200 \\
         --gil --threads --format raw -o /tmp/f/raw.txt
-    python benchmarks/profile_shares.py /tmp/f/raw.txt [--top 40]
+    python benchmarks/investigations/profile_shares.py /tmp/f/raw.txt [--top 40]
 
 ``--within sense --lines``: the lines inside one function's calls (how stop 40 found what a
-robot's ``sense`` spends, in a profile of ``benchmarks/robot_tick_cost.py --hot``).
+robot's ``sense`` spends, in a profile of ``benchmarks/investigations/robot_tick_cost.py --hot``).
 
 Thread names are folded (a robot's name, a thread number and a pid become one row), so the 25
 Hello writers of 25 robots show as one.

@@ -1,6 +1,6 @@
 """How long a sample lost right after a writer's quiet spell takes to arrive.
 
-    python benchmarks/quiet_recovery.py [--base CHECKOUT] [--tries 5] [--idle-s 2]
+    python benchmarks/investigations/quiet_recovery.py [--base CHECKOUT] [--tries 5] [--idle-s 2]
 
 A real ``Writer`` and ``Reader`` (RELIABLE, 0.1 s heartbeat) on the in-memory transport: after
 ``--idle-s`` seconds with nothing written (the writer goes quiet: docs/reliability.md, "Quiet
@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent.parent
+HERE = Path(__file__).resolve().parents[2]
 
 
 def recovery_times(tries: int, idle_s: float) -> list[float]:

@@ -10,7 +10,8 @@ This matches that many writers to one reader, brings each in sync with one sampl
 a full one polls every writer's deadline and lease (once a ``_full_period_s``, and what every
 tick did before), a fine one (every few ms while the reader is busy) looks at the suspects only.
 
-    python benchmarks/reader_busy.py [--robots 10,50,100] [--topics 8] [--calls 20000]
+    python benchmarks/investigations/reader_busy.py [--robots 10,50,100] [--topics 8]
+        [--calls 20000]
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.core.protocol._common import new_guid
 from arpz.core.protocol.qos import HistoryPolicy, QosProfile

@@ -7,7 +7,8 @@ writer at each rate, i.i.d. loss each way, a fixed one-way delay. Prints the del
 heartbeat period, so the closed QoS loop's ``heartbeat_rtts`` rule can be judged against the
 profile's 0.1 s without the tens of milliseconds of run-to-run noise a real fleet run has.
 
-    python benchmarks/recovery_heartbeat.py [--loss 9] [--delay-ms 5] [--seconds 60] [--seeds 3]
+    python benchmarks/investigations/recovery_heartbeat.py [--loss 9] [--delay-ms 5]
+        [--seconds 60] [--seeds 3]
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from arpz.core.protocol.qos import QosProfile  # noqa: E402

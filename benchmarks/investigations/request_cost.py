@@ -14,7 +14,7 @@ channel threads do. Prints, per variant, the caller's time in the request call, 
 CPU a request and the replies received; the ratio is arpz / zenoh-python. Alternating rounds,
 median of the rounds.
 
-    python benchmarks/request_cost.py [--requests 400] [--rounds 3] [--threads 0]
+    python benchmarks/investigations/request_cost.py [--requests 400] [--rounds 3] [--threads 0]
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import zenoh
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from arpz.core.transport import SessionSettings  # noqa: E402

@@ -14,7 +14,8 @@ second; the fleet's rate is 100), reading its main thread's CPU time (``time.thr
 the work of ``sense`` for every topic and of the bundle's put, not the channel's other threads.
 The floor puts the bytes of one recorded bundle each tick.
 
-    python benchmarks/robot_tick_cost.py [--ticks 5000] [--topics 8] [--rounds 3] [--hot]
+    python benchmarks/investigations/robot_tick_cost.py [--ticks 5000] [--topics 8] [--rounds 3]
+        [--hot]
 
 ``--hot`` runs the ticks back to back in bursts (warm caches), not paced: the sensing path's
 own cost, without what the caches cost after each sleep (for an A/B of a change to it, run
@@ -31,7 +32,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from arpz.channel.bundling import Bundler  # noqa: E402

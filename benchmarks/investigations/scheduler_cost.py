@@ -4,10 +4,10 @@ reports, probes, clock) against the floor, the same 8 no-op jobs called in the s
 with no scheduler, in one run. The load generator of ``python -m arpz.perf fleet`` runs 12-13
 robots' schedulers on one thread of each worker. Until ec1d213 it called every robot whenever
 any one was due, so each tick also peeked at the other robots' heaps: ``--peeks 11`` counts
-those not-due calls with every tick (stop 40's figures, benchmarks/RESULTS.md, were taken so).
+those not-due calls with every tick (stop 40's figures, README.md here, were taken so).
 Since then a worker calls a robot only when its next job is due: the default, ``--peeks 0``.
 
-    python benchmarks/scheduler_cost.py [--ticks 50000] [--rounds 3] [--peeks 0]
+    python benchmarks/investigations/scheduler_cost.py [--ticks 50000] [--rounds 3] [--peeks 0]
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.robot.scheduler import Scheduler
 

@@ -13,7 +13,8 @@ a run of ``--seconds`` at ``--rate-hz`` would, then times, per round:
 - the baseline: the same figures from reservoirs (what ``resolve`` cost before: one sort a topic
   and figure set, one sort of the pooled topics a robot).
 
-    python benchmarks/summary_stall.py [--robots 50] [--topics 8] [--seconds 200] [--rounds 3]
+    python benchmarks/investigations/summary_stall.py [--robots 50] [--topics 8] [--seconds 200]
+        [--rounds 3]
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.ceddp.cache_control import CacheControl
 from arpz.ceddp.control import RobotRecord

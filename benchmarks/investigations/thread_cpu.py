@@ -5,11 +5,12 @@ CPU comes from /proc/PID/task/*/stat (utime + stime), wake-ups from the voluntar
 switches in /proc/PID/task/*/status; Python thread names from ``py-spy dump``
 (py-spy's thread ids are the native ones), other threads keep their kernel name. Names are folded
 as ``profile_shares.py`` folds them, so 25 robots' Hello writers show as one row with a count.
-How stop 28 of issue 17 read an idle fleet's CEDDP (benchmarks/RESULTS.md):
+How stop 28 of issue 17 read an idle fleet's CEDDP (README.md here):
 
     python -m arpz.perf fleet --robots 25 --topics 8 --rate 1 --processes 2 --duration 40 \\
         --workdir /tmp/f &
-    sleep 20; python benchmarks/thread_cpu.py "$(pgrep -f 'arpz.ceddp --config /tmp/f')" 10
+    sleep 20;
+    python benchmarks/investigations/thread_cpu.py "$(pgrep -f 'arpz.ceddp --config /tmp/f')" 10
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 # A fleet stopping while its CEDDP is behind: do the robots' final reports arrive, and is every
 # sample delivered or counted lost? (issue 17: "final reports must arrive, at any load")
 #
-#   bash benchmarks/throttled_stop.sh [CHECKOUT] [WORKDIR]
+#   bash benchmarks/investigations/throttled_stop.sh [CHECKOUT] [WORKDIR]
 #
 # Runs `python -m arpz.perf fleet --robots 50 --topics 8 --rate 100 --processes 4 --duration 30`
 # from CHECKOUT (default: this one; give another worktree for a baseline) and, from 8 s into the
@@ -12,7 +12,7 @@
 # how many final reports the CEDDP's summary has and what it counted lost, and the robots'
 # shutdown warnings.
 set -u
-dir=${1:-$(cd "$(dirname "$0")/.." && pwd)}
+dir=${1:-$(cd "$(dirname "$0")/../.." && pwd)}
 wd=${2:-/tmp/arpz-throttled-stop}
 rm -rf "$wd"
 mkdir -p "$(dirname "$wd")"

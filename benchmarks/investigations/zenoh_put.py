@@ -2,11 +2,11 @@
 heartbeats and resends), raw ``Session.put`` on the same keys, and a declared publisher's put.
 
 A CEDDP puts on about two keys per matched writer, again and again. A publisher kept per key
-was tried and not kept (benchmarks/RESULTS.md, stop 27): this prints what it would save. Two
+was tried and not kept (README.md here, stop 27): this prints what it would save. Two
 sessions in this process, a peer listening on loopback and a client with a subscriber on the
 other side, so every put leaves the process.
 
-    python benchmarks/zenoh_put.py [--keys 400] [--puts 20000] [--rounds 3]
+    python benchmarks/investigations/zenoh_put.py [--keys 400] [--puts 20000] [--rounds 3]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import zenoh
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from arpz.core.transport import SessionSettings
 from arpz.transport.zenoh import ZenohTransport
