@@ -63,6 +63,11 @@ def load(args: argparse.Namespace) -> CeddpConfig:
         config = load_toml(args.config, CeddpConfig, overrides)
     else:
         config = from_dict({}, CeddpConfig, overrides, source="command line")
+    if args.config is not None and config.msg_paths:  # relative to the config's folder
+        folder = args.config.parent
+        config = msgspec.structs.replace(
+            config, msg_paths=[str(folder / path) for path in config.msg_paths]
+        )
     given = [from_dict({"class": spec}, PluginConfig, source="--planner") for spec in args.planner]
     planners = [*config.planners, *given]
     for i, entry in enumerate(planners):  # a wrong name stops the CEDDP before it starts

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from arpz.core.messages import SensorValue, same_value
+from arpz.core.msgtypes import same_message
 
 
 @dataclass
@@ -28,15 +29,20 @@ class CacheSlot(CacheControlCounters):
     enabled: bool = True
     tolerance: float = 0.0
     has_value: bool = False
-    value: SensorValue = 0.0
+    value: object = 0.0
+    #: a typed topic: its messages are compared whole, header stamp excluded
+    typed: bool = False
 
-    def admit(self, value: SensorValue) -> bool:
+    def admit(self, value: object) -> bool:
         if (
             self.enabled
             and self.has_value
             and (
                 (type(value) is type(self.value) and value == self.value)
-                or (self.tolerance and same_value(value, self.value, self.tolerance))
+                or (self.typed and same_message(value, self.value))
+                or (
+                    self.tolerance and same_value(value, self.value, self.tolerance)  # type: ignore[arg-type]
+                )
             )
         ):
             self.hits += 1

@@ -30,7 +30,7 @@ from arpz.ceddp.summary import RobotReport
 from arpz.channel import QosPolicyKind, Reader
 from arpz.channel.io import Outlet
 from arpz.core import keys
-from arpz.core.config import CeddpConfig
+from arpz.core.config import MESSAGE_KIND, CeddpConfig
 from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
@@ -121,6 +121,8 @@ class RobotRecord:
     #: the incarnation followed now: its reports are the robot's, its samples counted ("":
     #: none reported yet); a report of a new one is a restart, and it is followed from then on
     incarnation: str = ""
+    #: typed topics this CEDDP cannot decode, each said once in the event log
+    type_warnings: set[str] = field(default_factory=set)
     #: every incarnation reported, with when it was first (monotonic s), at most
     #: MAX_INCARNATIONS
     seen: dict[str, float] = field(default_factory=dict)
@@ -315,7 +317,16 @@ class ControlWorker:
                 record.announce = announce
                 if self.qos is not None:
                     self.qos.set_sensors(robot, record.announce.sensors)
-                self.ingest.set_kinds(robot, {t.topic: t.kind for t in record.announce.sensors})
+                sensors = record.announce.sensors
+                refused = self.ingest.set_kinds(
+                    robot,
+                    {t.topic: t.kind for t in sensors},
+                    {t.topic: (t.msg_type, t.type_hash) for t in sensors if t.kind == MESSAGE_KIND},
+                )
+                for why in refused:
+                    if why not in record.type_warnings:
+                        record.type_warnings.add(why)
+                        self._event(why, "WARN")
                 if self.clock is not None:
                     self.clock.observe(robot, record.announce.clock)
                 if record.alive:

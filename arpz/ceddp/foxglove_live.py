@@ -32,6 +32,7 @@ from collections.abc import Callable
 from typing import Any
 
 import foxglove
+import msgspec
 import numpy as np
 from foxglove.channels import LaserScanChannel, PointCloudChannel, RawImageChannel
 from foxglove.messages import (
@@ -46,6 +47,7 @@ from foxglove.messages import (
 from arpz.ceddp.planner import Planner, Reading
 from arpz.core.errors import ConfigError
 from arpz.core.frames import MetricsFrame
+from arpz.core.msgtypes import as_dict
 from arpz.core.rosmsg.convert import ConversionError, camera_size, to_ros
 from arpz.core.rosmsg.types import ROS_TYPES
 from arpz.core.throttled_log import ThrottledLog
@@ -178,6 +180,8 @@ class _Topic:
                 ],
                 data=value,
             )
+        if isinstance(value, msgspec.Struct):  # a typed topic's message, as JSON
+            return as_dict(value)
         if self.kind not in ROS_TYPES:
             return None if isinstance(value, bytes) else {"stamp_ns": stamp, "value": value}
         try:

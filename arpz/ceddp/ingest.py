@@ -10,20 +10,27 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+
+import msgspec
 
 from arpz.ceddp.cache_control import CacheControl, CacheControlCounters, CacheSlot
 from arpz.ceddp.planner import Planner, Reading
 from arpz.core import keys
-from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES
+from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, LARGE_TYPES
 from arpz.core.messages import (
     DECODE_ERRORS,
     HELLO_DECODER,
     LARGE_SAMPLE_DECODER,
+    MESSAGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
+    LargeSample,
+    MessageSample,
+    Sample,
     SensorValue,
 )
+from arpz.core.msgtypes import MessageTypes, same_message
 from arpz.core.percentiles import Distribution
 from arpz.core.protocol.wire import MAX_BATCH, MAX_SEQ, MAX_WRITE_RATE_HZ
 
@@ -72,6 +79,9 @@ class TopicMetrics:
     max_bytes: int = 65_536
     #: a camera or point-cloud topic (announced so, or arriving as frames): ``LargeSample``s
     large: bool = False
+    #: a typed topic's ROS 2 message type (announced, and known to this CEDDP with the same
+    #: hash): its samples are ``MessageSample``s (or ``LargeSample``s of the message's bytes)
+    msg_type: str | None = None
     #: the sequence state of the writer of the last sample (the hot path compares only this);
     #: other writers' states wait in ``others`` (many writers to one topic is legitimate)
     writer: str = ""
@@ -101,7 +111,7 @@ class TopicMetrics:
     #: per change when the new value arrives (arrival - the robot's first read of it)
     staleness_ms: Distribution = field(default_factory=Distribution)
     #: the value the CEDDP holds now (the last one received), independent of cache control
-    held: SensorValue | None = None
+    held: object = None
     cache: CacheSlot = field(default_factory=CacheSlot)
 
 
@@ -123,7 +133,14 @@ class Ingest:
         max_robots: int = 1000,
         max_topics_per_robot: int = 64,
         max_sample_bytes: dict[str, int] | None = None,
+        types: MessageTypes | None = None,
     ) -> None:
+        #: the message types this CEDDP knows (the standard ones and its ``msg_paths``')
+        self.types = types or MessageTypes()
+        #: per robot, its typed topics' message types (those this CEDDP can decode)
+        self._msg_types: dict[str, dict[str, str]] = {}
+        #: announced typed topics this CEDDP cannot decode: (robot, topic) -> why
+        self.types_refused: dict[tuple[str, str], str] = {}
         #: per sensor kind, and "default" for the others and for topics not yet announced
         self.max_sample_bytes = {
             "default": 65_536,
@@ -178,29 +195,71 @@ class Ingest:
                         topic, self.max_sample_bytes["default"]
                     ),
                     large=topic in self._large.get(robot, ()),
+                    msg_type=self._msg_types.get(robot, {}).get(topic),
                     seen_before=self.seen_before.get((robot, topic), {}),
                     clock_offset_ns=self.clock_offsets.get(robot, 0),
                     clock_known=robot in self.clock_offsets,
                     dropped=self._dropped.setdefault(robot, set()),
                 )
+                metrics.cache.typed = metrics.msg_type is not None
                 self.topics[(robot, topic)] = metrics
                 self._robot_topics.setdefault(robot, []).append(metrics)
             self._by_key[key] = metrics
         return metrics
 
-    def set_kinds(self, robot: str, kinds: dict[str, str]) -> None:
-        """The robot announced its topics' kinds: bound each topic's samples by its kind's size
-        (call with ``lock`` held). Topics not tracked yet get theirs when they are created."""
+    def set_kinds(
+        self,
+        robot: str,
+        kinds: dict[str, str],
+        msg_types: Mapping[str, tuple[str, str]] | None = None,
+    ) -> list[str]:
+        """The robot announced its topics' kinds, and its typed topics' (message type, hash):
+        bound each topic's samples by its kind's size, and decode a typed topic by its type
+        (call with ``lock`` held). Topics not tracked yet get theirs when they are created.
+        Returns, for each typed topic this CEDDP cannot decode, why (for the event log)."""
         limits = self.max_sample_bytes
         announced = list(kinds.items())[:256]
+        typed = self._typed(robot, dict(list((msg_types or {}).items())[:256]))
+        self._msg_types[robot] = typed
         self._kinds[robot] = {
-            topic: limits.get(kind, limits["default"]) for topic, kind in announced
+            topic: limits.get(typed.get(topic, kind), limits["default"])
+            for topic, kind in announced
         }
-        self._large[robot] = {topic for topic, kind in announced if kind in LARGE_KINDS}
+        self._large[robot] = {
+            topic
+            for topic, kind in announced
+            if kind in LARGE_KINDS or typed.get(topic) in LARGE_TYPES
+        }
         for (r, topic), metrics in self.topics.items():
             if r == robot:
                 metrics.max_bytes = self._kinds[robot].get(topic, limits["default"])
                 metrics.large = topic in self._large[robot]
+                metrics.msg_type = typed.get(topic)
+                metrics.cache.typed = metrics.msg_type is not None
+        return [why for (r, _), why in self.types_refused.items() if r == robot]
+
+    def _typed(self, robot: str, msg_types: Mapping[str, tuple[str, str]]) -> dict[str, str]:
+        """The typed topics this CEDDP decodes: the type known here, with the robot's hash."""
+        usable: dict[str, str] = {}
+        for key in [k for k in self.types_refused if k[0] == robot]:
+            del self.types_refused[key]
+        for topic, (name, type_hash) in msg_types.items():
+            if not self.types.known(name):
+                why = (
+                    f"robot {robot} topic {topic}: type {name} is unknown to this CEDDP (give it "
+                    "the robots' msg_paths); its samples are refused and counted"
+                )
+            elif type_hash and type_hash != self.types.type_hash(name):
+                why = (
+                    f"robot {robot} topic {topic}: type {name} has hash {type_hash} on the "
+                    f"robot and {self.types.type_hash(name)} here: the two definitions differ "
+                    "(give both the same msg_paths); its samples are refused and counted"
+                )
+            else:
+                usable[topic] = name
+                continue
+            self.types_refused[(robot, topic)] = why
+        return usable
 
     def set_clock_offset(self, robot: str, offset_ns: int) -> None:
         """The robot's clock offset to this CEDDP's (call with ``lock`` held): its latencies
@@ -346,8 +405,17 @@ class Ingest:
         if metrics.topic == keys.HELLO:
             self._handle_hello(metrics, payload, arrival_ns)
             return
+        sample: Sample | LargeSample | MessageSample
+        value: SensorValue | msgspec.Struct
         try:
-            sample = (LARGE_SAMPLE_DECODER if metrics.large else SAMPLE_DECODER).decode(payload)
+            if metrics.msg_type is None:
+                sample = (LARGE_SAMPLE_DECODER if metrics.large else SAMPLE_DECODER).decode(payload)
+                value = sample.value
+            else:
+                sample = (LARGE_SAMPLE_DECODER if metrics.large else MESSAGE_SAMPLE_DECODER).decode(
+                    payload
+                )
+                value = self.types.decode(metrics.msg_type, sample.value)
         except DECODE_ERRORS as exc:
             self._decode_error(metrics, key, payload, exc)
             return
@@ -381,11 +449,12 @@ class Ingest:
         if seq <= metrics.prev_high:
             metrics.repeated_from_previous_run += 1
             return
-        value = sample.value
         held = metrics.held
         if held is None:
             metrics.held = value  # the first value: nothing was stale before it
-        elif type(held) is not type(value) or held != value:
+        elif type(held) is not type(value) or (
+            held != value and (metrics.msg_type is None or not same_message(held, value))
+        ):
             # after lost samples, the CEDDP may have been stale since the oldest of them was
             # read: the robot says when that was (``since_ns``; conservative by at most the
             # acknowledgement delay)
@@ -398,7 +467,7 @@ class Ingest:
                 Reading(
                     metrics.robot,
                     metrics.topic,
-                    sample.value,
+                    value,
                     sample.stamp_ns,
                     arrival_ns,
                     sample.seq,

@@ -36,9 +36,12 @@ _throttled = ThrottledLog(log)
 
 @dataclass(frozen=True, slots=True)
 class Reading:
+    """One reading that cache control let through. ``value``: a scalar kind's value, or a typed
+    topic's whole message (the msgspec Struct of its ROS 2 type, arpz.core.msgtypes)."""
+
     robot: str
     topic: str
-    value: SensorValue
+    value: SensorValue | msgspec.Struct
     stamp_ns: int
     arrival_ns: int
     seq: int

@@ -50,6 +50,7 @@ from arpz.core import keys
 from arpz.core.config import CeddpConfig, ConfigError
 from arpz.core.frames import DashboardLike, Event, WorldMap, WorldView
 from arpz.core.messages import new_incarnation, writer_id
+from arpz.core.msgtypes import MessageTypes
 from arpz.core.transport import Transport
 from arpz.mission.judge import MissionResult
 
@@ -113,6 +114,10 @@ class CeddpServer:
         #: not grow the CEDDP's memory); the older ones are counted in events_dropped
         self.events: collections.deque[str] = collections.deque(maxlen=MAX_EVENTS)
         self.events_dropped = 0
+        #: the message types of typed topics: the standard ones and ``msg_paths``' (as given:
+        #: ``python -m arpz.ceddp`` makes them relative to the config's folder)
+        self.types = MessageTypes()
+        self.types.add_msg_paths(config.msg_paths)
         self.sink = Downlink(
             transport, config.fleet, config, max_per_robot=config.max_topics_per_robot
         )
@@ -154,6 +159,7 @@ class CeddpServer:
             max_robots=config.max_robots,
             max_topics_per_robot=config.max_topics_per_robot,
             max_sample_bytes=config.max_sample_bytes,
+            types=self.types,
         )
         self.qos = (
             QosController(config.qos, writer_id("ceddp", self.incarnation))

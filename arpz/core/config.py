@@ -82,6 +82,9 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     trace: str | None = None
     #: floats closer than this to the last sent value count as unchanged (local cache)
     tolerance: float = 0.0
+    #: a typed sensor's fields (top-level or dotted, "position.x") that count as unchanged
+    #: within a band: ``cache_deadband = { latitude = 1e-6 }`` (local cache, docs/nodes.md)
+    cache_deadband: dict[str, float] = msgspec.field(default_factory=dict)
     #: overrides the robot's local_cache.max_silence_s for this sensor
     max_silence_s: float | None = None
     #: the fastest this sensor can be read; a QoS assignment above it is refused
@@ -106,6 +109,14 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"rate_hz must be > 0, got {self.rate_hz}")
         if self.tolerance < 0:
             raise ValueError(f"tolerance must be >= 0, got {self.tolerance}")
+        if self.cache_deadband and self.kind != MESSAGE_KIND:
+            raise ValueError(
+                f"sensor {self.name!r}: cache_deadband is for a typed sensor's fields; a "
+                f"{self.kind} sensor has tolerance"
+            )
+        bad = {k: v for k, v in self.cache_deadband.items() if not (math.isfinite(v) and v >= 0)}
+        if bad:
+            raise ValueError(f"sensor {self.name!r}: cache_deadband must be >= 0, got {bad}")
         if self.max_silence_s is not None and self.max_silence_s <= 0:
             raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
         if not (math.isfinite(self.priority) and self.priority > 0):

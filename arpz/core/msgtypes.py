@@ -39,7 +39,7 @@ import msgspec
 from rosbags.interfaces import Nodetype
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from arpz.core.errors import ArpzError
+from arpz.core.errors import ArpzError, ConfigError
 
 #: the ROS 2 distribution whose standard definitions arpz knows (the LTS rmw_zenoh supports)
 DEFAULT_DISTRIBUTION: Final = "humble"
@@ -71,8 +71,9 @@ HEADER: Final = "std_msgs/msg/Header"
 _F32: Final = struct.Struct("<f")
 
 
-class MessageTypeError(ArpzError, ValueError):
-    """A type name arpz does not know, or a ``.msg`` definition it cannot use."""
+class MessageTypeError(ConfigError):
+    """A type name arpz does not know, or a ``.msg`` definition it cannot use (a configuration
+    error: the type is named in a TOML, the definition found through its ``msg_paths``)."""
 
 
 class MessageValueError(ArpzError, ValueError):
@@ -438,7 +439,7 @@ class MessageTypes:
     def encode(self, message: msgspec.Struct) -> bytes:
         return self._encoder.encode(message)
 
-    def decode(self, name: str, payload: bytes | memoryview) -> Any:
+    def decode(self, name: str, payload: bytes | memoryview | msgspec.Raw) -> Any:
         """The wire Struct of ``name`` from its msgpack bytes (``msgspec.ValidationError`` or
         ``msgspec.DecodeError`` when they do not fit)."""
         decoder = self._decoders.get(name)
@@ -493,6 +494,36 @@ _NUMPY_TYPES: Final[dict[str, str]] = {
     **{name: name for name in ("int8", "uint8", "int16", "uint16", "int32", "uint32")},
     **{name: name for name in ("int64", "uint64")},
 }
+
+
+def as_dict(message: msgspec.Struct) -> dict[str, Any]:
+    """A message as a dict of plain values, nested messages as dicts (``topic echo``, JSON)."""
+    return {field: _builtins(getattr(message, field)) for field in message.__struct_fields__}
+
+
+def same_message(a: object, b: object, deadband: Mapping[str, float] | None = None) -> bool:
+    """Two messages equal but for their header's stamp (what the local cache and cache control
+    hold back: a sensor re-reading the same fix stamps it anew), a number field named in
+    ``deadband`` (a top-level field, or a dotted path such as ``position.x``) counting as
+    equal within its band."""
+    if type(a) is not type(b) or not isinstance(a, msgspec.Struct):
+        return False
+    bands = deadband or {}
+    for field in a.__struct_fields__:
+        x, y = getattr(a, field), getattr(b, field)
+        if field == "header" and hasattr(x, "frame_id"):
+            if x.frame_id != getattr(y, "frame_id", None):
+                return False
+        elif field in bands:
+            if not abs(x - y) <= bands[field]:
+                return False
+        elif any(path.startswith(field + ".") for path in bands):
+            inner = {p[len(field) + 1 :]: v for p, v in bands.items() if p.startswith(field + ".")}
+            if not same_message(x, y, inner):
+                return False
+        elif x != y:
+            return False
+    return True
 
 
 def _header(stamp_ns: int, frame_id: str) -> dict[str, Any]:

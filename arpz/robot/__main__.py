@@ -27,6 +27,7 @@ from arpz.core.transport import (
 from arpz.robot.actuation import make_actuator
 from arpz.robot.agent import DuplicateRobotError, RobotAgent, check_robot_id_free
 from arpz.robot.link_monitor import LinkWatch
+from arpz.robot.sensing import message_types
 from arpz.robot.sensors.factory import DriverError
 from arpz.robot.sensors.replay import TraceError
 from arpz.robot.summary import RobotSummary
@@ -125,6 +126,8 @@ def main(argv: list[str] | None = None) -> int:
             config, connect=resolve(config.connect, from_file, DEFAULT_CONNECT)
         )
         actuator = make_actuator(config.actuator) if config.actuator is not None else None
+        # the typed sensors' types and msg_paths: refused here, before the robot connects
+        message_types(config, args.config.parent if args.config is not None else Path.cwd())
     except ConfigError as exc:
         flag = " (given by --connect)" if args.connect and "connect[" in str(exc) else ""
         print(f"arpz robot: error: bad configuration: {exc}{flag}", file=sys.stderr)

@@ -55,7 +55,13 @@ from arpz.robot.link_monitor import LinkWatch, Signals, Waiting, route_sources
 from arpz.robot.process_cpu import PROCESS_CPU, cpu_percent
 from arpz.robot.qos import decide
 from arpz.robot.scheduler import Job, Scheduler
-from arpz.robot.sensing import SensorChannel, build_sensors, effective_sensors, sense
+from arpz.robot.sensing import (
+    SensorChannel,
+    build_sensors,
+    effective_sensors,
+    message_types,
+    sense,
+)
 from arpz.robot.sensors import value_type_of
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog
@@ -141,11 +147,19 @@ class RobotAgent:
                 max_bytes=config.frame_fragment_bytes or frame_fragment_bytes(config.connect),
             )
             sensor_transport = self.bundler
+        #: the message types of the typed sensors (None: scalar sensors only)
+        self.types = message_types(config, base_dir)
         self.sensors: list[SensorChannel] = build_sensors(
-            config, sensor_transport, self.sim, base_dir
+            config, sensor_transport, self.sim, base_dir, self.types
         )
         for sensor in self.sensors:
             sensor.wall_ns = self._wall_ns
+        #: each typed sensor's RIHS01 type hash, for its announcement
+        self._type_hashes = {
+            s.config.name: self.types.type_hash(s.config.type)
+            for s in self.sensors
+            if self.types is not None and s.config.type is not None
+        }
         #: the commands this robot acts on (the Hello hop is handled by the agent itself)
         self.command_names: list[str] = list(self.actuator.commands)
         self.watchdog = CommandWatchdog(self._watchdog_deadlines())
@@ -613,23 +627,27 @@ class RobotAgent:
             self.final_stats = stats
         self._stats_out.send(encode(stats), stats.stamp_ns)
 
+    def _topic_info(self, sensor: SensorChannel) -> TopicInfo:
+        config = sensor.config
+        typed = config.type is not None and self.types is not None
+        return TopicInfo(
+            topic=config.name,
+            kind=config.kind,
+            rate_hz=sensor.rate_hz,
+            value_type="message" if typed else value_type_of(config.kind),
+            priority=config.priority,
+            max_rate_hz=config.max_rate_hz,
+            configured_rate_hz=config.rate_hz,
+            msg_type=config.type or "",
+            type_hash=self._type_hashes.get(config.name, ""),
+        )
+
     def _publish_announce(self, now_s: float) -> None:
         cfg = self.config
         announce = Announce(
             robot=cfg.robot_id,
             incarnation=self.incarnation,
-            sensors=[
-                TopicInfo(
-                    topic=s.config.name,
-                    kind=s.config.kind,
-                    rate_hz=s.rate_hz,
-                    value_type=value_type_of(s.config.kind),
-                    priority=s.config.priority,
-                    max_rate_hz=s.config.max_rate_hz,
-                    configured_rate_hz=s.config.rate_hz,
-                )
-                for s in self.sensors
-            ],
+            sensors=[self._topic_info(s) for s in self.sensors],
             commands=[keys.HELLO, *self.command_names],
             mode=cfg.reliability,
             clock=self._clock_stats(),

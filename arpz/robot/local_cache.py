@@ -8,9 +8,10 @@ caller passes the time.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
-from arpz.core.messages import SensorValue, same_value
+from arpz.core.messages import same_value
 
 
 @dataclass
@@ -24,15 +25,24 @@ class LocalCacheCounters:
 
 class LocalCache:
     def __init__(
-        self, *, enabled: bool = True, tolerance: float = 0.0, max_silence_s: float = 1.0
+        self,
+        *,
+        enabled: bool = True,
+        tolerance: float = 0.0,
+        max_silence_s: float = 1.0,
+        same: Callable[[object, object], bool] | None = None,
     ) -> None:
+        """``same``: what "unchanged" means for this topic (a typed topic's messages compared
+        whole, header stamp excluded, with its deadbands); by default ``same_value`` within
+        ``tolerance``."""
         if tolerance < 0 or max_silence_s <= 0:
             raise ValueError("tolerance must be >= 0 and max_silence_s > 0")
         self.enabled = enabled
         self.tolerance = tolerance
+        self._same = same
         self.max_silence_s = max_silence_s
         self.counters = LocalCacheCounters()
-        self._last_value: SensorValue | None = None
+        self._last_value: object = None
         self._last_sent_s = 0.0
         self._has_last = False
 
@@ -45,11 +55,11 @@ class LocalCache:
         """The last value offered could not be sent after all: send the next reading anyway."""
         self._has_last = False
 
-    def offer(self, value: SensorValue, now_s: float) -> bool:
+    def offer(self, value: object, now_s: float) -> bool:
         """Count one produced reading; return True if it must be sent, False if held back."""
         counters = self.counters
         counters.produced += 1
-        if self.enabled and self._has_last and same_value(value, self._last_value, self.tolerance):  # type: ignore[arg-type]
+        if self.enabled and self._has_last and self._unchanged(value):
             if now_s - self._last_sent_s < self.max_silence_s:
                 counters.held_back += 1
                 return False
@@ -62,3 +72,12 @@ class LocalCache:
         self._last_sent_s = now_s
         counters.sent += 1
         return True
+
+    def _unchanged(self, value: object) -> bool:
+        return self.same(value, self._last_value)
+
+    def same(self, a: object, b: object) -> bool:
+        """Whether two readings count as one value here (the sensor's tolerance or deadbands)."""
+        if self._same is not None:
+            return self._same(a, b)
+        return same_value(a, b, self.tolerance)  # type: ignore[arg-type]

@@ -21,9 +21,16 @@ import msgspec
 
 from arpz.channel.io import FrameOutlet, Outlet
 from arpz.core import keys
-from arpz.core.config import LARGE_KINDS, LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
+from arpz.core.config import LARGE_SAMPLE_BYTES, RobotConfig, SensorConfig
 from arpz.core.endpoints import frame_fragment_bytes
-from arpz.core.messages import LargeSample, Sample, TopicCounters, encode, same_value
+from arpz.core.messages import (
+    LargeSample,
+    MessageSample,
+    Sample,
+    TopicCounters,
+    encode,
+)
+from arpz.core.msgtypes import MessageTypeError, MessageTypes, MessageValueError, same_message
 from arpz.core.throttled_log import ThrottledLog
 from arpz.core.transport import Transport
 from arpz.robot.local_cache import LocalCache
@@ -167,6 +174,8 @@ class SensorChannel:
     wall_ns: Callable[[], int] = time.time_ns
     #: a large sensor's sending thread (None: small samples go out from the scheduler's tick)
     sender: FrameSender | None = None
+    #: a typed sensor's message types (None: one of the nine scalar kinds)
+    types: MessageTypes | None = None
 
     @property
     def driver_errors(self) -> int:
@@ -221,11 +230,33 @@ class SensorChannel:
         self.output.close(wait_s)
 
 
+def message_types(config: RobotConfig, base_dir: Path) -> MessageTypes | None:
+    """The message types of a robot with typed sensors (the standard ones and its
+    ``msg_paths``, relative to the config's folder), each sensor's type checked to be known;
+    None for a robot with scalar sensors only (rosbags' types are not loaded then)."""
+    typed = [s for s in config.sensors if s.type is not None]
+    if not typed:
+        return None
+    types = MessageTypes()
+    types.add_msg_paths([base_dir / path for path in config.msg_paths])
+    for sensor in typed:
+        assert sensor.type is not None
+        try:
+            types.require(sensor.type)
+        except MessageTypeError as exc:
+            raise MessageTypeError(f"sensor {sensor.name!r}: {exc}") from None
+    return types
+
+
 def build_sensors(
-    config: RobotConfig, transport: Transport, sim: SimHost | None, base_dir: Path
+    config: RobotConfig,
+    transport: Transport,
+    sim: SimHost | None,
+    base_dir: Path,
+    types: MessageTypes | None = None,
 ) -> list[SensorChannel]:
     """Every sensor of the config (a simulated body's beams first), each with its driver, local
-    cache and channel writer."""
+    cache and channel writer; ``types``: the robot's message types, for its typed sensors."""
     sensor_configs = effective_sensors(config)
     if sim is not None and config.sim is not None:
         sensor_configs = sim.beam_sensors(config.sim.beam_rate_hz) + sensor_configs
@@ -248,14 +279,20 @@ def build_sensors(
                 enabled=config.local_cache.enabled,
                 tolerance=sensor.tolerance,
                 max_silence_s=silence,
+                same=_same_message_within(sensor.cache_deadband) if sensor.type else None,
             ),
             output=sensor_outlet(config, sensor, transport),
             rate_hz=sensor.rate_hz,
+            types=types if sensor.type else None,
         )
         if isinstance(channel.output, FrameOutlet):
             channel.sender = FrameSender(channel)
         sensors.append(channel)
     return sensors
+
+
+def _same_message_within(deadband: dict[str, float]) -> Callable[[object, object], bool]:
+    return lambda a, b: same_message(a, b, deadband)
 
 
 def sensor_outlet(
@@ -265,7 +302,7 @@ def sensor_outlet(
     (``frames_qos``); every other sensor, and every sensor in plain mode, on ``sensor/{topic}``
     (with ``bundle_sensors``: unbatched, the tick's bundle being its batching)."""
     frames_qos = config.profile("frames")
-    if sensor.kind in LARGE_KINDS and frames_qos is not None:
+    if sensor.large and frames_qos is not None:
         key = keys.frames_key(config.fleet, config.robot_id, sensor.name)
         fragment_bytes = config.frame_fragment_bytes or frame_fragment_bytes(config.connect)
         return FrameOutlet(transport, key, frames_qos, LARGE_SAMPLE_BYTES, fragment_bytes)
@@ -294,6 +331,9 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
         _driver_error(sensor, writer, type(exc).__name__, f"{type(exc).__name__}: {exc}")
         return
     took_s = perf_counter() - started
+    if sensor.types is not None:
+        _sense_message(sensor, now_s, writer, raw, took_s)
+        return
     try:
         value = check_value(config.kind, raw)
         if type(value) is float and not math.isfinite(value) and config.nan != "pass":
@@ -305,6 +345,31 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
         sensor.values_refused += 1
         _driver_error(sensor, writer, "refused", f"value refused: {exc}")
         return
+    _offer(sensor, now_s, writer, value, took_s)
+
+
+def _sense_message(
+    sensor: SensorChannel, now_s: float, writer: str, raw: object, took_s: float
+) -> None:
+    """A typed sensor's reading: the driver's message checked against the topic's type (a
+    message that does not fit is a driver error, counted, never a sample), stamped if the
+    driver left its header out."""
+    config, types = sensor.config, sensor.types
+    assert config.type is not None and types is not None
+    try:
+        message = types.check(
+            config.type, raw, nan=config.nan, stamp_ns=sensor.wall_ns(), frame_id=config.name
+        )
+    except MessageValueError as exc:
+        sensor.values_refused += 1
+        _driver_error(sensor, writer, "refused", f"message refused: {exc}")
+        return
+    _offer(sensor, now_s, writer, message, took_s)
+
+
+def _offer(sensor: SensorChannel, now_s: float, writer: str, value: object, took_s: float) -> None:
+    """A reading the driver gave: late-read bookkeeping, the local cache, and the send."""
+    config = sensor.config
     sensor.last_reading_s = now_s
     if took_s * sensor.rate_hz > 1.0:
         sensor.late_reads += 1
@@ -318,11 +383,7 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
             sensor.late_reads,
         )
     stamp_ns = sensor.wall_ns()
-    if sensor.last_read is None or not same_value(
-        value,
-        sensor.last_read,  # type: ignore[arg-type]
-        sensor.config.tolerance,
-    ):
+    if sensor.last_read is None or not sensor.cache.same(value, sensor.last_read):
         sensor.last_read, sensor.changed_ns = value, stamp_ns
     sender = sensor.sender
     if sender is not None and sender.refused_since_sense:
@@ -336,8 +397,9 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
     if not sensor.cache.offer(value, now_s):
         sensor.output.unchanged()
         return
-    if sender is not None and isinstance(value, bytes):
-        sender.offer(writer, value, stamp_ns, sensor.changed_ns, sensor.changed_ns)
+    if sender is not None:
+        frame = value if isinstance(value, bytes) else _message_bytes(sensor, value)
+        sender.offer(writer, frame, stamp_ns, sensor.changed_ns, sensor.changed_ns)
         return
     unacked = sensor.unacked
     acked = sensor.output.acknowledged_through()
@@ -346,11 +408,13 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
             unacked.popleft()
     since_ns = unacked[0][1] if unacked else sensor.changed_ns
     seq = sensor.seq + 1
-    payload = encode(
-        LargeSample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns)
-        if isinstance(value, bytes)
-        else Sample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns)
-    )
+    if sensor.types is not None:
+        raw = msgspec.Raw(_message_bytes(sensor, value))
+        payload = encode(MessageSample(writer, seq, stamp_ns, raw, sensor.changed_ns, since_ns))
+    elif isinstance(value, bytes):
+        payload = encode(LargeSample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns))
+    else:
+        payload = encode(Sample(writer, seq, stamp_ns, value, sensor.changed_ns, since_ns))  # type: ignore[arg-type]
     if sensor.output.send(payload, stamp_ns):
         sensor.seq = seq
         sensor.bytes_sent += len(payload)
@@ -358,6 +422,11 @@ def sense(sensor: SensorChannel, now_s: float, writer: str) -> None:
             unacked.append((seq, sensor.changed_ns))
     else:
         sensor.cache.forget()
+
+
+def _message_bytes(sensor: SensorChannel, message: object) -> bytes:
+    assert sensor.types is not None and isinstance(message, msgspec.Struct)
+    return sensor.types.encode(message)
 
 
 def _driver_error(sensor: SensorChannel, writer: str, cause: str, text: str) -> None:

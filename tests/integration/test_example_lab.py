@@ -1,0 +1,139 @@
+"""The example lab of examples/lab (a team's own drivers, message type, planner and actuator,
+docs/nodes.md) as real processes through a real router: typed readings reach the planner, its
+command reaches the actuator, and every typed sample is reconciled; then what goes wrong with
+types is refused clearly (an unknown type, a bad .msg, a driver's wrong message, a CEDDP that
+does not know the robots' own type)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.integration.fleet import Process
+from tests.support import free_port
+
+pytestmark = pytest.mark.integration
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lab"
+
+
+def lab_copy(tmp_path: Path, *, robot_extra: str = "", ceddp_msg_paths: bool = True) -> str:
+    shutil.copytree(EXAMPLE, tmp_path, dirs_exist_ok=True)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    for name in ("robot.toml", "ceddp.toml"):
+        path = tmp_path / name
+        text = path.read_text().replace("tcp/127.0.0.1:7447", endpoint)
+        if name == "ceddp.toml":
+            text = text.replace(
+                'msg_paths = ["msg"]',
+                ('msg_paths = ["msg"]' if ceddp_msg_paths else "")
+                + '\nsummary_json = "summary.json"\nrrd = "ceddp.rrd"\nmetrics_period_s = 0.2',
+            )
+        else:
+            text = text.replace('robot_id = "robot1"', 'robot_id = "robot1"\nstats_period_s = 0.2')
+            text = text.replace("[actuator]", robot_extra + "\n[actuator]")
+        path.write_text(text)
+    return endpoint
+
+
+def test_the_example_lab_docks_its_robot_and_reconciles_every_typed_sample(
+    tmp_path: Path,
+) -> None:
+    lab_copy(tmp_path)
+    ceddp = Process("ceddp", ["-m", "arpz.ceddp", "--config", "ceddp.toml"], tmp_path)
+    try:
+        ceddp.wait_for("ready on")
+        robot = Process("robot1", ["-m", "arpz.robot", "--config", "robot.toml"], tmp_path)
+        try:
+            robot.wait_for("running")
+            ceddp.wait_for("sent to its dock", timeout_s=60)
+            robot.wait_for("docked", timeout_s=30)
+            ceddp.wait_for("robot1: docked at dock-1", timeout_s=30)
+            assert robot.interrupt() == 0
+        finally:
+            robot.kill()
+        assert ceddp.interrupt() == 0
+    finally:
+        ceddp.kill()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    robot1 = summary["robots"]["robot1"]
+    for topic in ("gps", "battery", "dock_state"):
+        row = robot1["topics"][topic]
+        assert row["received"] == row["sent"] > 0, (topic, row)
+        assert row["lost"] == 0 and row["driver_errors"] == 0, (topic, row)
+    assert robot1["decode_errors"] == 0
+    assert robot1["downlink"]["dock"]["delivered"] == 1
+    assert robot1["downlink"]["dock"]["reconciled"]
+    assert summary["planners"]["DockPlanner"]["errors"] == 0
+
+
+def test_a_ceddp_without_the_robots_msg_paths_refuses_their_type_loudly(
+    tmp_path: Path,
+) -> None:
+    lab_copy(tmp_path, ceddp_msg_paths=False)
+    ceddp = Process("ceddp", ["-m", "arpz.ceddp", "--config", "ceddp.toml"], tmp_path)
+    try:
+        ceddp.wait_for("ready on")
+        robot = Process("robot1", ["-m", "arpz.robot", "--config", "robot.toml"], tmp_path)
+        try:
+            robot.wait_for("running")
+            ceddp.wait_for("type mylab/msg/DockState is unknown to this CEDDP", timeout_s=30)
+            ceddp.wait_for("sent to its dock", timeout_s=60)  # the standard types still flow
+            assert robot.interrupt() == 0
+        finally:
+            robot.kill()
+        assert ceddp.interrupt() == 0
+    finally:
+        ceddp.kill()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    dock_state = summary["robots"]["robot1"]["topics"]["dock_state"]
+    assert dock_state["received"] == 0 and dock_state["decode_errors"] > 0, dock_state
+    assert any("unknown to this CEDDP" in event for event in summary["events"])
+
+
+@pytest.mark.parametrize(
+    ("change", "says"),
+    [
+        (
+            lambda text: text.replace("sensor_msgs/msg/NavSatFix", "sensor_msgs/msg/NavSatFx"),
+            "did you mean sensor_msgs/msg/NavSatFix",
+        ),
+        (
+            lambda text: text.replace('type = "sensor_msgs/msg/NavSatFix"', 'type = "gps"'),
+            "type must be a ROS 2 message type package/msg/Name",
+        ),
+    ],
+)
+def test_a_wrong_type_stops_the_robot_before_it_connects(
+    tmp_path: Path, change: object, says: str
+) -> None:
+    lab_copy(tmp_path)
+    config = tmp_path / "robot.toml"
+    config.write_text(change(config.read_text()))  # type: ignore[operator]
+    done = subprocess.run(
+        [sys.executable, "-m", "arpz.robot", "--config", "robot.toml"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert says in done.stderr, done.stderr
+
+
+def test_a_bad_msg_file_stops_the_robot_naming_the_file(tmp_path: Path) -> None:
+    lab_copy(tmp_path)
+    (tmp_path / "msg" / "mylab" / "msg" / "DockState.msg").write_text("bool docked\nflot32 d\n")
+    done = subprocess.run(
+        [sys.executable, "-m", "arpz.robot", "--config", "robot.toml"],
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert done.returncode == 2, done.stderr
+    assert "DockState.msg" in done.stderr and "flot32" in done.stderr, done.stderr
