@@ -36,13 +36,14 @@ import msgspec
 from mcap.writer import CompressionType, Writer
 
 from arpz.core import keys
-from arpz.core.config import LARGE_KINDS, SENSOR_KINDS
+from arpz.core.config import LARGE_KINDS, LARGE_TYPES, MESSAGE_KIND, SENSOR_KINDS
 from arpz.core.messages import (
     DECODE_ERRORS,
     Announce,
     Command,
     Hello,
     LargeSample,
+    MessageSample,
     QosAck,
     RobotStats,
     Sample,
@@ -123,6 +124,10 @@ class Topic:
     qos: QosProfile | None
     #: a command channel's ROS 2 type (of its first command; arpz.core.rosmsg.commands)
     command_type: str | None = None
+    #: a typed sensor's ROS 2 message type (kind "message"), and its ``.msg`` definition as
+    #: rosbag2 stores it (the recorder's message types give it: a team's own types too)
+    msg_type: str | None = None
+    definition: str = ""
 
     @property
     def name(self) -> str:
@@ -144,6 +149,11 @@ class Topic:
         return self.kind in SENSOR_KINDS
 
     @property
+    def typed(self) -> bool:
+        """A typed sensor's topic: its messages are written as CDR of their own type."""
+        return self.kind == MESSAGE_KIND and self.msg_type is not None
+
+    @property
     def report(self) -> bool:
         """A robot report or liveliness token: a DiagnosticArray."""
         return self.kind in REPORT_MESSAGES or self.kind == LIVELINESS
@@ -151,13 +161,21 @@ class Topic:
     @property
     def encoding(self) -> str:
         """``cdr`` (a standard ROS 2 type) or ``json`` (arpz's own, ``--include-internal``)."""
-        if self.sensor or self.report or (self.kind == "command" and self.command_type):
+        if (
+            self.sensor
+            or self.typed
+            or self.report
+            or (self.kind == "command" and self.command_type)
+        ):
             return CDR
         return JSON
 
     @property
     def type_name(self) -> str:
         """The channel's type: the ROS 2 type, or the arpz message of a JSON channel."""
+        if self.typed:
+            assert self.msg_type is not None
+            return self.msg_type
         if self.sensor:
             return ros_type_for(self.kind)
         if self.report:
@@ -171,6 +189,9 @@ class Topic:
         """The arpz message each of the channel's messages is, converted back."""
         if self.kind == LIVELINESS:
             return "bool"
+        if self.typed:
+            large = self.msg_type in LARGE_TYPES
+            return _message_name(LargeSample if large else MessageSample)
         if self.sensor:
             return _message_name(LargeSample if self.kind in LARGE_KINDS else Sample)
         return _message_name({**REPORT_MESSAGES, **INTERNAL_MESSAGES}[self.kind])
@@ -182,7 +203,8 @@ class Topic:
         ``jsonschema`` one (``KeyError: 'jsonschema'``), where it lists a schemaless channel and
         reads the rest. The JSON Schema is in the channel's ``arpz_json_schema`` metadata."""
         if self.encoding == CDR:
-            return self.type_name, "ros2msg", message_definition(self.type_name).encode()
+            definition = self.definition or message_definition(self.type_name)
+            return self.type_name, "ros2msg", definition.encode()
         return None
 
     def metadata(self) -> dict[str, str]:

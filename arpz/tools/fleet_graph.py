@@ -31,7 +31,7 @@ from typing import Final
 from arpz.bridge.rmw_zenoh import ADMIN_SPACE, GraphRecord, graph_records
 from arpz.channel import DurabilityPolicy, Reader
 from arpz.core import keys
-from arpz.core.config import LARGE_KINDS
+from arpz.core.config import LARGE_KINDS, LARGE_TYPES, MESSAGE_KIND
 from arpz.core.errors import ArpzError
 from arpz.core.messages import (
     ANNOUNCE_DECODER,
@@ -100,15 +100,18 @@ def topic_name(fleet: str, key: str) -> str | None:
     return None
 
 
-def payload_type(fleet: str, key: str, kind: str | None) -> str:
+def payload_type(fleet: str, key: str, kind: str | None, msg_type: str | None = None) -> str:
     """The arpz message type (arpz/core/messages.py) carried on ``key``."""
     parsed = keys.parse_robot_key(key)
     if parsed is not None:
         _, section, name = parsed
         if name == keys.HELLO and section in ("sensor", "cmd"):
             return "Hello"
-        if section == "frames" or (section == "sensor" and kind in LARGE_KINDS):
+        large = kind in LARGE_KINDS or msg_type in LARGE_TYPES
+        if section == "frames" or (section == "sensor" and large):
             return "LargeSample"
+        if section == "sensor" and kind == MESSAGE_KIND:
+            return "MessageSample"
         if section == "sensor":
             return "Sample"
         if section == "cmd":
@@ -186,7 +189,8 @@ class TopicEntry:
     arpz_type: str
     #: the msgpack type of a Sample's or Command's value ("float", "bool", "str", "bytes"), or None
     value_type: str | None
-    #: the sensor kind (lidar, camera, ...) from the robot's announcement, or None
+    #: the sensor kind (lidar, camera, ..., "message" for a typed sensor) from the robot's
+    #: announcement, or None
     kind: str | None
     #: the standard ROS 2 types of a sensor topic's readings (the topic's own first), or ()
     ros_types: tuple[str, ...]
@@ -200,6 +204,9 @@ class TopicEntry:
     readers: tuple[Endpoint, ...]
     #: the depth of the QoS assignment in force on a sensor topic (None: the robot's config)
     assigned_depth: int | None = None
+    #: a typed sensor's ROS 2 message type and its RIHS01 hash, as the robot announced them
+    msg_type: str | None = None
+    type_hash: str | None = None
 
     @property
     def ros_type(self) -> str | None:
@@ -224,6 +231,7 @@ class TopicEntry:
             "arpz_type": self.arpz_type,
             "value_type": self.value_type,
             "kind": self.kind,
+            "type_hash": self.type_hash,
             "mode": self.mode,
             "announced_rate_hz": self.announced_rate_hz,
             "measured_rate_hz": self.measured_rate_hz,
@@ -561,7 +569,7 @@ class FleetObserver:
         parsed = keys.parse_robot_key(key)
         robot = parsed[0] if parsed else None
         announce = announces.get(robot) if robot else None
-        kind = value_type = None
+        kind = value_type = msg_type = type_hash = None
         announced = measured = None
         depth = None
         report = stats.get(robot, []) if robot else []
@@ -571,6 +579,7 @@ class FleetObserver:
             )
             if info is not None:
                 kind, value_type, announced = info.kind, info.value_type, info.rate_hz
+                msg_type, type_hash = info.msg_type or None, info.type_hash or None
             if report:
                 counters = report[-1].topics.get(parsed[2])
                 measured = counters.rate_hz if counters is not None else None
@@ -580,11 +589,11 @@ class FleetObserver:
             measured = inbound_rate(report, f"cmd/{parsed[2]}")
         elif parsed is not None and parsed[1] == "stats" and len(report) == 2:
             measured = _per_second(1, report[0].stamp_ns, report[1].stamp_ns)
-        arpz_type = payload_type(self.fleet, key, kind)
+        arpz_type = payload_type(self.fleet, key, kind, msg_type)
         if arpz_type == "Hello":
             value_type = None
-        ros_types: tuple[str, ...] = ()
-        if kind is not None:
+        ros_types: tuple[str, ...] = (msg_type,) if msg_type else ()
+        if kind is not None and not msg_type:
             with contextlib.suppress(UnknownKindError):
                 ros_types = ros_types_for(kind)
         mode = modes.get(robot) if robot else modes.get(CEDDP)
@@ -607,6 +616,8 @@ class FleetObserver:
             writers=tuple(topic_writers),
             readers=tuple(readers.get(key, [])),
             assigned_depth=depth,
+            msg_type=msg_type,
+            type_hash=type_hash,
         )
 
 

@@ -39,22 +39,25 @@ from typing import Any
 import msgspec
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
+from mcap.records import Schema
 
 from arpz.channel.io import FrameOutlet, Outlet
 from arpz.core import keys
-from arpz.core.config import LARGE_SAMPLE_BYTES, SENSOR_KINDS
+from arpz.core.config import LARGE_SAMPLE_BYTES, LARGE_TYPES, MESSAGE_KIND, SENSOR_KINDS
 from arpz.core.errors import ArpzError
 from arpz.core.messages import (
     DECODE_ERRORS,
     Announce,
     Hello,
     LargeSample,
+    MessageSample,
     Sample,
     Telemetry,
     encode,
     new_incarnation,
     writer_id,
 )
+from arpz.core.msgtypes import MessageTypes
 from arpz.core.protocol.qos import QosProfile
 from arpz.core.rosmsg.convert import ConversionError, from_cdr
 from arpz.core.throttled_log import ThrottledLog
@@ -109,7 +112,8 @@ def _topic(metadata: dict[str, str], fleet: str | None) -> Topic | None:
         key = f"{keys.fleet_prefix(fleet)}/{key.split('/', 2)[2]}"
     raw_qos = metadata.get("arpz_qos", "none")
     qos = None if raw_qos == "none" else msgspec.json.decode(raw_qos, type=QosProfile)
-    return Topic(key, parsed[0], kind, qos)
+    msg_type = metadata.get("arpz_type") if kind == MESSAGE_KIND else None
+    return Topic(key, parsed[0], kind, qos, msg_type=msg_type)
 
 
 def recorded_fleet(path: Path) -> str:
@@ -145,6 +149,8 @@ class Player:
         self.played: dict[str, Played] = {}
         self._robots: dict[str, _RobotState] = {}
         self._outlets: dict[str, Outlet | FrameOutlet] = {}
+        #: the typed topics' message types, learnt from the recording's schemas
+        self.types = MessageTypes()
         self._seqs: dict[str, int] = {}
         self.loops = 0
         self._start_wall_ns = time.time_ns()
@@ -175,16 +181,29 @@ class Player:
         for path in self.files:
             with path.open("rb") as stream:
                 topics: dict[int, Topic | None] = {}
-                for _, channel, message in make_reader(stream).iter_messages(log_time_order=True):
+                for schema, channel, message in make_reader(stream).iter_messages(
+                    log_time_order=True
+                ):
                     if channel.id not in topics:
                         topics[channel.id] = _topic(channel.metadata, self.fleet)
+                        self._learn_type(topics[channel.id], schema)
                     topic = topics[channel.id]
                     if topic is not None:
                         yield topic, channel.message_encoding, message.log_time, message.data
 
+    def _learn_type(self, topic: Topic | None, schema: Schema | None) -> None:
+        """A typed topic's type from the recording's own schema (its ``.msg`` definition, a
+        team's own types too): play needs no ``.msg`` files."""
+        if topic is None or not topic.typed or schema is None or topic.msg_type is None:
+            return
+        if not self.types.known(topic.msg_type):
+            self.types.add_definition(topic.msg_type, schema.data.decode())
+
     def _selected(self, topic: Topic) -> bool:
         if topic.kind in (LIVELINESS, "announce"):
             return True
+        if topic.typed:
+            return matches(topic, self.patterns)
         return topic.kind in PLAYED_KINDS and matches(topic, self.patterns)
 
     # -- opening the writers ------------------------------------------------------------------
@@ -283,6 +302,25 @@ class Player:
         else:
             played.write_failures += 1
 
+    def _typed_payload(
+        self, topic: Topic, data: bytes, log_ns: int, writer: str
+    ) -> tuple[bytes, int]:
+        """A typed topic's CDR message as the robot sends it: a ``MessageSample`` (a
+        ``LargeSample`` of the message's bytes for an image or point cloud), stamped with its
+        header's stamp (or the log time) moved to this pass."""
+        assert topic.msg_type is not None
+        message = self.types.from_cdr(topic.msg_type, data)
+        header = getattr(message, "header", None)
+        stamp_ns = log_ns
+        if header is not None and hasattr(header, "stamp"):
+            stamp_ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+        stamp = self._restamp(stamp_ns)
+        seq = self._next_seq(topic.key)
+        raw = self.types.encode(message)
+        if topic.msg_type in LARGE_TYPES:
+            return encode(LargeSample(writer, seq, stamp, raw)), stamp
+        return encode(MessageSample(writer, seq, stamp, msgspec.Raw(raw))), stamp
+
     def _next_seq(self, key: str) -> int:
         seq = self._seqs[key] = self._seqs.get(key, 0) + 1
         return seq
@@ -292,6 +330,8 @@ class Player:
     ) -> tuple[bytes, int]:
         """The message as the robot would send it now: re-stamped, numbered by this writer."""
         kind, restamp = topic.kind, self._restamp
+        if topic.typed:
+            return self._typed_payload(topic, data, log_ns, writer)
         if kind in SENSOR_KINDS:
             seq = self._next_seq(topic.key)
             reading = from_cdr(kind, data)

@@ -42,6 +42,8 @@ from arpz.core import keys
 from arpz.core.config import (
     LARGE_KINDS,
     LARGE_SAMPLE_BYTES,
+    LARGE_TYPES,
+    MESSAGE_KIND,
     SENSOR_KINDS,
     CeddpConfig,
     ConfigError,
@@ -54,6 +56,7 @@ from arpz.core.messages import (
     COMMAND_DECODER,
     DECODE_ERRORS,
     LARGE_SAMPLE_DECODER,
+    MESSAGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
     Announce,
     Command,
@@ -64,6 +67,7 @@ from arpz.core.messages import (
     Sample,
     Telemetry,
 )
+from arpz.core.msgtypes import MessageTypes
 from arpz.core.protocol.qos import DurabilityPolicy, QosProfile, ReliabilityPolicy
 from arpz.core.rosmsg.commands import command_cdr, command_type
 from arpz.core.rosmsg.convert import ConversionError, is_exact, to_cdr
@@ -173,6 +177,7 @@ class Recorder:
         read_only: bool | None = None,
         stats_wait_s: float = _STATS_WAIT_S,
         clock_ns: Callable[[], int] = time.time_ns,
+        types: MessageTypes | None = None,
     ) -> None:
         self.transport = transport
         self.fleet = fleet
@@ -194,6 +199,12 @@ class Recorder:
         self.tallies: dict[str, TopicTally] = {}
         #: (robot, topic) -> sensor kind, from the announcements
         self.kinds: dict[tuple[str, str], str] = {}
+        #: (robot, topic) -> a typed sensor's message type, from the announcements
+        self.msg_types: dict[tuple[str, str], str] = {}
+        #: the message types typed topics are written as (the standard ones, ``--msg-path``'s)
+        self.types = types or MessageTypes()
+        #: samples of typed topics whose type this recorder does not know, per MCAP topic
+        self.unknown_type: dict[str, int] = {}
         #: sensor samples waiting for their announcement: key -> items
         self._pending: dict[str, list[_Item]] = {}
         self._pending_since: dict[str, float] = {}
@@ -393,7 +404,13 @@ class Recorder:
         return topic.kind in ("announce", LIVELINESS) or matches(topic, self.patterns)
 
     def _tally(
-        self, key: str, robot: str, kind: str, source: str, command_type: str | None = None
+        self,
+        key: str,
+        robot: str,
+        kind: str,
+        source: str,
+        command_type: str | None = None,
+        msg_type: str | None = None,
     ) -> TopicTally | None:
         """The tally of ``key``'s channel, made on its first message (None: not selected)."""
         tally = self.tallies.get(key)
@@ -410,7 +427,10 @@ class Recorder:
         }[source]
         if kind == "hello":
             qos = t.hello_qos or t.sensor_qos
-        topic = Topic(key, robot, kind, qos if channel else None, command_type)
+        definition = self.types.definition(msg_type) if msg_type is not None else ""
+        topic = Topic(
+            key, robot, kind, qos if channel else None, command_type, msg_type, definition
+        )
         if not self._selected(topic):
             self.skipped += 1
             return None
@@ -442,6 +462,8 @@ class Recorder:
     def _learn_kinds(self, announce: Announce, robot: str) -> None:
         for info in announce.sensors:
             self.kinds[(robot, info.topic)] = info.kind
+            if info.msg_type:
+                self.msg_types[(robot, info.topic)] = info.msg_type
         for key in [k for k in self._pending if _robot_of(k) == robot]:
             for waiting in self._pending.pop(key):
                 self._handle(waiting)
@@ -481,6 +503,9 @@ class Recorder:
             self._pending_since.setdefault(item.key, time.monotonic())
             self._pending.setdefault(item.key, []).append(item)
             return
+        if kind == MESSAGE_KIND:
+            self._typed(item, robot, name)
+            return
         if kind not in SENSOR_KINDS:  # a kind with no ROS 2 type: recorded as it came
             self._internal(item, robot, self._raw_sample_kind(item))
             return
@@ -505,6 +530,36 @@ class Recorder:
             return
         if not is_exact(kind, sample.value):
             tally.rounded += 1
+        self._count_plain_gap(item.key, sample.writer, sample.seq, tally)
+        self._write(tally, item, data, log_ns=sample.stamp_ns, sequence=sample.seq)
+
+    def _typed(self, item: _Item, robot: str, name: str) -> None:
+        """A typed sensor's message, written as CDR of its own type (the MCAP channel's schema
+        is the type's definition); a type this recorder does not know is counted, not written."""
+        msg_type = self.msg_types.get((robot, name))
+        if msg_type is None or not self.types.known(msg_type):
+            topic = f"/{robot}/{name}"
+            self.unknown_type[topic] = self.unknown_type.get(topic, 0) + 1
+            throttled.warning(
+                f"unknown type {topic}",
+                "%s: type %s unknown to this recorder: not recorded (give its folder with "
+                "--msg-path)",
+                topic,
+                msg_type,
+            )
+            return
+        tally = self._tally(item.key, robot, MESSAGE_KIND, item.source, msg_type=msg_type)
+        if tally is None:
+            return
+        try:
+            large = msg_type in LARGE_TYPES
+            sample = (LARGE_SAMPLE_DECODER if large else MESSAGE_SAMPLE_DECODER).decode(
+                item.payload
+            )
+            data = self.types.to_cdr(msg_type, self.types.decode(msg_type, sample.value))
+        except DECODE_ERRORS as exc:
+            self._undecodable(tally, item, exc)
+            return
         self._count_plain_gap(item.key, sample.writer, sample.seq, tally)
         self._write(tally, item, data, log_ns=sample.stamp_ns, sequence=sample.seq)
 
@@ -663,6 +718,7 @@ class Recorder:
             "skipped_by_pattern": self.skipped,
             "unknown_keys": self.unknown_keys,
             "internal_left_out": dict(sorted(self.left_out.items())),
+            "unknown_type": dict(sorted(self.unknown_type.items())),
             "topics": topics,
             "channel": channel,
         }
@@ -713,6 +769,13 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"({', '.join(f'{n} {t}' for t, n in left_out.items())}): --include-internal "
             "keeps them as JSON"
         )
+    unknown = summary["unknown_type"]
+    if unknown:
+        lines.append(
+            f"not recorded: {sum(unknown.values())} messages of typed topics whose type this "
+            f"recorder does not know ({', '.join(f'{n} {t}' for t, n in unknown.items())}): "
+            "--msg-path gives it the fleet's own .msg files"
+        )
     return "\n".join(lines)
 
 
@@ -747,6 +810,14 @@ def build_parser() -> argparse.ArgumentParser:
         help="the fleet's CEDDP (or a robot's) config: read with its [*_qos] profiles and store "
         "them as each topic's QoS (default: arpz's default profiles, which a fleet that changed "
         "them does not use)",
+    )
+    parser.add_argument(
+        "--msg-path",
+        action="append",
+        default=[],
+        metavar="DIR",
+        help="a folder of the fleet's own .msg files (PACKAGE/msg/NAME.msg; repeatable): their "
+        "typed topics are recorded as their own types (standard ROS 2 types need nothing)",
     )
     parser.add_argument(
         "--include-internal",
@@ -809,6 +880,8 @@ def main(argv: list[str] | None = None) -> int:
         traffic = _fleet_traffic(args.qos_from)
         if args.out.suffix != ".mcap":
             raise ArpzError(f"--out {args.out}: give a file name ending in .mcap")
+        types = MessageTypes()
+        types.add_msg_paths(args.msg_path)
     except ArpzError as exc:
         return startup.fail("record", str(exc))
     startup.configure_logging("WARNING")
@@ -831,6 +904,7 @@ def main(argv: list[str] | None = None) -> int:
         patterns=args.patterns,
         camera_size=camera_size,
         include_internal=args.include_internal,
+        types=types,
         read_only=True if args.read_only else None,
     )
     try:

@@ -50,6 +50,7 @@ from arpz.tools.topic_text import (
     Output,
     info_lines,
     list_lines,
+    use_msg_paths,
 )
 from arpz.transport.zenoh import ZenohTransport
 
@@ -258,6 +259,14 @@ def build_parser() -> argparse.ArgumentParser:
         )
         if name == "echo":
             p.add_argument(
+                "--msg-path",
+                action="append",
+                default=[],
+                metavar="DIR",
+                help="a folder of the fleet's own .msg files (PACKAGE/msg/NAME.msg; repeatable): "
+                "their typed topics are shown field by field",
+            )
+            p.add_argument(
                 "--count",
                 type=int,
                 default=0,
@@ -284,6 +293,8 @@ def main(argv: list[str] | None = None) -> int:
             raise ArpzError("--duration must be >= 0 and --discovery-s > 0 (seconds)")
         if getattr(args, "window", DEFAULT_WINDOW) < 2 or getattr(args, "count", 0) < 0:
             raise ArpzError("--window must be >= 2 and --count >= 0")
+        if getattr(args, "msg_path", None):
+            use_msg_paths(args.msg_path)
     except ArpzError as exc:
         return fail(TOOL, str(exc))
     stop = stop_on_signals()

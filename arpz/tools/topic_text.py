@@ -20,13 +20,16 @@ from arpz.core.messages import (
     COMMAND_DECODER,
     HELLO_DECODER,
     LARGE_SAMPLE_DECODER,
+    MESSAGE_SAMPLE_DECODER,
     QOS_ACK_DECODER,
     QOS_ASSIGNMENT_DECODER,
     SAMPLE_DECODER,
     STATS_DECODER,
     TELEMETRY_DECODER,
     LargeSample,
+    MessageSample,
 )
+from arpz.core.msgtypes import MessageTypes, as_dict
 from arpz.runtime.startup import JSON_TO_STDOUT
 from arpz.tools.fleet_graph import (
     Endpoint,
@@ -39,6 +42,7 @@ from arpz.tools.topic_stream import Message
 DECODERS: Final[dict[str, msgspec.msgpack.Decoder[Any]]] = {
     "Sample": SAMPLE_DECODER,
     "LargeSample": LARGE_SAMPLE_DECODER,
+    "MessageSample": MESSAGE_SAMPLE_DECODER,
     "Hello": HELLO_DECODER,
     "Command": COMMAND_DECODER,
     "RobotStats": STATS_DECODER,
@@ -223,11 +227,51 @@ def _hz(value: float | None) -> str:
 
 
 def decode(topic: TopicEntry, payload: bytes) -> object:
-    """The arpz message of ``payload``; raises one of DECODE_ERRORS on bad bytes."""
+    """The arpz message of ``payload``; raises one of DECODE_ERRORS on bad bytes. A typed
+    topic's sample comes back with its message as a dict of fields (``TypedSample``)."""
     decoder = DECODERS.get(topic.arpz_type)
     if decoder is None:
         return {"bytes": len(payload)}
-    return decoder.decode(payload)
+    decoded = decoder.decode(payload)
+    if topic.msg_type is None or not isinstance(decoded, MessageSample | LargeSample):
+        return decoded
+    return typed_sample(topic.msg_type, decoded)
+
+
+class TypedSample(msgspec.Struct, frozen=True):
+    """A typed topic's sample as ``echo`` shows it: the message's fields by name."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    type: str
+    message: dict[str, object]
+
+
+_TYPES: list[MessageTypes] = []
+
+
+def use_msg_paths(paths: list[str]) -> None:
+    """Decode typed topics with these ``.msg`` folders too (``topic echo --msg-path``)."""
+    types = MessageTypes()
+    types.add_msg_paths(paths)
+    _TYPES[:] = [types]
+
+
+def typed_sample(msg_type: str, sample: MessageSample | LargeSample) -> object:
+    """``sample`` with its message decoded by the standard ROS 2 types; a type this tool does
+    not know (a team's own) shows as its size and type."""
+    if not _TYPES:
+        _TYPES.append(MessageTypes())
+    types = _TYPES[0]
+    if not types.known(msg_type):
+        return {
+            "type": msg_type,
+            "bytes": len(bytes(sample.value)),
+            "decoded": "no: a type of the fleet's own; give its folder with --msg-path",
+        }
+    message = types.decode(msg_type, sample.value)
+    return TypedSample(sample.writer, sample.seq, sample.stamp_ns, msg_type, as_dict(message))
 
 
 def large_summary(kind: str | None, value: bytes) -> dict[str, object]:

@@ -93,7 +93,7 @@ def test_a_missing_field_is_refused(types: MessageTypes) -> None:
         types.check(NAVSAT, fields, stamp_ns=1)
 
 
-def test_nan_policy_refuse_lets_a_scans_inf_through_refuse_all_does_not(types: MessageTypes) -> None:
+def test_refuse_lets_a_scans_inf_through_refuse_all_does_not(types: MessageTypes) -> None:
     ranges = np.array([1.0, math.inf, math.nan], dtype=np.float32)
     kept = types.check(SCAN, scan(ranges), stamp_ns=1)
     assert kept.ranges[1] == math.inf and math.isnan(kept.ranges[2])
