@@ -20,6 +20,7 @@ import msgspec
 from arpz.bridge.bridge import Bridge
 from arpz.core.config import BridgeConfig, ConfigError, from_dict, load_toml
 from arpz.core.endpoints import DEFAULT_CONNECT
+from arpz.core.msgtypes import MessageTypes
 from arpz.core.transport import SessionSettings, TransportError
 from arpz.runtime.startup import (
     add_fleet_client_options,
@@ -71,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.log_level)
     try:
         config = load(args)
+        types = MessageTypes()
+        folder = args.config.parent if getattr(args, "config", None) is not None else Path.cwd()
+        types.add_msg_paths([folder / path for path in config.msg_paths])
     except ConfigError as exc:
         return fail(TOOL, f"bad configuration: {exc}")
     stop = stop_on_signals()
@@ -82,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     except TransportError as exc:
         return fail(TOOL, str(exc), 1)
     try:
-        bridge = Bridge(transport, config.fleet, config, config.ros2)
+        bridge = Bridge(transport, config.fleet, config, config.ros2, types=types)
         bridge.start()
         print(
             f"arpz bridge: running: node /{config.ros2.node_name} on ROS 2 domain "

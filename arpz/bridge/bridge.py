@@ -43,6 +43,7 @@ from arpz.core import keys
 from arpz.core.config import (
     LARGE_KINDS,
     LARGE_SAMPLE_BYTES,
+    LARGE_TYPES,
     Ros2CommandConfig,
     Ros2Config,
     TrafficQos,
@@ -51,12 +52,14 @@ from arpz.core.messages import (
     ANNOUNCE_DECODER,
     DECODE_ERRORS,
     LARGE_SAMPLE_DECODER,
+    MESSAGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
     Command,
     encode,
     new_incarnation,
     writer_id,
 )
+from arpz.core.msgtypes import MessageTypeError, MessageTypes
 from arpz.core.rosmsg.convert import ConversionError, deserialize, to_cdr
 from arpz.core.rosmsg.types import UnknownKindError, ros_type_for
 from arpz.core.throttled_log import ThrottledLog
@@ -119,6 +122,8 @@ class _TopicOut:
     frame_id: str
     seq: int = 0
     conversion_errors: int = 0
+    #: a typed topic's ROS 2 type (its samples are decoded and written as CDR of it)
+    msg_type: str | None = None
 
 
 @dataclass
@@ -154,8 +159,12 @@ class Bridge:
         *,
         partition: str = "*",
         zid: str | None = None,
+        types: MessageTypes | None = None,
     ) -> None:
+        """``types``: the message types of the fleet's typed topics (the standard ones and the
+        fleet's ``msg_paths``); a typed topic of a type it does not know is not bridged."""
         self.transport = transport
+        self.types = types or MessageTypes()
         self.fleet = fleet
         self.traffic = traffic
         self.config = config
@@ -326,9 +335,16 @@ class Bridge:
             node=self.node.node,
             topic=topic,
             ros_type=ros_type,
-            type_hash=type_hash(ros_type),
+            type_hash=self._hash(ros_type),
             qos=qos,
         )
+
+    def _hash(self, ros_type: str) -> str:
+        """The type's RIHS01: from the standard definitions, else from the fleet's own."""
+        try:
+            return type_hash(ros_type)
+        except UnknownTypeError:
+            return self.types.type_hash(ros_type)
 
     def _announce(self, key: str, payload: bytes) -> None:
         """A robot's topics and commands: a publisher for each new sensor topic, a subscription
@@ -352,22 +368,29 @@ class Bridge:
         state = self._robots.setdefault(robot, _Robot())
         for info in announce.sensors:
             if info.topic not in state.topics:
-                self._open_topic(state, robot, info.topic, info.kind)
+                self._open_topic(state, robot, info.topic, info.kind, info.msg_type or None)
         for index, mapping in enumerate(self.config.commands):
             if mapping.command in announce.commands and mapping.command not in state.commands:
                 self._open_command(state, robot, index, mapping)
 
-    def _open_topic(self, state: _Robot, robot: str, topic: str, kind: str) -> None:
+    def _open_topic(
+        self, state: _Robot, robot: str, topic: str, kind: str, msg_type: str | None = None
+    ) -> None:
         try:
-            ros_type = ros_type_for(kind)
-            type_hash(ros_type)
-        except (UnknownKindError, UnknownTypeError) as exc:
+            if msg_type is not None:
+                self.types.require(msg_type)
+                ros_type = msg_type
+            else:
+                ros_type = ros_type_for(kind)
+            self._hash(ros_type)
+        except (UnknownKindError, UnknownTypeError, MessageTypeError) as exc:
             self._bad(
                 "unknown_type", f"type {robot}/{topic}", "%s/%s not bridged: %s", robot, topic, exc
             )
             return
         name = naming.topic_name(self.config, robot, topic, kind)
-        profile = self.traffic.profile("frames" if kind in LARGE_KINDS else "sensor")
+        large = kind in LARGE_KINDS or msg_type in LARGE_TYPES
+        profile = self.traffic.profile("frames" if large else "sensor")
         qos = rmw_zenoh.qos_from_profile(profile)
         entity = self._new_entity(rmw_zenoh.PUBLISHER, name, ros_type, qos)
         # as rmw_zenoh: congestion control BLOCK only for RELIABLE + KEEP_ALL, else DROP
@@ -375,7 +398,15 @@ class Bridge:
         publisher = self.transport.publisher(entity.data_key, block=block)
         token = self.transport.declare_token(entity.token())
         state.topics[topic] = _TopicOut(
-            robot, topic, kind, entity, entity.gid, publisher, token, naming.frame_id(robot, topic)
+            robot,
+            topic,
+            kind,
+            entity,
+            entity.gid,
+            publisher,
+            token,
+            naming.frame_id(robot, topic),
+            msg_type=msg_type,
         )
         log.info("ROS 2 bridge: %s/%s -> %s [%s]", robot, topic, name, ros_type)
 
@@ -422,6 +453,9 @@ class Bridge:
         if out is None:
             self._bad("unmapped", f"unmapped {key}", "%s: no announced topic, not bridged", key)
             return
+        if out.msg_type is not None:
+            self._publish_typed(out, key, payload, large=large)
+            return
         decoder = LARGE_SAMPLE_DECODER if large or out.kind in LARGE_KINDS else SAMPLE_DECODER
         try:
             sample = decoder.decode(payload)
@@ -434,6 +468,22 @@ class Bridge:
             out.conversion_errors += 1
             self._bad("conversion_errors", f"convert {key}", "%s: %s", key, exc)
             return
+        out.seq += 1
+        out.publisher.put(cdr, attachment=rmw_zenoh.attachment(out.seq, sample.stamp_ns, out.gid))
+        with self._lock:
+            self.counters.published += 1
+
+    def _publish_typed(self, out: _TopicOut, key: str, payload: bytes, *, large: bool) -> None:
+        """A typed topic's message as CDR of its own type (the robot's header kept)."""
+        assert out.msg_type is not None
+        try:
+            large = large or out.msg_type in LARGE_TYPES
+            sample = (LARGE_SAMPLE_DECODER if large else MESSAGE_SAMPLE_DECODER).decode(payload)
+            message = self.types.decode(out.msg_type, sample.value)
+        except DECODE_ERRORS as exc:
+            self._bad("undecodable_samples", f"undecodable {key}", "%s: undecodable: %s", key, exc)
+            return
+        cdr = self.types.to_cdr(out.msg_type, message)
         out.seq += 1
         out.publisher.put(cdr, attachment=rmw_zenoh.attachment(out.seq, sample.stamp_ns, out.gid))
         with self._lock:

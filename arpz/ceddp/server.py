@@ -208,7 +208,12 @@ class CeddpServer:
             from arpz.bridge.bridge import Bridge
 
             self.bridge = Bridge(
-                transport, config.fleet, config, config.ros2, partition=config.partition
+                transport,
+                config.fleet,
+                config,
+                config.ros2,
+                partition=config.partition,
+                types=self.types,
             )
         self._reports: Inlet | None = None
         self._stop = threading.Event()

@@ -769,6 +769,8 @@ class BridgeConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=
     connect: list[str] = msgspec.field(default_factory=list)
     zenoh_config: str | None = None
     ros2: Ros2Config = msgspec.field(default_factory=lambda: Ros2Config(enabled=True))
+    #: folders of the fleet's own ``.msg`` files, as the robots' (relative to the config's)
+    msg_paths: list[str] = msgspec.field(default_factory=list)
 
     def __post_init__(self) -> None:
         keys.check_chunk(self.fleet, what="fleet")

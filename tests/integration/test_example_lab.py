@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from tests.integration.fleet import Process
-from tests.support import free_port
+from tests.support import free_port, wait_until
 
 pytestmark = pytest.mark.integration
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "lab"
@@ -137,3 +137,55 @@ def test_a_bad_msg_file_stops_the_robot_naming_the_file(tmp_path: Path) -> None:
     )
     assert done.returncode == 2, done.stderr
     assert "DockState.msg" in done.stderr and "flot32" in done.stderr, done.stderr
+
+
+def test_a_ros2_node_receives_the_labs_typed_topics_through_the_bridge(tmp_path: Path) -> None:
+    """The CEDDP's bridge publishes each typed topic as CDR of its own type with ROS 2's type
+    hash, the lab's own type too: a stand-in rmw_zenoh node (tests/integration/ros2_peer.py,
+    rosbags' Jazzy definitions plus the lab's .msg) decodes every field."""
+    from rosbags.typesys import get_types_from_msg
+
+    from tests.integration.ros2_peer import STORE, Ros2Peer
+
+    endpoint = lab_copy(tmp_path)
+    with (tmp_path / "ceddp.toml").open("a") as toml:
+        toml.write("\n[ros2]\nenabled = true\ndomain_id = 57\n")
+    dock_msg = (tmp_path / "msg" / "mylab" / "msg" / "DockState.msg").read_text()
+    if "mylab/msg/DockState" not in STORE.fielddefs:
+        STORE.register(get_types_from_msg(dock_msg, "mylab/msg/DockState"))
+    ceddp = Process("ceddp", ["-m", "arpz.ceddp", "--config", "ceddp.toml"], tmp_path)
+    try:
+        ceddp.wait_for("ready on")
+        robot = Process("robot1", ["-m", "arpz.robot", "--config", "robot.toml"], tmp_path)
+        try:
+            robot.wait_for("running")
+            with Ros2Peer(endpoint, domain=57) as peer:
+                topics = ("/robot1/gps", "/robot1/battery", "/robot1/dock_state")
+                wait_until(
+                    lambda: all(peer.find("MP", t) for t in topics),
+                    timeout_s=20,
+                    what="the typed topics' publisher tokens",
+                )
+                for topic in topics:
+                    entity = peer.find("MP", topic)
+                    assert entity is not None
+                    assert entity.type_hash == STORE.hash_rihs01(entity.ros_type), topic
+                    peer.subscribe(entity)
+                wait_until(
+                    lambda: all(len(peer.messages(t)) >= 2 for t in topics),
+                    timeout_s=20,
+                    what="two messages of each typed topic",
+                )
+                fix = peer.messages("/robot1/gps")[-1].message
+                assert fix.latitude == pytest.approx(51.4545, abs=1e-3)
+                assert fix.header.frame_id == "gps"
+                battery = peer.messages("/robot1/battery")[-1].message
+                assert 0.0 <= battery.percentage <= 1.0 and battery.serial_number == "lab-0001"
+                dock = peer.messages("/robot1/dock_state")[-1].message
+                assert dock.distance_m in (0.0, 2.5) and isinstance(dock.docked, bool)
+            assert robot.interrupt() == 0
+        finally:
+            robot.kill()
+        assert ceddp.interrupt() == 0
+    finally:
+        ceddp.kill()
