@@ -148,10 +148,12 @@ def check_summary(summary: dict[str, Any], robots: int, *, hello: bool = True) -
             continue
         if not row["final_stats"]:
             problems.append(f"{name}'s final report did not reach the CEDDP")
-        if row["produced"] != row["sent"] + row["held_back"] + row["write_failures"]:
+        accounted = row["sent"] + row["held_back"] + row["write_failures"] + row["driver_errors"]
+        if row["produced"] != accounted:
             problems.append(
-                f"{name}: produced {row['produced']} != sent {row['sent']} + held "
-                f"back {row['held_back']} + refused by a full history {row['write_failures']}"
+                f"{name}: produced {row['produced']} != sent {row['sent']} + held back "
+                f"{row['held_back']} + refused by a full history {row['write_failures']} + "
+                f"driver errors {row['driver_errors']}"
             )
         if row["sent"] != row["received"] + row["lost"]:
             problems.append(
