@@ -26,7 +26,15 @@ import msgspec
 
 from arpz.core import keys
 from arpz.core.errors import ConfigError
-from arpz.core.messages import Command, CommandValue, Hello, SensorValue, Telemetry
+from arpz.core.messages import (
+    Command,
+    CommandValue,
+    Hello,
+    MessageCommand,
+    SensorValue,
+    Telemetry,
+)
+from arpz.core.msgtypes import MessageTypes, MessageValueError
 from arpz.core.throttled_log import ThrottledLog
 from arpz.runtime.plugins import load_class
 
@@ -53,26 +61,56 @@ class CommandSink(Protocol):
 
 
 class PlannerCommands:
-    """What a team's planner sends commands through (``self.commands``): ``send`` a value on a
-    robot's ``cmd/{name}``, which the robot's actuator gets as a ``Command`` (a float, bool,
-    string or list of floats; ``[v, omega]`` on "velocity"). Every command is counted by the
-    CEDDP's downlink and reconciled with what the robot received, as the built-in planners'
-    are; a command for a name the robot did not announce is refused and counted.
+    """What a team's planner sends commands through (``self.commands``): ``send`` a command on
+    a robot's ``cmd/{name}``. For a command the robot's actuator accepts as a value, ``value`` is
+    a float, bool, string or list of floats (``[v, omega]`` on "velocity"); for a typed one (the
+    actuator's ``command_types``, announced by the robot), a message of that type (a dict of its
+    fields, or its Struct), checked here: a message that does not fit raises
+    ``MessageValueError`` naming the field, so the planner's guard counts it. Every command is
+    counted by the CEDDP's downlink and reconciled with what the robot received; a command for
+    a name the robot did not announce is refused and counted.
 
     One instance is shared by every configured planner, so that the command seqs of one key
     stay one sequence (a receiver in plain mode counts its loss from them)."""
 
-    def __init__(self, sink: CommandSink, writer: str) -> None:
+    def __init__(
+        self,
+        sink: CommandSink,
+        writer: str,
+        *,
+        command_type: Callable[[str, str], str | None] = lambda robot, name: None,
+        types: MessageTypes | None = None,
+    ) -> None:
         self.sink = sink
         self.writer = writer
+        self._command_type = command_type
+        self._types = types
         self._seqs: dict[tuple[str, str], int] = {}
         self._lock = threading.Lock()
 
-    def send(self, robot: str, name: str, value: CommandValue) -> None:
-        with self._lock:
+    def send(
+        self, robot: str, name: str, value: CommandValue | Mapping[str, Any] | msgspec.Struct
+    ) -> None:
+        msg_type = self._command_type(robot, name)
+        raw: msgspec.Raw | None = None
+        if msg_type is not None:
+            if self._types is None:
+                self._types = MessageTypes()
+            message = self._types.check(msg_type, value, stamp_ns=time.time_ns())
+            raw = msgspec.Raw(self._types.encode(message))
+        elif isinstance(value, Mapping | msgspec.Struct):
+            raise MessageValueError(
+                f"robot {robot} takes {name} as a value (a float, bool, string or list of "
+                "floats), not a message: its actuator names no type for it in command_types"
+            )
+        with self._lock:  # numbered once it is sure to leave: a refused one leaves no hole
             seq = self._seqs[(robot, name)] = self._seqs.get((robot, name), 0) + 1
-        command = Command(self.writer, seq, time.time_ns(), value)
-        self.sink.send(robot, name, msgspec.msgpack.encode(command))
+        payload: msgspec.Struct = (
+            Command(self.writer, seq, time.time_ns(), value)  # type: ignore[arg-type]
+            if raw is None
+            else MessageCommand(self.writer, seq, time.time_ns(), raw)
+        )
+        self.sink.send(robot, name, msgspec.msgpack.encode(payload))
 
 
 class Planner:

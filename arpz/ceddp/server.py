@@ -126,7 +126,12 @@ class CeddpServer:
         )
         self.planners: list[Planner] = [self.hello_relay] + ([planner] if planner else [])
         #: the team's planners of ``[[planners]]`` (docs/nodes.md), each behind a guard
-        commands = PlannerCommands(self.sink, writer_id("ceddp", self.incarnation))
+        commands = PlannerCommands(
+            self.sink,
+            writer_id("ceddp", self.incarnation),
+            command_type=self._command_type,
+            types=self.types,
+        )
         self.team_planners = [
             make_planner(
                 entry.cls,
@@ -398,6 +403,12 @@ class CeddpServer:
     def _on_world_view(self, view: WorldView) -> None:
         if self.dashboard is not None:
             self.dashboard.submit(view)
+
+    def _command_type(self, robot: str, name: str) -> str | None:
+        """The ROS 2 type ``robot`` announced for its command ``name`` (None: a value)."""
+        record = self.control.robots.get(robot)
+        announce = record.announce if record is not None else None
+        return announce.command_types.get(name) if announce is not None else None
 
     def _event(self, text: str, level: str = "INFO") -> None:
         log.log({"WARN": logging.WARNING, "ERROR": logging.ERROR}.get(level, logging.INFO), text)

@@ -100,6 +100,17 @@ class Command(msgspec.Struct, array_like=True, frozen=True):
     value: CommandValue
 
 
+class MessageCommand(msgspec.Struct, array_like=True, frozen=True):
+    """A typed command (an actuator's ``command_types``: ``geometry_msgs/msg/Twist`` on
+    ``cmd_vel``): a ``Command`` whose value is a whole message of the type the robot announced for
+    the command (``Announce.command_types``), as the msgpack array of ``arpz.core.msgtypes``."""
+
+    writer: str
+    seq: int
+    stamp_ns: int
+    value: msgspec.Raw
+
+
 class Telemetry(msgspec.Struct, array_like=True, frozen=True):
     """A simulated robot's TRUE pose, on ``.../telemetry``: for judging and drawing only, never
     for planning (the planner must make do with what the sensors say, as on real robots)."""
@@ -358,6 +369,9 @@ class Announce(msgspec.Struct, frozen=True):
     #: the robot's clock estimate when it announced (the first one precedes its first reading,
     #: so the CEDDP can correct latencies from the start)
     clock: ClockStats | None = None
+    #: the typed commands among ``commands``: name -> the ROS 2 type it accepts (the others take
+    #: a value: a float, bool, string or list of floats)
+    command_types: dict[str, str] = msgspec.field(default_factory=dict)
 
 
 class RobotQos(msgspec.Struct, frozen=True):
@@ -458,6 +472,7 @@ LARGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(LargeSample)
 MESSAGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(MessageSample)
 HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
 COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
+MESSAGE_COMMAND_DECODER: Final = msgspec.msgpack.Decoder(MessageCommand)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
 ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)

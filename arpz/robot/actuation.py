@@ -28,12 +28,16 @@ class Actuator:
     #: the command names this actuator acts on: the robot reads ``cmd/{name}`` for each (through
     #: the reliable channel) and announces them, so the CEDDP opens a writer for each
     commands: Sequence[str] = ()
+    #: the typed ones among them: name -> the ROS 2 type it accepts (``{"cmd_vel":
+    #: "geometry_msgs/msg/Twist"}``); ``apply`` then gets the message as ``command.value``
+    command_types: Mapping[str, str] = {}
 
     def __init__(self, options: Mapping[str, Any] | None = None) -> None:
         self.options: Mapping[str, Any] = options or {}
 
     def apply(self, name: str, command: Command) -> None:
-        """Act on one command (``name`` is the command topic, e.g. "velocity")."""
+        """Act on one command (``name`` is the command topic, e.g. "velocity"); a typed
+        command's ``command.value`` is its message (the msgspec Struct of its type)."""
         raise NotImplementedError
 
     def stop(self) -> None:
@@ -100,5 +104,11 @@ def make_actuator(entry: PluginConfig) -> Actuator:
         raise ActuatorConfigError(
             f"actuator {entry.cls}: set commands to the names it acts on, such as "
             f"('velocity',), got {actuator.commands!r}"
+        )
+    untyped = sorted(set(actuator.command_types) - set(actuator.commands))
+    if untyped:
+        raise ActuatorConfigError(
+            f"actuator {entry.cls}: command_types names {', '.join(untyped)}, which commands "
+            "does not list: list every command it acts on in commands"
         )
     return actuator

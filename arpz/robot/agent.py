@@ -649,6 +649,7 @@ class RobotAgent:
             incarnation=self.incarnation,
             sensors=[self._topic_info(s) for s in self.sensors],
             commands=[keys.HELLO, *self.command_names],
+            command_types=dict(self.actuator.command_types),
             mode=cfg.reliability,
             clock=self._clock_stats(),
         )

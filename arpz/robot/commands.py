@@ -25,11 +25,14 @@ from arpz.core.messages import (
     COMMAND_DECODER,
     DECODE_ERRORS,
     HELLO_DECODER,
+    MESSAGE_COMMAND_DECODER,
     QOS_ASSIGNMENT_DECODER,
+    Command,
     Hello,
     InboundCounters,
     QosAssignmentMsg,
 )
+from arpz.core.msgtypes import MessageTypes
 from arpz.core.transport import Transport
 from arpz.robot.actuation import Actuator
 from arpz.robot.watchdog import CommandWatchdog
@@ -72,6 +75,13 @@ class CommandWorker:
         self._queue: queue.SimpleQueue[tuple[str, bytes] | None] = queue.SimpleQueue()
         self._worker = threading.Thread(target=self._loop, name="arpz-commands", daemon=True)
         self._assignment_key = keys.ceddp_qos_key(config.fleet)
+        #: the typed commands' types (the actuator's ``command_types``), and their registry
+        self._command_types = dict(actuator.command_types)
+        self._types: MessageTypes | None = None
+        if self._command_types:
+            self._types = MessageTypes()
+            for msg_type in self._command_types.values():
+                self._types.require(msg_type)
 
     def start(self, command_names: list[str]) -> None:
         """Start the worker and open one Inlet per downlink key."""
@@ -192,7 +202,7 @@ class CommandWorker:
                     if not self._on_hello(hello):
                         self.count_bad()
                 else:
-                    command = COMMAND_DECODER.decode(payload)
+                    command = self._decode_command(name, payload)
                     self._count_plain_gap(key, command.writer, command.seq)
                     with self.lock:
                         resumed = self.watchdog.on_command(name, self._clock())
@@ -204,6 +214,15 @@ class CommandWorker:
                 log.warning("undecodable command on %s (%d bytes): %s", key, len(payload), exc)
             except Exception:
                 log.exception("actuator failed on a command on %s", key)
+
+    def _decode_command(self, name: str, payload: bytes) -> Command:
+        """A value command, or a typed one with its message as ``value``."""
+        msg_type = self._command_types.get(name)
+        if msg_type is None or self._types is None:
+            return COMMAND_DECODER.decode(payload)
+        typed = MESSAGE_COMMAND_DECODER.decode(payload)
+        message = self._types.decode(msg_type, typed.value)
+        return Command(typed.writer, typed.seq, typed.stamp_ns, message)
 
     def _count_plain_gap(self, key: str, writer: str, seq: int) -> None:
         """Plain mode (no channel on the downlink): count a gap in the payload's seq as lost, as

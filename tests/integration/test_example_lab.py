@@ -50,9 +50,13 @@ def test_the_example_lab_docks_its_robot_and_reconciles_every_typed_sample(
         robot = Process("robot1", ["-m", "arpz.robot", "--config", "robot.toml"], tmp_path)
         try:
             robot.wait_for("running")
+            robot.wait_for("driving at 0.50 m/s", timeout_s=30)  # a Twist on cmd_vel
+            robot.wait_for("driving at 0.20 m/s", timeout_s=60)  # slower as the battery drains
             ceddp.wait_for("sent to its dock", timeout_s=60)
             robot.wait_for("docked", timeout_s=30)
             ceddp.wait_for("robot1: docked at dock-1", timeout_s=30)
+            # docked, it gets no cmd_vel: the watchdog stops it
+            robot.wait_for("no cmd_vel command within its deadline: safe stop", timeout_s=30)
             assert robot.interrupt() == 0
         finally:
             robot.kill()
@@ -68,6 +72,9 @@ def test_the_example_lab_docks_its_robot_and_reconciles_every_typed_sample(
     assert robot1["decode_errors"] == 0
     assert robot1["downlink"]["dock"]["delivered"] == 1
     assert robot1["downlink"]["dock"]["reconciled"]
+    cmd_vel = robot1["downlink"]["cmd_vel"]
+    assert cmd_vel["delivered"] == cmd_vel["written"] > 0 and cmd_vel["reconciled"], cmd_vel
+    assert robot1["watchdog_stops"].get("cmd_vel", 0) >= 1
     assert summary["planners"]["DockPlanner"]["errors"] == 0
 
 

@@ -1,4 +1,5 @@
-"""The lab's base: drives on "velocity" ([v, omega]) and goes to its dock on "dock"."""
+"""The lab's base: drives on "cmd_vel" (a geometry_msgs/msg/Twist, as on a ROS 2 robot) and goes
+to its dock on "dock" (a value: true)."""
 
 from __future__ import annotations
 
@@ -15,16 +16,21 @@ log = logging.getLogger(__name__)
 
 
 class Base(Actuator):
-    commands = ("velocity", "dock")
+    commands = ("cmd_vel", "dock")
 
     def __init__(self, options: Mapping[str, Any]) -> None:
         super().__init__(options)
+        self.command_types = {"cmd_vel": "geometry_msgs/msg/Twist"}
         self.dock_after_s = float(options.get("dock_after_s", 1.0))
 
     def apply(self, name: str, command: Command) -> None:
-        if name == "velocity":
+        if name == "cmd_vel":
+            twist: Any = command.value  # the message: geometry_msgs/msg/Twist
             with LOCK:
-                BODY.speed_m_s = float(command.value[0])  # type: ignore[index]
+                changed = BODY.speed_m_s != twist.linear.x
+                BODY.speed_m_s = twist.linear.x
+            if changed:
+                log.info("driving at %.2f m/s", twist.linear.x)
         elif name == "dock" and command.value:
             with LOCK:
                 if BODY.docked or BODY.docking:
@@ -39,5 +45,8 @@ class Base(Actuator):
         log.info("docked")
 
     def safe_stop(self) -> None:
+        """No cmd_vel within its watchdog deadline ([watchdog] in robot.toml): stop."""
         with LOCK:
-            BODY.speed_m_s = 0.0
+            moving, BODY.speed_m_s = BODY.speed_m_s != 0.0, 0.0
+        if moving:
+            log.info("safe stop: no cmd_vel within its deadline: stopped")
