@@ -59,6 +59,13 @@ MESSAGE_KIND: Final = "message"
 LARGE_TYPES: frozenset[str] = frozenset(
     {"sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/PointCloud2"}
 )
+#: the typed sensors ``driver = "sim"`` simulates (arpz.robot.sensors.simulated, docs/sensors.md);
+#: every other type reads through a driver class
+SIMULATED_TYPES: tuple[str, ...] = (
+    "sensor_msgs/msg/LaserScan",
+    "sensor_msgs/msg/Image",
+    "sensor_msgs/msg/CompressedImage",
+)
 #: kinds whose readings are large (a 640x480 RGB frame is 921 600 bytes): through the reliable
 #: channel they travel as fragments (``arpz.channel.FrameWriter``) on ``frames/{topic}``
 LARGE_KINDS: frozenset[str] = frozenset({"camera", "pointcloud"})
@@ -74,7 +81,7 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
     #: one of seed 001's nine scalar kinds (SENSOR_KINDS); left out with ``type``
     kind: SensorKind = MESSAGE_KIND
     #: a ROS 2 message type ("sensor_msgs/msg/NavSatFix"): the sensor's readings are whole
-    #: messages of it, from a driver class (docs/nodes.md)
+    #: messages of it, from a driver class (docs/nodes.md) or, for SIMULATED_TYPES, "sim"
     type: str | None = None
     rate_hz: float = 10.0
     #: "sim" (seeded simulated driver), "replay" (plays ``trace``), or "module.path:ClassName"
@@ -121,13 +128,20 @@ class SensorConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"max_silence_s must be > 0, got {self.max_silence_s}")
         if not (math.isfinite(self.priority) and self.priority > 0):
             raise ValueError(f"priority must be a finite number > 0, got {self.priority}")
+        if self.kind == MESSAGE_KIND and self.driver == "replay":
+            raise ValueError(
+                f"sensor {self.name!r} of type {self.type}: a typed sensor cannot replay a trace "
+                "(traces hold text values): use a driver class, driver = 'module.path:ClassName' "
+                "(docs/nodes.md)"
+            )
+        if self.kind == MESSAGE_KIND and self.driver == "sim" and self.type not in SIMULATED_TYPES:
+            raise ValueError(
+                f"sensor {self.name!r} of type {self.type}: no simulated driver for this type "
+                f"(driver 'sim' simulates {', '.join(SIMULATED_TYPES)}): give a driver class, "
+                "driver = 'module.path:ClassName' (docs/nodes.md)"
+            )
         if self.driver == "replay" and not self.trace:
             raise ValueError("driver 'replay' needs a 'trace' file (CSV or JSON lines)")
-        if self.kind == MESSAGE_KIND and self.driver in ("sim", "replay"):
-            raise ValueError(
-                f"sensor {self.name!r} of type {self.type}: a typed sensor reads through a driver "
-                "class: driver = 'module.path:ClassName' (docs/nodes.md)"
-            )
         if self.driver == "replay" and self.kind in LARGE_KINDS:
             raise ValueError(
                 f"a {self.kind} sensor cannot replay a trace (traces hold text values): use "

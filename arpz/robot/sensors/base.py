@@ -56,8 +56,10 @@ class SensorDriver:
         self.options = options
         self.seed = seed
 
-    def read(self, now_s: float) -> SensorValue:
-        """The reading at ``now_s`` seconds since the agent started."""
+    def read(self, now_s: float) -> SensorValue | Any:
+        """The reading at ``now_s`` seconds since the agent started: the value of its kind, or
+        a typed sensor's message (a dict of its fields, numpy arrays allowed, or the message
+        as an object; the robot checks it against the type, docs/nodes.md)."""
         raise NotImplementedError
 
     def close(self) -> None:

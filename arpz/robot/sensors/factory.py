@@ -9,7 +9,7 @@ from arpz.core.config import SensorConfig
 from arpz.core.errors import ArpzError
 from arpz.robot.sensors.base import SensorDriver
 from arpz.robot.sensors.replay import ReplayDriver
-from arpz.robot.sensors.simulated import SIMULATED
+from arpz.robot.sensors.simulated import SIMULATED, SIMULATED_MESSAGES
 from arpz.runtime.plugins import PluginError, load_class
 
 
@@ -30,9 +30,12 @@ def make_driver(
     seed = sensor_seed(robot_seed, robot_id, sensor)
     if sensor.driver == "sim":
         try:
+            if sensor.type is not None:  # one of SIMULATED_TYPES: checked by SensorConfig
+                return SIMULATED_MESSAGES[sensor.type](sensor.options, seed, rate_hz=sensor.rate_hz)
             return SIMULATED[sensor.kind](sensor.options, seed)
         except (ValueError, TypeError) as exc:
-            raise DriverError(f"sensor {sensor.name!r} ({sensor.kind}): {exc}") from None
+            what = sensor.type or sensor.kind
+            raise DriverError(f"sensor {sensor.name!r} ({what}): {exc}") from None
     if sensor.driver == "replay":
         assert sensor.trace is not None  # checked by SensorConfig
         trace = Path(sensor.trace)
