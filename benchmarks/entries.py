@@ -222,7 +222,7 @@ ENTRIES: tuple[Entry, ...] = (
         "QoS balancing: the closed form's solve time against CVXPY's (the paper's), in process",
         {"CVXPY / closed form, solve time": "higher"},
         optimiser,
-        15,
+        5,
     ),
     Entry(
         "write_cost",
@@ -232,7 +232,7 @@ ENTRIES: tuple[Entry, ...] = (
             "unbatched Writer.write / bare put": "lower",
         },
         write_cost,
-        20,
+        10,
     ),
     Entry(
         "throughput",
@@ -246,7 +246,7 @@ ENTRIES: tuple[Entry, ...] = (
             "CPU a sample, arpz / raw Zenoh, 1 KiB": "lower",
         },
         throughput,
-        45,
+        50,
     ),
     Entry(
         "latency",
@@ -258,7 +258,7 @@ ENTRIES: tuple[Entry, ...] = (
             "p99, arpz / Advanced": "lower",
         },
         latency,
-        40,
+        45,
     ),
     Entry(
         "lossy",
@@ -269,7 +269,7 @@ ENTRIES: tuple[Entry, ...] = (
             "p99, arpz / raw Zenoh": "lower",
         },
         lossy,
-        40,
+        32,
     ),
     Entry(
         "ceddp_ingest",
@@ -280,7 +280,7 @@ ENTRIES: tuple[Entry, ...] = (
             "CPU a sample, channel / raw subscriber": "lower",
         },
         ceddp_ingest,
-        35,
+        25,
     ),
     Entry(
         "large_messages",
@@ -290,7 +290,7 @@ ENTRIES: tuple[Entry, ...] = (
             "UDP 1 % loss, frames delivered whole, arpz / sent": "higher",
         },
         large_messages,
-        40,
+        25,
     ),
     Entry(
         "fleet",
@@ -302,6 +302,6 @@ ENTRIES: tuple[Entry, ...] = (
             "delivered, arpz / raw Zenoh": "higher",
         },
         fleet,
-        35,
+        50,
     ),
 )

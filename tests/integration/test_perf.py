@@ -160,7 +160,8 @@ def _keep_all_writer(endpoint: str, key: str) -> Iterator[Writer]:
 def test_a_reader_whose_callback_raises_on_every_sample_keeps_acknowledging() -> None:
     """Its stderr is a pipe nobody reads (as a benchmark's child): a traceback per sample
     filled the pipe after a few dozen samples, the channel's thread blocked on the write and
-    the KEEP_ALL writer's history filled (found with ``benchmarks/robot_tick_cost.py``)."""
+    the KEEP_ALL writer's history filled (found with
+    ``benchmarks/investigations/robot_tick_cost.py``)."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with (
         perf_router(endpoint),

@@ -98,8 +98,8 @@ def wait_until_served(robot: ZenohTransport, key: str) -> None:
 
 def test_a_request_starts_no_thread_and_its_replies_arrive(monkeypatch: pytest.MonkeyPatch) -> None:
     """zenoh-python starts a Python thread per request for a callable reply handler, and ``get``
-    waits until it holds the GIL (benchmarks/request_cost.py); arpz's replies run on Zenoh's
-    network thread, so a robot's clock bursts start none."""
+    waits until it holds the GIL (benchmarks/investigations/request_cost.py); arpz's replies run
+    on Zenoh's network thread, so a robot's clock bursts start none."""
     started: list[str] = []
     original_start = threading.Thread.start
 

@@ -675,7 +675,8 @@ def test_a_nack_brings_a_grown_heartbeat_period_back() -> None:
 def test_a_tick_polls_every_writers_timers_once_a_period_not_at_every_tick() -> None:
     """The fine timer ticks every few ms while any writer is busy; polling all of a CEDDP's
     writers' deadlines and leases each time grew with the fleet (400 us a tick at 400 writers,
-    benchmarks/reader_busy.py). Every writer is polled once a full period (50 ms at most)."""
+    benchmarks/investigations/reader_busy.py). Every writer is polled once a full period (50 ms
+    at most)."""
     bus, _ = world(1, Link(delay_s=0.001))
     qos = QosProfile(history=HistoryPolicy.KEEP_ALL, deadline_s=0.2)
     for t in range(50):
