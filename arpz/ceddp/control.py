@@ -38,7 +38,9 @@ from arpz.core.messages import (
     STATS_DECODER,
     TELEMETRY_DECODER,
     Announce,
+    CommandContract,
     RobotStats,
+    contract_clashes,
     encode,
     writer_id,
 )
@@ -183,10 +185,14 @@ class ControlWorker:
         event: EventSink,
         *,
         clock: ClockWatch | None = None,
+        command_contract: Callable[[], CommandContract] | None = None,
     ) -> None:
         self.config = config
         #: takes each robot's clock estimate from its stats and announcements
         self.clock = clock
+        #: what the team's planners send: a robot announcing another type for one of them is
+        #: said once in the event log (it refused to start if it could ask; docs/nodes.md)
+        self.command_contract = command_contract or (lambda: CommandContract(""))
         self.ingest = ingest
         self.sink = sink
         self.planners = planners
@@ -323,6 +329,13 @@ class ControlWorker:
                     {t.topic: t.kind for t in sensors},
                     {t.topic: (t.msg_type, t.type_hash) for t in sensors if t.kind == MESSAGE_KIND},
                 )
+                contract = self.command_contract()
+                clashes = contract_clashes(
+                    contract, record.announce.commands, record.announce.command_types
+                )
+                refused += [
+                    f"robot {robot}: {clash}: those commands cannot reach it" for clash in clashes
+                ]
                 for why in refused:
                     if why not in record.type_warnings:
                         record.type_warnings.add(why)

@@ -28,6 +28,7 @@ from arpz.core import keys
 from arpz.core.errors import ConfigError
 from arpz.core.messages import (
     Command,
+    CommandContract,
     CommandValue,
     Hello,
     MessageCommand,
@@ -122,6 +123,10 @@ class Planner:
     #: set True to be told of readings cache control discarded (``on_unchanged``): a planner that
     #: judges freshness needs to know an unchanged topic is still alive
     wants_unchanged: bool = False
+    #: the commands it sends: name -> the ROS 2 type of its messages, or "value" (a float, bool,
+    #: string or list of floats). A robot whose actuator takes one of them as another type
+    #: refuses to start, naming the planner (docs/nodes.md)
+    sends: Mapping[str, str] = {}
 
     def __init__(self, options: Mapping[str, Any] | None = None) -> None:
         self.options: Mapping[str, Any] = options or {}
@@ -293,6 +298,10 @@ class GuardedPlanner(Planner):
                 f"{self.name} {cause}", "planner %s: %s, %d times", self.name, cause, count
             )
 
+    @property
+    def sends(self) -> Mapping[str, str]:  # type: ignore[override]
+        return self.inner.sends
+
     def faults(self) -> dict[str, object]:
         with self._lock:
             return {"errors": self.errors, "causes": dict(self._causes)}
@@ -345,3 +354,12 @@ def make_planner(
 
 class PlannerConfigError(ConfigError):
     """A configured planner that cannot be made from its options."""
+
+
+def command_contract(ceddp: str, planners: list[GuardedPlanner]) -> CommandContract:
+    """What the team's planners declare they send, for a robot to check at start-up."""
+    sends: dict[str, dict[str, str]] = {}
+    for planner in planners:
+        for name, msg_type in planner.sends.items():
+            sends.setdefault(name, {})[planner.name] = msg_type
+    return CommandContract(ceddp, sends)

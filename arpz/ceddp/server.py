@@ -40,6 +40,7 @@ from arpz.ceddp.planner import (
     HelloRelay,
     Planner,
     PlannerCommands,
+    command_contract,
     make_planner,
 )
 from arpz.ceddp.qos_control import QosController
@@ -49,9 +50,9 @@ from arpz.channel.io import Inlet, Outlet
 from arpz.core import keys
 from arpz.core.config import CeddpConfig, ConfigError
 from arpz.core.frames import DashboardLike, Event, WorldMap, WorldView
-from arpz.core.messages import new_incarnation, writer_id
+from arpz.core.messages import encode, new_incarnation, writer_id
 from arpz.core.msgtypes import MessageTypes
-from arpz.core.transport import Transport
+from arpz.core.transport import Handle, Transport
 from arpz.mission.judge import MissionResult
 
 if TYPE_CHECKING:  # imported when their port is set (docs/tools.md "Live views")
@@ -175,7 +176,14 @@ class CeddpServer:
         self.clock = ClockWatch(config.clock, self.ingest, self._event)
         self.clock_service = ClockService(transport, config.fleet) if config.clock.serve else None
         self.control = ControlWorker(
-            config, self.ingest, self.sink, self.planners, self.qos, self._event, clock=self.clock
+            config,
+            self.ingest,
+            self.sink,
+            self.planners,
+            self.qos,
+            self._event,
+            clock=self.clock,
+            command_contract=lambda: command_contract(self.incarnation, self.team_planners),
         )
         self.intake = SensorIntake(
             config, transport, self.ingest, self._fanout, self.control, self._event
@@ -221,6 +229,7 @@ class CeddpServer:
                 types=self.types,
             )
         self._reports: Inlet | None = None
+        self._contract: Handle | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started_ns = time.time_ns()
@@ -301,6 +310,9 @@ class CeddpServer:
         control = self.control
         if self.clock_service is not None:  # before the presence token: robots query at once
             self.clock_service.start()
+        # what the team's planners send, for robots to check at start-up (docs/nodes.md)
+        contract = encode(command_contract(self.incarnation, self.team_planners))
+        self._contract = self.transport.serve(keys.ceddp_commands_key(fleet), lambda _: contract)
         self.intake.open()
         if self.bridge is not None:
             self.bridge.start()
@@ -366,6 +378,8 @@ class CeddpServer:
         self.intake.stop()
         if self.clock_service is not None:
             self.clock_service.close()
+        if self._contract is not None:
+            self._contract.undeclare()
         if self._reports is not None:
             self._reports.close()
         self.control.queue.close()

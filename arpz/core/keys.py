@@ -135,6 +135,13 @@ def ceddp_clock_key(fleet: str) -> str:
     return f"{fleet_prefix(fleet)}/ceddp/clock"
 
 
+def ceddp_commands_key(fleet: str) -> str:
+    """What the CEDDP's planners send, as a Zenoh queryable: a robot asks at start-up
+    (``CommandContract``) and refuses to start when it would get a command type its actuator
+    does not take."""
+    return f"{fleet_prefix(fleet)}/ceddp/commands"
+
+
 def ceddp_qos_key(fleet: str) -> str:
     """QoS assignment published by the CEDDP's balancing optimiser."""
     return f"{fleet_prefix(fleet)}/ceddp/qos"

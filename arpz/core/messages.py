@@ -10,6 +10,7 @@ without breaking old decoders. The layouts are documented field by field in docs
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping, Sequence
 from typing import Final
 
 import msgspec
@@ -109,6 +110,36 @@ class MessageCommand(msgspec.Struct, array_like=True, frozen=True):
     seq: int
     stamp_ns: int
     value: msgspec.Raw
+
+
+#: what ``CommandContract.sends`` says of a command sent as a value (not a message)
+VALUE_COMMAND: Final = "value"
+
+
+class CommandContract(msgspec.Struct, frozen=True):
+    """What the CEDDP's planners send (the reply on ``ceddp/commands``): command name ->
+    planner -> the ROS 2 type it sends, or ``VALUE_COMMAND``."""
+
+    ceddp: str
+    sends: dict[str, dict[str, str]] = msgspec.field(default_factory=dict)
+
+
+def contract_clashes(
+    contract: CommandContract, commands: Sequence[str], command_types: Mapping[str, str]
+) -> list[str]:
+    """Each planner command a robot acts on (``commands``) but takes as another type
+    (``command_types``; a value when not named), in words."""
+    clashes = []
+    for name, by_planner in sorted(contract.sends.items()):
+        if name not in commands:
+            continue
+        takes = command_types.get(name, VALUE_COMMAND)
+        for planner, sends in sorted(by_planner.items()):
+            if sends != takes:
+                clashes.append(
+                    f"planner {planner} sends {name} as {sends}, its actuator takes {takes}"
+                )
+    return clashes
 
 
 class Telemetry(msgspec.Struct, array_like=True, frozen=True):
@@ -473,6 +504,7 @@ MESSAGE_SAMPLE_DECODER: Final = msgspec.msgpack.Decoder(MessageSample)
 HELLO_DECODER: Final = msgspec.msgpack.Decoder(Hello)
 COMMAND_DECODER: Final = msgspec.msgpack.Decoder(Command)
 MESSAGE_COMMAND_DECODER: Final = msgspec.msgpack.Decoder(MessageCommand)
+COMMAND_CONTRACT_DECODER: Final = msgspec.msgpack.Decoder(CommandContract)
 STATS_DECODER: Final = msgspec.msgpack.Decoder(RobotStats)
 ANNOUNCE_DECODER: Final = msgspec.msgpack.Decoder(Announce)
 CEDDP_STATS_DECODER: Final = msgspec.msgpack.Decoder(CeddpStats)

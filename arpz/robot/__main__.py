@@ -24,7 +24,7 @@ from arpz.core.transport import (
     TransportError,
     client_link_defaults,
 )
-from arpz.robot.actuation import make_actuator
+from arpz.robot.actuation import CommandTypeError, check_command_contract, make_actuator
 from arpz.robot.agent import DuplicateRobotError, RobotAgent, check_robot_id_free
 from arpz.robot.link_monitor import LinkWatch
 from arpz.robot.sensing import message_types
@@ -173,6 +173,12 @@ def main(argv: list[str] | None = None) -> int:
         except DuplicateRobotError as exc:
             print(f"arpz robot: error: {exc}", file=sys.stderr)
             return 2
+        if actuator is not None:  # the CEDDP's planners send what this actuator takes
+            try:
+                check_command_contract(transport, config, actuator)
+            except CommandTypeError as exc:
+                print(f"arpz robot: error: bad configuration: {exc}", file=sys.stderr)
+                return 2
         base_dir = args.config.parent if args.config is not None else Path.cwd()
         try:
             agent = RobotAgent(config, transport, base_dir=base_dir, actuator=actuator)

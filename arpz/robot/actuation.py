@@ -15,9 +15,17 @@ from collections import Counter
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from arpz.core.config import PluginConfig
+from arpz.core import keys
+from arpz.core.config import PluginConfig, RobotConfig
 from arpz.core.errors import ConfigError
-from arpz.core.messages import Command
+from arpz.core.messages import (
+    COMMAND_CONTRACT_DECODER,
+    DECODE_ERRORS,
+    Command,
+    CommandContract,
+    contract_clashes,
+)
+from arpz.core.transport import Transport
 from arpz.runtime.plugins import load_class
 
 
@@ -112,3 +120,38 @@ def make_actuator(entry: PluginConfig) -> Actuator:
             "does not list: list every command it acts on in commands"
         )
     return actuator
+
+
+class CommandTypeError(ConfigError):
+    """A planner of the fleet's CEDDP sends a command this robot's actuator takes as another
+    type: the robot refuses to start rather than refuse every such command later."""
+
+
+def check_command_contract(
+    transport: Transport, config: RobotConfig, actuator: Actuator, *, timeout_s: float = 1.0
+) -> CommandContract | None:
+    """Ask the CEDDP what its planners send (``ceddp/commands``) and raise ``CommandTypeError``
+    when one sends a command the actuator acts on as another type than the actuator takes.
+    None when no CEDDP answered within ``timeout_s`` (none running yet, or access control
+    without the right): the CEDDP then says so when the robot announces (docs/nodes.md)."""
+    replies: list[bytes] = []
+    got = threading.Event()
+
+    def on_reply(payload: bytes) -> None:
+        replies.append(payload)
+        got.set()
+
+    transport.request(keys.ceddp_commands_key(config.fleet), b"", on_reply, timeout_s=timeout_s)
+    if not got.wait(timeout_s):
+        return None
+    try:
+        contract = COMMAND_CONTRACT_DECODER.decode(replies[0])
+    except DECODE_ERRORS:
+        return None
+    clashes = contract_clashes(contract, actuator.commands, actuator.command_types)
+    if clashes:
+        raise CommandTypeError(
+            f"robot {config.robot_id}: " + "; ".join(clashes) + ": make the actuator's "
+            "command_types and the planners' sends agree (docs/nodes.md)"
+        )
+    return contract

@@ -92,3 +92,10 @@ class FileActuator(Actuator):
 
 class Mute(Actuator):
     """An actuator that forgot to say what it acts on."""
+
+
+class StampedDriver(Planner):
+    """Declares it sends cmd_vel as a TwistStamped: a robot whose actuator takes a Twist must
+    refuse to start."""
+
+    sends = {"cmd_vel": "geometry_msgs/msg/TwistStamped"}  # noqa: RUF012

@@ -196,3 +196,30 @@ def test_a_ros2_node_receives_the_labs_typed_topics_through_the_bridge(tmp_path:
         assert ceddp.interrupt() == 0
     finally:
         ceddp.kill()
+
+
+def test_a_robot_refuses_to_start_when_a_planner_sends_another_command_type(
+    tmp_path: Path,
+) -> None:
+    lab_copy(tmp_path)
+    with (tmp_path / "ceddp.toml").open("a") as toml:
+        toml.write('\n[[planners]]\nclass = "tests.integration.team_nodes:StampedDriver"\n')
+    env = {"PYTHONPATH": str(Path(__file__).resolve().parents[2])}
+    ceddp = Process("ceddp", ["-m", "arpz.ceddp", "--config", "ceddp.toml"], tmp_path, env)
+    try:
+        ceddp.wait_for("ready on")
+        done = subprocess.run(
+            [sys.executable, "-m", "arpz.robot", "--config", "robot.toml"],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert ceddp.interrupt() == 0
+    finally:
+        ceddp.kill()
+    assert done.returncode == 2, done.stderr
+    assert (
+        "planner StampedDriver sends cmd_vel as geometry_msgs/msg/TwistStamped, its actuator "
+        "takes geometry_msgs/msg/Twist" in done.stderr
+    ), done.stderr
