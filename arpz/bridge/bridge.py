@@ -55,6 +55,7 @@ from arpz.core.messages import (
     MESSAGE_SAMPLE_DECODER,
     SAMPLE_DECODER,
     Command,
+    MessageCommand,
     encode,
     new_incarnation,
     writer_id,
@@ -144,6 +145,8 @@ class _CommandIn:
 class _Robot:
     topics: dict[str, _TopicOut] = field(default_factory=dict)
     commands: dict[str, _CommandIn] = field(default_factory=dict)
+    #: the commands the robot takes as messages: name -> ROS 2 type (its announcement's)
+    command_types: dict[str, str] = field(default_factory=dict)
 
 
 class Bridge:
@@ -187,7 +190,7 @@ class Bridge:
         self._inlets: list[Inlet] = []
         self._frames: FrameReader | None = None
         self._worker = threading.Thread(target=self._run, name="arpz-ros2", daemon=True)
-        self._hashes = {m.type: type_hash(m.type) for m in config.commands}
+        self._hashes = {m.type: self._hash(m.type) for m in config.commands}
         self.node = rmw_zenoh.Entity(
             domain_id=config.domain_id,
             zid=self.zid,
@@ -366,6 +369,7 @@ class Bridge:
             self._bad("unmapped", f"announce {key}", "announcement of %r on %s refused", robot, key)
             return
         state = self._robots.setdefault(robot, _Robot())
+        state.command_types = dict(announce.command_types)
         for info in announce.sensors:
             if info.topic not in state.topics:
                 self._open_topic(state, robot, info.topic, info.kind, info.msg_type or None)
@@ -527,15 +531,25 @@ class Bridge:
                 "%s: no rmw_zenoh attachment",
                 parsed.topic,
             )
+        takes = state.command_types.get(mapping.command) if state is not None else None
         try:
-            value = command_value(mapping.type, deserialize(payload, mapping.type))
-        except (ConversionError, AttributeError, TypeError, ValueError) as exc:
+            if takes is not None:  # the robot takes the message itself: passed through
+                if takes != mapping.type:
+                    raise ValueError(f"robot {robot} takes {mapping.command} as {takes}")
+                raw = msgspec.Raw(self.types.encode(self.types.from_cdr(takes, payload)))
+            else:
+                value = command_value(mapping.type, deserialize(payload, mapping.type))
+        except (ConversionError, AttributeError, TypeError, ValueError, KeyError) as exc:
             self._bad("bad_cdr", f"cdr {parsed.topic}", "%s: %s", parsed.topic, exc)
             return
         command.received += 1
         command.seq += 1
         stamp = time.time_ns()
-        message = Command(writer=self.writer, seq=command.seq, stamp_ns=stamp, value=value)
+        message: msgspec.Struct = (
+            MessageCommand(self.writer, command.seq, stamp, raw)
+            if takes is not None
+            else Command(writer=self.writer, seq=command.seq, stamp_ns=stamp, value=value)
+        )
         before = command.outlet.unmatched
         ok = command.outlet.send(encode(message), stamp, count_unmatched=True)
         with self._lock:

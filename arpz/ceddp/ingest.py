@@ -471,6 +471,7 @@ class Ingest:
                     sample.stamp_ns,
                     arrival_ns,
                     sample.seq,
+                    sample.writer,
                 )
             )
         elif self.planner.wants_unchanged:

@@ -51,9 +51,17 @@ class Reading:
     robot: str
     topic: str
     value: SensorValue | msgspec.Struct
+    #: when the robot read it, on the robot's clock (``arrival_ns`` is the CEDDP's)
     stamp_ns: int
     arrival_ns: int
     seq: int
+    #: the writer that sent it: ``robot:incarnation`` (a restarted robot writes as a new one)
+    writer: str = ""
+
+    @property
+    def incarnation(self) -> str:
+        """The robot process's incarnation (new at every start)."""
+        return self.writer.partition(":")[2]
 
 
 class CommandSink(Protocol):

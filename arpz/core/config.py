@@ -624,10 +624,12 @@ class Ros2CommandConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True,
                 f"ros2.commands topic {self.topic!r} must contain {{robot}}: each robot gets "
                 "its own command topic"
             )
-        if self.type not in ROS2_COMMAND_TYPES:
+        parts = self.type.split("/")
+        if len(parts) != 3 or parts[1] != "msg" or not all(parts):
             raise ValueError(
-                f"ros2.commands type {self.type!r} is not supported: use one of "
-                + ", ".join(ROS2_COMMAND_TYPES)
+                f"ros2.commands type {self.type!r} is not a ROS 2 message type package/msg/Name: "
+                f"use one of {', '.join(ROS2_COMMAND_TYPES)} (converted to a value), or the type "
+                "a robot's actuator takes (command_types; passed through as the message)"
             )
         keys.check_chunk(self.command, what="ros2.commands command")
 

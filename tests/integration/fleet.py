@@ -45,6 +45,9 @@ class Process:
     def output(self) -> str:
         return self._proc.output()
 
+    def has_line(self, needle: str) -> bool:
+        return self._proc.has_line(needle)
+
     def wait_for(self, needle: str, timeout_s: float = 30) -> None:
         self._proc.wait_line(needle, timeout_s)
 

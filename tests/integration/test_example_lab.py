@@ -10,6 +10,7 @@ import json
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -149,14 +150,18 @@ def test_a_bad_msg_file_stops_the_robot_naming_the_file(tmp_path: Path) -> None:
 def test_a_ros2_node_receives_the_labs_typed_topics_through_the_bridge(tmp_path: Path) -> None:
     """The CEDDP's bridge publishes each typed topic as CDR of its own type with ROS 2's type
     hash, the lab's own type too: a stand-in rmw_zenoh node (tests/integration/ros2_peer.py,
-    rosbags' Jazzy definitions plus the lab's .msg) decodes every field."""
+    rosbags' Jazzy definitions plus the lab's .msg) decodes every field; and its Twist on
+    /robot1/cmd_vel reaches the lab's actuator as the message itself (a typed command)."""
     from rosbags.typesys import get_types_from_msg
 
     from tests.integration.ros2_peer import STORE, Ros2Peer
 
     endpoint = lab_copy(tmp_path)
     with (tmp_path / "ceddp.toml").open("a") as toml:
-        toml.write("\n[ros2]\nenabled = true\ndomain_id = 57\n")
+        toml.write(
+            "\n[ros2]\nenabled = true\ndomain_id = 57\n[[ros2.commands]]\n"
+            'topic = "/{robot}/cmd_vel"\ntype = "geometry_msgs/msg/Twist"\ncommand = "cmd_vel"\n'
+        )
     dock_msg = (tmp_path / "msg" / "mylab" / "msg" / "DockState.msg").read_text()
     if "mylab/msg/DockState" not in STORE.fielddefs:
         STORE.register(get_types_from_msg(dock_msg, "mylab/msg/DockState"))
@@ -190,6 +195,14 @@ def test_a_ros2_node_receives_the_labs_typed_topics_through_the_bridge(tmp_path:
                 assert 0.0 <= battery.percentage <= 1.0 and battery.serial_number == "lab-0001"
                 dock = peer.messages("/robot1/dock_state")[-1].message
                 assert dock.distance_m in (0.0, 2.5) and isinstance(dock.docked, bool)
+                wait_until(lambda: peer.find("MS", "/robot1/cmd_vel") is not None, timeout_s=20)
+                key = peer.publisher("/robot1/cmd_vel", "geometry_msgs/msg/Twist")
+                for _ in range(50):
+                    peer.publish(key, "geometry_msgs/msg/Twist", peer.twist(0.3, 0.0))
+                    if robot.has_line("driving at 0.30 m/s"):
+                        break
+                    time.sleep(0.1)
+                robot.wait_for("driving at 0.30 m/s", timeout_s=10)
             assert robot.interrupt() == 0
         finally:
             robot.kill()

@@ -63,7 +63,7 @@ def test_ros2_config_refuses_what_cannot_work() -> None:
         {"topics": {"robot1": "/x"}},
         {"topics": {"*/lidar": "scan"}},
         {"commands": [{"topic": "/cmd_vel"}]},
-        {"commands": [{"type": "geometry_msgs/msg/TwistStamped"}]},
+        {"commands": [{"type": "TwistStamped"}]},
     ):
         with pytest.raises(ConfigError):
             from_dict(bad, Ros2Config, source="test")
