@@ -44,6 +44,7 @@ from arpz.ceddp.planner import (
     make_planner,
 )
 from arpz.ceddp.qos_control import QosController
+from arpz.ceddp.services import RobotServices, ServiceCaller, services_summary
 from arpz.ceddp.status import StatusReader
 from arpz.ceddp.summary import previous_run, qos_summary, resolve, robot_summary
 from arpz.channel.io import Inlet, Outlet
@@ -119,6 +120,7 @@ class CeddpServer:
         #: ``python -m arpz.ceddp`` makes them relative to the config's folder)
         self.types = MessageTypes()
         self.types.add_msg_paths(config.msg_paths)
+        self.types.add_srv_paths(config.msg_paths)
         self.sink = Downlink(
             transport, config.fleet, config, max_per_robot=config.max_topics_per_robot
         )
@@ -184,6 +186,17 @@ class CeddpServer:
             self._event,
             clock=self.clock,
             command_contract=lambda: command_contract(self.incarnation, self.team_planners),
+        )
+        #: calls of the robots' services (docs/nodes.md "Services"), counted in the summary
+        self.services = ServiceCaller(
+            transport,
+            config.fleet,
+            types=self.types,
+            caller=writer_id("ceddp", self.incarnation),
+            directory=self._robot_services,
+            access_control=lambda: (
+                self.metrics.identity.access_control if self.metrics.identity is not None else None
+            ),
         )
         self.intake = SensorIntake(
             config, transport, self.ingest, self._fanout, self.control, self._event
@@ -424,6 +437,15 @@ class CeddpServer:
         announce = record.announce if record is not None else None
         return announce.command_types.get(name) if announce is not None else None
 
+    def _robot_services(self, robot: str) -> RobotServices:
+        """What the registry knows of ``robot`` for a service call: present, and the services
+        its latest announcement lists."""
+        record = self.control.robots.get(robot)
+        if record is None:
+            return RobotServices(present=False)
+        announce = record.announce
+        return RobotServices(record.alive, announce.services if announce is not None else None)
+
     def _event(self, text: str, level: str = "INFO") -> None:
         log.log({"WARN": logging.WARNING, "ERROR": logging.ERROR}.get(level, logging.INFO), text)
         stamp = time.time_ns()
@@ -526,6 +548,14 @@ class CeddpServer:
             "mission": self.mission.summary() if self.mission is not None else None,
             "ros2": self.bridge.stats() if self.bridge is not None else None,
             "planners": {p.name: p.faults() for p in self.team_planners},
+            "services": services_summary(
+                self.services.counters(),
+                {
+                    robot: record.stats.services
+                    for robot, record in list(self.control.robots.items())
+                    if record.stats is not None
+                },
+            ),
             "events": list(self.events),
             "events_dropped": self.events_dropped,
         }

@@ -353,6 +353,40 @@ class PluginConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_o
             raise ValueError(f"class must be 'module.path:ClassName', got {self.cls!r}")
 
 
+class ServiceConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """One service a robot serves on ``arpz/{fleet}/robot/{robot}/srv/{name}`` (docs/nodes.md
+    "Services"): ``[[services]] name = "dock"  type = "std_srvs/srv/Trigger"  handler =
+    "mylab.base:dock"``."""
+
+    name: str
+    #: a ROS 2 service type, package/srv/Name ("std_srvs/srv/Trigger")
+    type: str
+    #: "module.path:function" (called with the request, returns the response) or
+    #: "module.path:Class" (made once with ``options``, then called with each request)
+    handler: str
+    #: requests waiting for the handler at most; one more is refused at once as busy
+    queue: int = 8
+    #: free-form options handed to a handler class
+    options: dict[str, Any] = msgspec.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        keys.check_chunk(self.name, what="service name")
+        parts = self.type.split("/")
+        if len(parts) != 3 or parts[1] != "srv" or not all(parts):
+            raise ValueError(
+                f"service {self.name!r}: type must be a ROS 2 service type package/srv/Name, such "
+                f'as "std_srvs/srv/Trigger", got {self.type!r}'
+            )
+        module, sep, attr = self.handler.partition(":")
+        if not (module and sep and attr):
+            raise ValueError(
+                f"service {self.name!r}: handler must be 'module.path:function' or "
+                f"'module.path:Class', got {self.handler!r}"
+            )
+        if not 1 <= self.queue <= 10_000:
+            raise ValueError(f"service {self.name!r}: queue must be 1 .. 10000, got {self.queue}")
+
+
 class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=True):
     robot_id: str
     fleet: str = "default"
@@ -375,6 +409,8 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
     #: the team's actuator (``[actuator] class = "mylab.base:Base"``, docs/nodes.md); None: a
     #: robot that only senses (or the simulated body's, with ``sim``)
     actuator: PluginConfig | None = None
+    #: the services this robot serves (``[[services]]``, docs/nodes.md "Services")
+    services: list[ServiceConfig] = msgspec.field(default_factory=list)
     watchdog: WatchdogConfig = msgspec.field(default_factory=WatchdogConfig)
     clock: RobotClockConfig = msgspec.field(default_factory=RobotClockConfig)
     link: LinkConfig = msgspec.field(default_factory=LinkConfig)
@@ -410,6 +446,10 @@ class RobotConfig(TrafficQos, forbid_unknown_fields=True, frozen=True, kw_only=T
         dupes = sorted({n for n in names if names.count(n) > 1})
         if dupes:
             raise ValueError(f"sensor names must be unique, repeated: {', '.join(dupes)}")
+        services = [s.name for s in self.services]
+        repeated = sorted({n for n in services if services.count(n) > 1})
+        if repeated:
+            raise ValueError(f"service names must be unique, repeated: {', '.join(repeated)}")
         if self.stats_period_s <= 0 or self.announce_period_s <= 0:
             raise ValueError("stats_period_s and announce_period_s must be > 0")
         if self.frame_fragment_bytes is not None and not (

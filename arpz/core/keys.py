@@ -74,6 +74,22 @@ def command_key(fleet: str, robot: str, name: str) -> str:
     return f"{robot_prefix(fleet, robot)}/cmd/{check_chunk(name, what='command')}"
 
 
+def service_key(fleet: str, robot: str, name: str) -> str:
+    """One of a robot's services (a Zenoh query from a caller, answered by the robot:
+    ``ServiceRequest`` in, ``ServiceReply`` out; docs/protocol.md "Services")."""
+    return f"{robot_prefix(fleet, robot)}/srv/{check_chunk(name, what='service')}"
+
+
+def robot_services(fleet: str, robot: str) -> str:
+    """Every service of one robot: the one queryable a robot declares for all of them (so that
+    a name it does not serve is answered, not left to time out)."""
+    return f"{robot_prefix(fleet, robot)}/srv/*"
+
+
+def all_services(fleet: str) -> str:
+    return f"{fleet_prefix(fleet)}/robot/*/srv/*"
+
+
 def presence_key(fleet: str, robot: str) -> str:
     """Liveliness token of a running robot agent."""
     return f"{robot_prefix(fleet, robot)}/presence"

@@ -171,6 +171,62 @@ class ClockReply(msgspec.Struct, array_like=True, frozen=True):
     t3_ns: int
 
 
+class ServiceRequest(msgspec.Struct, frozen=True):
+    """A call of a robot's service: the payload of a Zenoh query on ``srv/{name}`` (a map)."""
+
+    #: the ROS 2 service type the caller means ("std_srvs/srv/Trigger"): a robot serving
+    #: another type answers ``type_error`` without running its handler
+    type: str
+    #: the request message: msgpack of its type's wire Struct (``{type}_Request``), as
+    #: ``MessageTypes.encode`` makes it
+    request: msgspec.Raw
+    #: the caller's timeout, ms: an answer later than this is counted a timeout at the robot
+    timeout_ms: int
+    #: who calls (a writer id such as "ceddp:5f0c2a9e41b7", or a tool's "tool:host:pid")
+    caller: str = ""
+    #: the caller's number of this call (echoed in every reply)
+    id: int = 0
+
+
+#: msgpack's nil: a ``ServiceReply`` without a response
+NIL: Final = b"\xc0"
+#: ``ServiceReply.status``: the robot took the request (sent at once, before the answer)
+SERVICE_ACCEPTED: Final = "accepted"
+#: the answer: ``response`` holds the response message
+SERVICE_OK: Final = "ok"
+#: the handler raised (``error``: its exception), or returned what does not fit the response type
+SERVICE_FAILED: Final = "failed"
+#: the request does not fit the request type, or names another service type (``error`` says
+#: which field, or which type the robot serves)
+SERVICE_TYPE_ERROR: Final = "type_error"
+#: the robot serves no service of that name (``error`` lists those it serves)
+SERVICE_UNKNOWN: Final = "unknown"
+#: the service's queue is full: not run (``error`` says how many wait)
+SERVICE_BUSY: Final = "busy"
+#: the caller's timeout passed before the handler could start (it was not run)
+SERVICE_TIMEOUT: Final = "timeout"
+#: not a ``ServiceRequest`` at all
+SERVICE_BAD_REQUEST: Final = "bad_request"
+
+
+class ServiceReply(msgspec.Struct, frozen=True):
+    """A robot's reply to a ``ServiceRequest`` (a map): first ``accepted`` when it queued the
+    request, then the answer; or one refusal at once."""
+
+    status: str
+    #: the response message (status "ok"): msgpack of the response type's wire Struct; msgpack
+    #: nil otherwise
+    response: msgspec.Raw = msgspec.field(default_factory=lambda: msgspec.Raw(NIL))
+    #: why it failed or was refused ("": ok)
+    error: str = ""
+    #: the service type the robot serves under this name ("": unknown service)
+    type: str = ""
+    #: the request's ``id``
+    id: int = 0
+    #: how long the handler ran, ms (the answer; None otherwise)
+    handler_ms: float | None = None
+
+
 class TopicCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
     """Per-topic counters a robot keeps: produced == sent + held_back + write_failures +
     driver_errors (every read of the driver is produced)."""
@@ -268,6 +324,28 @@ class ClockStats(msgspec.Struct, frozen=True):
     replies: int = 0
 
 
+class ServiceCounters(msgspec.Struct, frozen=True, forbid_unknown_fields=False):
+    """One service's calls as its robot counts them: every request taken is a call, and ends
+    in exactly one of ok, failed, timeouts, type_errors or busy (``calls`` minus those is what
+    is queued or running now). A handler that answers after the caller's timeout is counted
+    a timeout, not ok (its late answer is still sent, and ignored)."""
+
+    calls: int = 0
+    ok: int = 0
+    #: the handler raised, or returned what does not fit the response type
+    failed: int = 0
+    #: not answered within the caller's timeout (queued too long, or the handler too slow)
+    timeouts: int = 0
+    #: a request that does not fit the service's request type, or names another type
+    type_errors: int = 0
+    #: refused at once: the service's queue was full
+    busy: int = 0
+    #: the slowest handler run so far, ms (None: none ran)
+    handler_ms_max: float | None = None
+    #: the last failure's text ("": none)
+    last_error: str = ""
+
+
 class RobotStats(msgspec.Struct, frozen=True):
     """Counters a robot reports on ``.../stats`` periodically, and with final=True at exit."""
 
@@ -313,6 +391,8 @@ class RobotStats(msgspec.Struct, frozen=True):
     #: the robot's wall clock when this incarnation started (0: an older robot): of two
     #: processes running with one robot_id, the CEDDP keeps the one that started first
     started_ns: int = 0
+    #: per service the robot serves (``[[services]]``, docs/nodes.md "Services"): its calls
+    services: dict[str, ServiceCounters] = msgspec.field(default_factory=dict)
 
 
 class TopicRate(msgspec.Struct, frozen=True):
@@ -403,6 +483,9 @@ class Announce(msgspec.Struct, frozen=True):
     #: the typed commands among ``commands``: name -> the ROS 2 type it accepts (the others take
     #: a value: a float, bool, string or list of floats)
     command_types: dict[str, str] = msgspec.field(default_factory=dict)
+    #: the services the robot serves, name -> ROS 2 service type ("std_srvs/srv/Trigger"), on
+    #: ``srv/{name}`` (docs/protocol.md "Services")
+    services: dict[str, str] = msgspec.field(default_factory=dict)
 
 
 class RobotQos(msgspec.Struct, frozen=True):
@@ -515,6 +598,8 @@ CONFIGURATION_ACK_DECODER: Final = msgspec.msgpack.Decoder(ConfigurationAck)
 TELEMETRY_DECODER: Final = msgspec.msgpack.Decoder(Telemetry)
 CLOCK_REQUEST_DECODER: Final = msgspec.msgpack.Decoder(ClockRequest)
 CLOCK_REPLY_DECODER: Final = msgspec.msgpack.Decoder(ClockReply)
+SERVICE_REQUEST_DECODER: Final = msgspec.msgpack.Decoder(ServiceRequest)
+SERVICE_REPLY_DECODER: Final = msgspec.msgpack.Decoder(ServiceReply)
 
 
 def same_value(a: SensorValue, b: SensorValue, tolerance: float = 0.0) -> bool:

@@ -69,6 +69,41 @@ _FLOATS: Final = frozenset({"float32", "float64"})
 _BYTES: Final = frozenset({"uint8", "byte", "char"})
 HEADER: Final = "std_msgs/msg/Header"
 _F32: Final = struct.Struct("<f")
+#: the field ROS 2 gives a message with none (``std_msgs/msg/Empty``, a ``Trigger``'s request)
+_EMPTY_PLACEHOLDER: Final = "structure_needs_at_least_one_member"
+
+#: the service types every arpz process knows, as ROS 2 Humble defines them (``.srv`` text:
+#: the request's fields, ``---``, the response's): std_srvs and the services of
+#: common_interfaces. rosbags' typestore holds messages only; a team adds its own services
+#: from ``.srv`` files (``MessageTypes.add_srv_paths``)
+STANDARD_SERVICES: Final[dict[str, str]] = {
+    "std_srvs/srv/Empty": "---\n",
+    "std_srvs/srv/SetBool": "bool data\n---\nbool success\nstring message\n",
+    "std_srvs/srv/Trigger": "---\nbool success\nstring message\n",
+    "nav_msgs/srv/GetMap": "---\nnav_msgs/OccupancyGrid map\n",
+    "nav_msgs/srv/GetPlan": (
+        "geometry_msgs/PoseStamped start\ngeometry_msgs/PoseStamped goal\nfloat32 tolerance\n"
+        "---\nnav_msgs/Path plan\n"
+    ),
+    "nav_msgs/srv/LoadMap": (
+        "string map_url\n---\nuint8 RESULT_SUCCESS=0\nuint8 RESULT_MAP_DOES_NOT_EXIST=1\n"
+        "uint8 RESULT_INVALID_MAP_DATA=2\nuint8 RESULT_INVALID_MAP_METADATA=3\n"
+        "uint8 RESULT_UNDEFINED_FAILURE=255\nnav_msgs/OccupancyGrid map\nuint8 result\n"
+    ),
+    "nav_msgs/srv/SetMap": (
+        "nav_msgs/OccupancyGrid map\ngeometry_msgs/PoseWithCovarianceStamped initial_pose\n"
+        "---\nbool success\n"
+    ),
+    "sensor_msgs/srv/SetCameraInfo": (
+        "sensor_msgs/CameraInfo camera_info\n---\nbool success\nstring status_message\n"
+    ),
+    "diagnostic_msgs/srv/AddDiagnostics": (
+        "string load_namespace\n---\nbool success\nstring message\n"
+    ),
+    "diagnostic_msgs/srv/SelfTest": (
+        "---\nstring id\nbyte passed\ndiagnostic_msgs/DiagnosticStatus[] status\n"
+    ),
+}
 
 
 class MessageTypeError(ConfigError):
@@ -151,6 +186,10 @@ class MessageTypes:
         self._shapes: dict[str, _Shape] = {}
         self._decoders: dict[str, msgspec.msgpack.Decoder[Any]] = {}
         self._encoder = msgspec.msgpack.Encoder()
+        #: service name -> its ``.srv`` text (the standard ones and those added), and the services
+        #: whose request and response types are registered as messages already
+        self._services: dict[str, str] = dict(STANDARD_SERVICES)
+        self._services_registered: set[str] = set()
 
     # -- what is known ------------------------------------------------------------------------
 
@@ -453,6 +492,132 @@ class MessageTypes:
     def to_builtins(self, message: msgspec.Struct) -> dict[str, Any]:
         """The message as a dict of plain values, nested messages as dicts (``topic echo``)."""
         return {field: _builtins(getattr(message, field)) for field in message.__struct_fields__}
+
+    # -- services ----------------------------------------------------------------------------
+
+    def service_names(self) -> list[str]:
+        """Every service type known (``std_srvs/srv/Trigger``), sorted: the standard ones of
+        ``STANDARD_SERVICES`` and those added from ``.srv`` files."""
+        with self._lock:
+            return sorted(self._services)
+
+    def known_service(self, name: str) -> bool:
+        with self._lock:
+            return name in self._services
+
+    def require_service(self, name: str) -> None:
+        """Raise ``MessageTypeError`` naming close matches when ``name`` is not a service type
+        known here."""
+        if self.known_service(name):
+            return
+        parts = name.split("/")
+        if len(parts) != 3 or parts[1] != "srv" or not all(parts):
+            raise MessageTypeError(
+                f"service type {name!r} is not a ROS 2 service type name: write "
+                "package/srv/Name, for example std_srvs/srv/Trigger"
+            )
+        package, base = parts[0], parts[2]
+        names = self.service_names()
+        same_package = [n.split("/")[2] for n in names if n.startswith(package + "/srv/")]
+        close = difflib.get_close_matches(base, same_package, n=3, cutoff=0.75)
+        if close:
+            hint = f": did you mean {' or '.join(f'{package}/srv/{c}' for c in close)}?"
+        elif same_package:
+            hint = f"; {package} has {', '.join(same_package)}"
+        else:
+            hint = (
+                "; add it from a .srv file (package/srv/Name.srv under msg_paths); known: "
+                + ", ".join(names)
+            )
+        raise MessageTypeError(f"unknown service type {name!r}{hint}")
+
+    def service_types(self, name: str) -> tuple[str, str]:
+        """The request and response message types of service ``name`` (``std_srvs/srv/
+        Trigger`` -> ``std_srvs/srv/Trigger_Request``, ``std_srvs/srv/Trigger_Response``, as
+        ROS 2 names them), registered as message types on first use: ``check``, ``encode``,
+        ``decode``, ``to_cdr`` and ``type_hash`` then take them like any message type."""
+        self.require_service(name)
+        request, response = f"{name}_Request", f"{name}_Response"
+        with self._lock:
+            if name not in self._services_registered:
+                self._register_service(name, self._services[name])
+                self._services_registered.add(name)
+        return request, response
+
+    def check_service_message(self, name: str, message: object) -> msgspec.Struct:
+        """``check`` of a service's request or response type (``name`` as ``service_types``
+        gives it), with ``nan = "pass"`` (a call carries what its caller sent), and an empty
+        message (``std_srvs/srv/Trigger_Request``: ``{}``) given the one placeholder field ROS 2
+        adds to an empty structure."""
+        if isinstance(message, Mapping) and not message:
+            fields = self.fields(name)
+            if fields == [_EMPTY_PLACEHOLDER]:
+                message = {_EMPTY_PLACEHOLDER: 0}
+        return self.check(name, message, nan="pass")
+
+    def add_service_definition(self, name: str, text: str) -> None:
+        """Add service ``name`` (``package/srv/Name``) from its ``.srv`` text: the request's
+        fields, a line ``---``, the response's."""
+        parts = name.split("/")
+        if len(parts) != 3 or parts[1] != "srv" or not all(parts):
+            raise MessageTypeError(f"{name}: a service type name is package/srv/Name")
+        self._register_service(name, text)
+        with self._lock:
+            self._services[name] = text
+            self._services_registered.add(name)
+
+    def add_srv_paths(self, paths: Iterable[str | Path]) -> list[str]:
+        """Add every ``PACKAGE/srv/NAME.srv`` under the given folders (the ``msg_paths`` of a
+        robot's or the CEDDP's TOML: ROS 2 lays a package's ``msg/`` and ``srv/`` side by
+        side); the names added."""
+        added = []
+        for root in paths:
+            root_path = Path(root)
+            if not root_path.is_dir():
+                raise MessageTypeError(f"msg_paths: {root_path} is not a folder")
+            for file in sorted(root_path.rglob("*.srv")):
+                if file.parent.name != "srv":
+                    raise MessageTypeError(
+                        f"{file}: a .srv file must stand in PACKAGE/srv/ (ROS 2's layout)"
+                    )
+                name = f"{file.parent.parent.name}/srv/{file.stem}"
+                try:
+                    self.add_service_definition(name, file.read_text())
+                except MessageTypeError as exc:
+                    raise MessageTypeError(f"{file}: {exc}") from None
+                added.append(name)
+        return sorted(added)
+
+    def _register_service(self, name: str, text: str) -> None:
+        """Parse ``.srv`` text into its request and response message types and register both.
+        rosbags parses message names only (``package/msg/Name``): each half is parsed under
+        that form, so relative field types resolve in the service's package (``Path`` in
+        ``nav_msgs/srv/GetPlan`` is ``nav_msgs/msg/Path``), then registered under the
+        service's names."""
+        lines = text.splitlines()
+        cuts = [i for i, line in enumerate(lines) if line.split("#")[0].strip() == "---"]
+        if len(cuts) != 1:
+            raise MessageTypeError(
+                f"{name}: a .srv definition has the request's fields, one line '---', then the "
+                f"response's (found {len(cuts)} such lines)"
+            )
+        halves = {
+            "Request": "\n".join(lines[: cuts[0]]),
+            "Response": "\n".join(lines[cuts[0] + 1 :]),
+        }
+        package, _, base = name.split("/")
+        parsed: dict[str, Any] = {}
+        for half, body in halves.items():
+            as_message = f"{package}/msg/{base}_{half}"
+            try:
+                found = get_types_from_msg(body, as_message)
+            except Exception as exc:  # rosbags raises its own parser errors
+                raise MessageTypeError(f"{name}: not a valid .srv definition: {exc}") from None
+            parsed[f"{name}_{half}"] = found[as_message]
+        with self._lock:
+            self._store.register(parsed)
+            for message in parsed:
+                self._check_references(message, {})
 
     # -- CDR, for the ROS 2 side --------------------------------------------------------------
 

@@ -29,6 +29,9 @@ LivelinessCallback = Callable[[str, bool], None]
 QueryHandler = Callable[[bytes], bytes | None]
 #: (reply payload) -> None, for ``request``: on a transport-owned thread, only record or queue
 ReplyCallback = Callable[[bytes], None]
+#: () -> None, for ``query``: the request is over (every replier finished, or its timeout
+#: passed, or nobody serves the key); called once, on a transport-owned thread
+DoneCallback = Callable[[], None]
 
 
 class Publisher(Protocol):
@@ -122,6 +125,58 @@ class Transport(Protocol):
         ...
 
     def close(self) -> None: ...
+
+
+class Responder(Protocol):
+    """One request taken by a ``serve_deferred`` handler, answered when the answer is ready:
+    ``reply`` any number of times, from any thread, then ``finish``. A request left unfinished
+    ends at the requester's timeout."""
+
+    def reply(self, payload: bytes) -> bool:
+        """Send one reply; False when it could not be sent (the requester's timeout passed, the
+        session closed or was replaced): nothing to do about it but count it."""
+        ...
+
+    def finish(self) -> None:
+        """No more replies: the requester's request is over once every replier finished.
+        Idempotent; replies after it are dropped."""
+        ...
+
+
+#: (key, request payload, responder) -> None, for ``serve_deferred``: on a transport-owned
+#: thread, so it must return at once: reply at once, or hand the responder to a worker
+DeferredQueryHandler = Callable[[str, bytes, Responder], None]
+
+
+@runtime_checkable
+class DeferredQueries(Protocol):
+    """A transport whose queryables may answer later, from another thread (a robot's services,
+    ``arpz.robot.services``), and whose requester learns when a request is over
+    (``ZenohTransport`` and ``MemoryTransport``). Beside ``Transport``'s ``serve`` /
+    ``request``, whose handler answers inside the transport's callback and whose requester
+    sees only replies."""
+
+    def serve_deferred(self, key_expr: str, handler: DeferredQueryHandler) -> Handle:
+        """Hand every request on a key matching ``key_expr`` to ``handler`` with its own
+        ``Responder`` (a Zenoh queryable whose queries are finished by the responder)."""
+        ...
+
+    def query(
+        self,
+        key: str,
+        payload: bytes,
+        on_reply: ReplyCallback,
+        on_done: DoneCallback,
+        *,
+        timeout_s: float,
+    ) -> None:
+        """Send a request to whoever serves ``key`` and return at once; every reply is handed to
+        ``on_reply`` as it comes (none held back for consolidation), then ``on_done`` once:
+        when every replier finished, at ``timeout_s``, or at once when no queryable the
+        session can see serves ``key`` (nobody does, or access control hides it). Both run on
+        a transport-owned thread: quick, never blocking. Raises ``TransportError`` when the
+        session is closed or down (being replaced), and then calls neither."""
+        ...
 
 
 @runtime_checkable

@@ -63,6 +63,7 @@ from arpz.robot.sensing import (
     sense,
 )
 from arpz.robot.sensors import value_type_of
+from arpz.robot.services import ServiceHost, robot_service_types
 from arpz.robot.sim_host import SimActuator, SimHost
 from arpz.robot.watchdog import CommandWatchdog
 
@@ -160,6 +161,10 @@ class RobotAgent:
             for s in self.sensors
             if self.types is not None and s.config.type is not None
         }
+        #: the services this robot serves (``[[services]]``, arpz/robot/services.py)
+        self.services = ServiceHost(
+            config, transport, robot_service_types(config, base_dir, self.types)
+        )
         #: the commands this robot acts on (the Hello hop is handled by the agent itself)
         self.command_names: list[str] = list(self.actuator.commands)
         self.watchdog = CommandWatchdog(self._watchdog_deadlines())
@@ -222,6 +227,7 @@ class RobotAgent:
         cfg = self.config
         self.commands.start(self.command_names)
         self.configuration.start()
+        self.services.start()
         self.transport.declare_token(keys.presence_key(cfg.fleet, cfg.robot_id))
         self.transport.declare_token(keys.robot_mode_key(cfg.fleet, cfg.robot_id, cfg.reliability))
         self.transport.watch_liveliness(keys.all_ceddp_modes(cfg.fleet), self._on_ceddp_mode)
@@ -379,6 +385,7 @@ class RobotAgent:
             self.hello_probe.drain(self.config.hello.timeout_s)
         self.commands.close()
         self.configuration.close()
+        self.services.close()
         self.actuator.stop()
         for sensor in self.sensors:  # a camera's last frame goes out before the drain
             sensor.stop_sending()
@@ -616,6 +623,7 @@ class RobotAgent:
             bundle_put_failures=bundles.put_failures if bundles else 0,
             silent_sensors=silent,
             started_ns=self.started_ns,
+            services=self.services.counters(),
         )
 
     def _clock_stats(self) -> ClockStats | None:
@@ -650,6 +658,7 @@ class RobotAgent:
             sensors=[self._topic_info(s) for s in self.sensors],
             commands=[keys.HELLO, *self.command_names],
             command_types=dict(self.actuator.command_types),
+            services=self.services.announced(),
             mode=cfg.reliability,
             clock=self._clock_stats(),
         )

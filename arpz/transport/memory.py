@@ -17,6 +17,8 @@ from collections.abc import Callable
 from arpz.core.protocol import bundle
 from arpz.core.transport import (
     DataCallback,
+    DeferredQueryHandler,
+    DoneCallback,
     Handle,
     LivelinessCallback,
     Publisher,
@@ -61,6 +63,7 @@ class MemoryBus:
         self.watchers: list[tuple[str, LivelinessCallback]] = []
         self.tokens: dict[int, str] = {}
         self.servers: list[tuple[str, QueryHandler]] = []
+        self.deferred: list[tuple[str, DeferredQueryHandler]] = []
         self._next_id = 0
 
     def new_id(self) -> int:
@@ -274,6 +277,50 @@ class MemoryTransport:
                 self._delivered += 1
                 on_reply(answer)
 
+    def serve_deferred(self, key_expr: str, handler: DeferredQueryHandler) -> Handle:
+        entry = (key_expr, handler)
+        with self.bus.lock:
+            self.bus.deferred.append(entry)
+
+        def remove() -> None:
+            with self.bus.lock:
+                if entry in self.bus.deferred:
+                    self.bus.deferred.remove(entry)
+
+        return self._track(_Handle(remove))
+
+    def query(
+        self,
+        key: str,
+        payload: bytes,
+        on_reply: ReplyCallback,
+        on_done: DoneCallback,
+        *,
+        timeout_s: float,
+    ) -> None:
+        """Each handler runs inside the call, as Zenoh's queryable thread would run it; its
+        responder replies from any thread until it finishes or ``timeout_s`` passes (a timer
+        thread), and ``on_done`` follows the last finish, the timeout, or at once when no
+        queryable matches ``key``."""
+        if self.closed:
+            raise TransportError("query on a closed MemoryTransport")
+        with self.bus.lock:
+            handlers = [h for expr, h in self.bus.deferred if key_matches(expr, key)]
+        if not handlers:
+            on_done()
+            return
+        state = _Query(len(handlers), on_done, timeout_s)
+
+        def deliver(answer: bytes) -> bool:
+            if self.closed:
+                return False
+            self._delivered += 1
+            on_reply(answer)
+            return True
+
+        for handler in handlers:
+            handler(key, payload, _MemoryResponder(state, deliver))
+
     def _track(self, handle: _Handle) -> _Handle:
         self._handles.append(handle)
         return handle
@@ -285,3 +332,51 @@ class MemoryTransport:
             handle.undeclare()
         self._handles.clear()
         self.closed = True
+
+
+class _Query:
+    """One request of ``MemoryTransport.query``: over when every responder finished or its
+    timeout passed, whichever comes first."""
+
+    def __init__(self, repliers: int, on_done: DoneCallback, timeout_s: float) -> None:
+        self.lock = threading.Lock()
+        self.pending = repliers
+        self.over = False
+        self._on_done = on_done
+        self._timer = threading.Timer(timeout_s, self.end)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def finished_one(self) -> None:
+        with self.lock:
+            self.pending -= 1
+            last = self.pending == 0
+        if last:
+            self.end()
+
+    def end(self) -> None:
+        with self.lock:
+            if self.over:
+                return
+            self.over = True
+        self._timer.cancel()
+        self._on_done()
+
+
+class _MemoryResponder:
+    def __init__(self, state: _Query, deliver: Callable[[bytes], bool]) -> None:
+        self._state = state
+        self._deliver = deliver
+        self._finished = False
+
+    def reply(self, payload: bytes) -> bool:
+        with self._state.lock:
+            if self._finished or self._state.over:
+                return False
+        return self._deliver(payload)
+
+    def finish(self) -> None:
+        if self._finished:
+            return
+        self._finished = True
+        self._state.finished_one()

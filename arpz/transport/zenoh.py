@@ -31,6 +31,8 @@ from arpz.core.link_sizes import link_sizes, session_batch_size
 from arpz.core.protocol import bundle
 from arpz.core.transport import (
     DataCallback,
+    DeferredQueryHandler,
+    DoneCallback,
     Handle,
     LivelinessCallback,
     Publisher,
@@ -565,6 +567,55 @@ def _close_in_background(session: zenoh.Session) -> threading.Thread:
 _CLOSING_WAIT_S = 2.0
 
 
+def _on_answer(link: _Link, key: str, on_reply: ReplyCallback) -> Callable[[zenoh.Reply], None]:
+    """A request's reply callback for Zenoh: each reply's payload to ``on_reply``, counted as
+    delivered; reply errors (Zenoh's "Timeout") left out."""
+
+    def on_answer(reply: zenoh.Reply) -> None:
+        sample = reply.ok
+        if sample is None:
+            return
+        link.delivered += 1
+        try:
+            on_reply(sample.payload.to_bytes())
+        except Exception:  # on Zenoh's network thread: log it, never let it reach Zenoh
+            log.exception("reply handler for %s raised", key)
+
+    return on_answer
+
+
+class _ZenohResponder:
+    """One query of ``serve_deferred``, held until finished (``arpz.core.transport.Responder``):
+    dropping zenoh-python's ``Query`` is what tells the requester no more replies come."""
+
+    def __init__(self, query: zenoh.Query, key: str, current: Callable[[], bool]) -> None:
+        self._query: zenoh.Query | None = query
+        self.key = key
+        self._current = current
+        self._lock = threading.Lock()
+
+    def reply(self, payload: bytes) -> bool:
+        with self._lock:
+            query = self._query
+            if query is None or not self._current():
+                return False
+            try:
+                query.reply(self.key, payload)
+            except zenoh.ZError as exc:  # the requester left, or the session is closing
+                log.debug("reply on %s failed: %s", self.key, zenoh_message(exc))
+                return False
+            return True
+
+    def finish(self) -> None:
+        with self._lock:
+            query, self._query = self._query, None
+        if query is not None:
+            try:
+                query.drop()  # type: ignore[no-untyped-call]
+            except zenoh.ZError as exc:
+                log.debug("finishing the query on %s failed: %s", self.key, zenoh_message(exc))
+
+
 class ZenohTransport:
     """A Zenoh session behind the ``Transport`` protocol; ``reopen`` replaces the session in
     place (``arpz.core.transport.Reopenable``)."""
@@ -750,18 +801,7 @@ class ZenohTransport:
     def request(
         self, key: str, payload: bytes, on_reply: ReplyCallback, *, timeout_s: float
     ) -> None:
-        link = self._link
-
-        def on_answer(reply: zenoh.Reply) -> None:
-            sample = reply.ok
-            if sample is None:
-                return
-            link.delivered += 1
-            try:
-                on_reply(sample.payload.to_bytes())
-            except Exception:  # on Zenoh's network thread: log it, never let it reach Zenoh
-                log.exception("reply handler for %s raised", key)
-
+        on_answer = _on_answer(self._link, key, on_reply)
         # Run on Zenoh's network thread (indirect=False), not on a Python thread zenoh-python
         # would start for every request: ``get`` returns only once that thread holds the GIL,
         # and a robot's clock bursts (4 requests every 2 s) stalled its sensing loop by that
@@ -780,6 +820,66 @@ class ZenohTransport:
             if self._link.down and not self._closed:
                 return  # dropped: the requester sees no reply, as after a congested link
             raise TransportError(f"request on {key}: {zenoh_message(exc)}") from exc
+
+    def serve_deferred(self, key_expr: str, handler: DeferredQueryHandler) -> Handle:
+        """A queryable whose queries are answered through a ``Responder`` (``arpz.core.
+        transport.DeferredQueries``): the handler runs on zenoh-python's queryable thread and
+        returns at once; the query stays open (the requester waits) until the responder
+        finishes it or the requester's timeout passes. Each reply goes on the query's own key
+        (a queryable of ``srv/*`` asked for ``srv/dock`` replies on ``srv/dock``)."""
+
+        def declare(session: zenoh.Session, current: Callable[[], bool]) -> Any:
+            def on_query(query: zenoh.Query) -> None:
+                if not current():
+                    return
+                payload = query.payload
+                responder = _ZenohResponder(query, str(query.key_expr), current)
+                try:
+                    handler(
+                        responder.key, payload.to_bytes() if payload is not None else b"", responder
+                    )
+                except Exception:  # on Zenoh's thread: log it, never let it reach Zenoh
+                    log.exception("query handler for %s raised", key_expr)
+                    responder.finish()
+
+            return session.declare_queryable(key_expr, on_query, complete=True)
+
+        handle = _Declared(declare)
+        self._adopt(handle, f"serve {key_expr}")
+        return handle
+
+    def query(
+        self,
+        key: str,
+        payload: bytes,
+        on_reply: ReplyCallback,
+        on_done: DoneCallback,
+        *,
+        timeout_s: float,
+    ) -> None:
+        """``DeferredQueries.query``: no consolidation (each reply is handed on as it comes,
+        an acknowledgement before the answer), replies and the end on Zenoh's network thread
+        (as ``request``); a reply error (Zenoh's "Timeout") only precedes the end."""
+        on_answer = _on_answer(self._link, key, on_reply)
+
+        def on_end() -> None:
+            try:
+                on_done()
+            except Exception:
+                log.exception("end-of-query handler for %s raised", key)
+
+        if self._link.down or self._closed:
+            state = "closed" if self._closed else "down (being replaced)"
+            raise TransportError(f"query on {key}: the session is {state}")
+        with _translated(f"query on {key}"):
+            self._session.get(
+                key,
+                zenoh.handlers.Callback(on_answer, on_end, indirect=False),
+                payload=payload,
+                timeout=timeout_s,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                congestion_control=zenoh.CongestionControl.DROP,
+            )
 
     def reopen(self) -> None:
         """Replace the session (``arpz.core.transport.Reopenable``): close it on a thread of its own
