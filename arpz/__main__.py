@@ -31,6 +31,7 @@ COMMANDS: dict[str, Command] = {
     "topic": Command("arpz.tools.topic", "list, info, echo, hz, bw, delay of a fleet's topics"),
     "record": Command("arpz.tools.record", "record a running fleet into MCAP"),
     "play": Command("arpz.tools.play", "play an MCAP recording back into a fleet"),
+    "service": Command("arpz.tools.service", "list and call the robots' services (request/reply)"),
     "doctor": Command("arpz.tools.doctor", "check a running fleet and say what is wrong"),
     "bridge": Command("arpz.bridge.__main__", "the ROS 2 bridge (rmw_zenoh), standalone"),
     "perf": Command("arpz.perf.__main__", "performance tests: channel, ingest, fleet scaling"),

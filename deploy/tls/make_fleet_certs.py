@@ -11,9 +11,10 @@ writes into ``--out``:
 - ``ceddp.pem`` / ``ceddp.key``: the CEDDP's server certificate, valid for every ``--server-name``
   and ``--server-ip`` (robots check that the address they dial is in it).
 - ``{robot}.pem`` / ``{robot}.key`` for each robot, with CN = the robot id (and the same for
-  each ``--observer``: a read-only client such as a dashboard or a logger). The router's access
-  control matches this CN, so the CN IS the robot's identity: a robot holding ``robot2.pem`` can
-  only ever speak as robot2.
+  each ``--observer``: a read-only client such as a dashboard or a logger; and for each
+  ``--operator``: an observer that may also call the robots' services, ``arpz service call``).
+  The router's access control matches this CN, so the CN IS the robot's identity: a robot
+  holding ``robot2.pem`` can only ever speak as robot2.
 - ``zenoh/ceddp-router.json5`` and ``zenoh/{robot}-client.json5``: the router configuration
   (mutual TLS + access control, one subject per robot, because Zenoh cannot substitute the CN
   into a key expression; listening on ``quic/`` and ``tls/``) and each robot's client
@@ -62,6 +63,10 @@ ROBOT_SENDS = ["put", "delete", "liveliness_token"]
 ROBOT_SUBSCRIBES = ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query"]
 #: what the router may hand to a robot on the keys it receives
 ROBOT_RECEIVES = ["put", "delete", "liveliness_token"]
+#: what a robot sends to serve its services (``srv/*``: docs/nodes.md "Services"), and what a
+#: caller is handed back (the robots' queryables, so that its session routes the call, and
+#: their replies)
+SERVES = ["declare_queryable", "reply"]
 
 
 class CertError(RuntimeError):
@@ -144,7 +149,12 @@ def _rule(rule_id: str, messages: list[str], flow: str, key_exprs: list[str]) ->
 
 
 def access_control(
-    fleet: str, robots: list[str], *, by: str, observers: list[str]
+    fleet: str,
+    robots: list[str],
+    *,
+    by: str,
+    observers: list[str],
+    operators: list[str] | None = None,
 ) -> dict[str, object]:
     """Deny by default; each robot may send only under its own subtree and receive only its own
     ``cmd`` keys, the reliable channel's control traffic of its own keys and the fleet-wide
@@ -158,9 +168,15 @@ def access_control(
     explicitly: the command data (``cmd/*``) and the command writers' own traffic (writer
     tokens, heartbeats, resends and GAPs).
 
+    A robot serves its services on ``robot/{robot}/srv/*``: it may declare that queryable and
+    reply there, and be handed the queries on it.
+
     An observer (``--observer``) may subscribe to every key of the fleet, liveliness tokens
     included, and query the CEDDP's clock; it may put, delete and declare nothing, so the arpz
-    tools it runs read without writing (docs/security.md, "The observer").
+    tools it runs read without writing (docs/security.md, "The observer"). It is not shown the
+    robots' service queryables either, so its call of a service ends at once with no reply: an
+    observer must not act. An operator (``--operator``) is an observer that may also call the
+    robots' services (query ``robot/*/srv/*``, be shown those queryables and get their replies).
 
     The CEDDP's own session lives inside the router and is not a remote subject, so no rule
     applies to it: it sees and may send everything. ``by`` is ``cert_common_names`` (mTLS) or
@@ -171,6 +187,7 @@ def access_control(
     policies: list[dict[str, object]] = []
     fleet_root = f"arpz/{fleet}"
     clock = f"{fleet_root}/ceddp/clock"
+    services = f"{fleet_root}/robot/*/srv/*"
     for robot in robots:
         own = f"{fleet_root}/robot/{robot}"
         qos_reader = f"{fleet_root}/ceddp/qos/rel"
@@ -223,13 +240,18 @@ def access_control(
             # clock and its reply, nothing else
             _rule(f"{robot}-clock-query", ["query"], "ingress", [clock]),
             _rule(f"{robot}-clock-reply", ["declare_queryable", "reply"], "egress", [clock]),
+            # its services: the queryable on its own srv/* and its replies, and the calls
+            # (queries) the router hands it there
+            _rule(f"{robot}-serve", SERVES, "ingress", [f"{own}/srv/*"]),
+            _rule(f"{robot}-be-called", ["query"], "egress", [f"{own}/srv/*"]),
         ]
         rules.extend(own_rules)
         subjects.append({"id": robot, by: [robot]})
         policies.append(
             {"id": f"{robot}-policy", "rules": [r["id"] for r in own_rules], "subjects": [robot]}
         )
-    for observer in observers:
+    callers = set(operators or [])
+    for observer in [*observers, *(operators or [])]:
         # Read-only: `arpz topic`, `record`, `doctor`, a dashboard, a logger. It may subscribe
         # to the whole fleet, its liveliness tokens included, and put nothing: no sample, no
         # command, no token, no ACKNACK, so it cannot even acknowledge a sample in another
@@ -243,6 +265,12 @@ def access_control(
             _rule(f"{observer}-clock-query", ["query"], "ingress", [clock]),
             _rule(f"{observer}-clock-reply", ["declare_queryable", "reply"], "egress", [clock]),
         ]
+        if observer in callers:
+            # an operator: an observer that may also call the robots' services
+            own_rules += [
+                _rule(f"{observer}-call", ["query"], "ingress", [services]),
+                _rule(f"{observer}-call-reply", SERVES, "egress", [services]),
+            ]
         rules.extend(own_rules)
         subjects.append({"id": observer, by: [observer]})
         policies.append(
@@ -277,7 +305,13 @@ def _write_json5(path: Path, header: str, config: dict[str, object]) -> None:
 
 
 def router_config(
-    fleet: str, robots: list[str], observers: list[str], tls: str, *, usrpwd: bool
+    fleet: str,
+    robots: list[str],
+    observers: list[str],
+    tls: str,
+    *,
+    usrpwd: bool,
+    operators: list[str] | None = None,
 ) -> dict[str, object]:
     tls_conf: dict[str, object] = {
         "root_ca_certificate": f"{tls}/ca.pem",
@@ -297,7 +331,11 @@ def router_config(
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "transport": transport,
         "access_control": access_control(
-            fleet, robots, by="usernames" if usrpwd else "cert_common_names", observers=observers
+            fleet,
+            robots,
+            by="usernames" if usrpwd else "cert_common_names",
+            observers=observers,
+            operators=operators,
         ),
     }
 
@@ -350,17 +388,19 @@ def make_fleet(
     paths_on_hosts: str | None = None,
     usrpwd: bool = False,
     observers: list[str] | None = None,
+    operators: list[str] | None = None,
     argv: list[str] | None = None,
 ) -> None:
     observers = observers or []
-    clients = [*robots, *observers]
+    operators = operators or []
+    clients = [*robots, *observers, *operators]
     for name in [fleet, *clients]:
         if not _CHUNK.match(name):
             raise CertError(
                 f"{name!r} is not a valid arpz name: lowercase letters, digits, '_' or '-'"
             )
     if len(set(clients)) != len(clients):
-        raise CertError("robot and observer names must all be different")
+        raise CertError("robot, observer and operator names must all be different")
     if "ceddp" in clients or "ca" in clients:
         raise CertError("'ceddp' and 'ca' are the server's and the CA's file names, not robot ids")
     for ip in server_ips:
@@ -377,7 +417,7 @@ def make_fleet(
     _write_json5(
         zdir / "ceddp-router.json5",
         _header(f"CEDDP router of fleet '{fleet}': mutual TLS + access control", args),
-        router_config(fleet, robots, observers, tls, usrpwd=False),
+        router_config(fleet, robots, observers, tls, usrpwd=False, operators=operators),
     )
     for name in clients:
         _write_json5(
@@ -390,7 +430,7 @@ def make_fleet(
         _write_json5(
             zdir / "ceddp-router-usrpwd.json5",
             _header(f"CEDDP router of fleet '{fleet}': TLS + user/password + access control", args),
-            router_config(fleet, robots, observers, tls, usrpwd=True),
+            router_config(fleet, robots, observers, tls, usrpwd=True, operators=operators),
         )
         for name in clients:
             path = zdir / f"{name}-client-usrpwd.json5"
@@ -429,6 +469,12 @@ def main(argv: list[str] | None = None) -> int:
         default=[],
         help="a read-only client (dashboard, logger) that may subscribe to the whole fleet",
     )
+    parser.add_argument(
+        "--operator",
+        action="append",
+        default=[],
+        help="an observer that may also call the robots' services (arpz service call)",
+    )
     args = parser.parse_args(argv)
     if not args.server_name and not args.server_ip:
         args.server_ip = ["127.0.0.1"]
@@ -444,6 +490,7 @@ def main(argv: list[str] | None = None) -> int:
             paths_on_hosts=args.paths_on_hosts,
             usrpwd=args.usrpwd,
             observers=args.observer,
+            operators=args.operator,
             argv=argv,
         )
     except (CertError, ValueError) as exc:

@@ -30,6 +30,7 @@ def make_fleet_tls(
     robots: list[str],
     *,
     observers: tuple[str, ...] = (),
+    operators: tuple[str, ...] = (),
     usrpwd: bool = False,
 ) -> Path:
     """Run the deploy script: a CA, a server certificate for 127.0.0.1, one per client."""
@@ -37,6 +38,8 @@ def make_fleet_tls(
     args += ["--server-ip", "127.0.0.1", "--server-name", "localhost"]
     for observer in observers:
         args += ["--observer", observer]
+    for operator in operators:
+        args += ["--operator", operator]
     if usrpwd:
         args.append("--usrpwd")
     done = subprocess.run([*args, *robots], capture_output=True, text=True, timeout=60)

@@ -32,7 +32,7 @@ def follow_the_guide(etc: Path, port: int) -> None:
     subprocess.run(
         [sys.executable, str(DEPLOY / "tls" / "make_fleet_certs.py"), "--out", str(fleet_dir),
          "--fleet", "lab", "--server-ip", "127.0.0.1", "--server-name", "localhost",
-         "--paths-on-hosts", str(etc / "tls"), "--observer", "operator",
+         "--paths-on-hosts", str(etc / "tls"), "--operator", "operator",
          "robot1", "robot2", "robot3"],
         check=True, capture_output=True, timeout=120,
     )  # fmt: skip

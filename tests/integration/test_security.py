@@ -11,6 +11,7 @@ allowed thing), so "nothing arrived" cannot pass because nothing was sent.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -20,11 +21,13 @@ from pathlib import Path
 
 import pytest
 
+from arpz.ceddp.services import ServiceCaller, ServiceRefused
 from arpz.channel import Writer
 from arpz.core.messages import DECODE_ERRORS, STATS_DECODER, Command, RobotStats, Sample, encode
 from arpz.core.protocol import wire
 from arpz.core.traffic import SENSOR_QOS
 from arpz.core.transport import TransportError
+from arpz.tools.service import main as service_main
 from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import robots, settle
 from tests.integration.secure_fleet import (
@@ -35,6 +38,7 @@ from tests.integration.secure_fleet import (
     secure_ceddp,
     write_secure_robot,
 )
+from tests.integration.service_handlers import SERVICES
 from tests.support import wait_until
 
 pytestmark = pytest.mark.integration
@@ -96,7 +100,7 @@ def test_the_committed_deploy_configs_are_the_scripts_output(tmp_path: Path) -> 
     """deploy/zenoh/*.json5 must not drift from the generator the other tests exercise."""
     make_args = [
         "--fleet", "lab", "--server-ip", "192.168.1.10", "--server-name", "ceddp.local",
-        "--paths-on-hosts", "/etc/arpz/tls", "--usrpwd", "--observer", "operator",
+        "--paths-on-hosts", "/etc/arpz/tls", "--usrpwd", "--operator", "operator",
         "robot1", "robot2", "robot3",
     ]  # fmt: skip
     done = subprocess.run(
@@ -443,3 +447,56 @@ def test_a_wildcard_put_cannot_reach_a_robots_commands(tmp_path: Path) -> None:
         assert server.interrupt() == 0, server.output()
     assert set(sensors.seen_keys()) == {f"{r2}/sensor/probe"}
     assert commands.seen_keys() == [], commands.seen_keys()
+
+
+def test_an_operator_may_call_a_robots_services_and_an_observer_may_not(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Services under mutual TLS and access control: the operator's certificate calls robot
+    1's service (``ServiceCaller`` and ``arpz service call``), the observer's is refused at once
+    and its call never reaches the robot (its count stays the operator's calls)."""
+    env = {"PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    tls = make_fleet_tls(
+        tmp_path / "tls", FLEET, ["robot1"], observers=("observer",), operators=("operator",)
+    )
+    with secure_ceddp(tmp_path, tls, fleet=FLEET) as (server, endpoint):
+        config = write_secure_robot(
+            tmp_path, "robot1", endpoint, client_config(tls, "robot1"),
+            fleet=FLEET, preset="machine1", rate_hz=5, extra=SERVICES,
+        )  # fmt: skip
+        with robots(tmp_path, [config], env=env) as (robot,):
+            trigger = "std_srvs/srv/Trigger"
+            where = ["--connect", endpoint, "--fleet", FLEET]
+            capsys.readouterr()
+            operator = [*where, "--zenoh-config", str(client_config(tls, "operator"))]
+            assert service_main(["call", "/robot1/dock", trigger, *operator]) == 0
+            assert 'message: "docked"' in capsys.readouterr().out
+            observer = [*where, "--zenoh-config", str(client_config(tls, "observer"))]
+            started = time.monotonic()
+            assert service_main(["call", "/robot1/dock", trigger, *observer]) == 1
+            assert "ServiceRefused: robot1/dock: refused by access control" in (
+                capsys.readouterr().err
+            )
+            assert time.monotonic() - started < 5.0, "refused at once, not after the timeout"
+            lamp = ("robot1", "lamp", {"data": True}, 3.0)
+            for name in ("operator", "observer"):
+                transport = open_client(endpoint, client_config(tls, name))
+                try:
+                    caller = ServiceCaller(transport, FLEET, access_control=lambda: True)
+                    wait_until(lambda c=caller: c.directory("robot1").present is not None)
+                    if name == "observer":
+                        with pytest.raises(ServiceRefused):
+                            caller.call(*lamp, type="std_srvs/srv/SetBool")
+                    else:
+                        assert caller.call(*lamp, type="std_srvs/srv/SetBool").message == "lamp on"
+                    caller.close()
+                finally:
+                    transport.close()
+            assert robot.interrupt() == 0, robot.output()
+        assert server.interrupt() == 0, server.output()
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    served = summary["services"]["robot1"]
+    # only the operator's calls reached the robot
+    assert (served["dock"]["robot"]["calls"], served["dock"]["robot"]["ok"]) == (1, 1)
+    assert (served["lamp"]["robot"]["calls"], served["lamp"]["robot"]["ok"]) == (1, 1)
+    _reconciles(summary, "robot1")

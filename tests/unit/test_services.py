@@ -463,3 +463,44 @@ def test_replies_are_delivered_in_order_accepted_first(bus: MemoryBus, host: Ser
     replies = raw_query(bus, "dock", encode(request))
     assert [r.status for r in replies] == [SERVICE_ACCEPTED, SERVICE_OK]
     assert all(r.id == 3 for r in replies)
+
+
+def test_the_ceddps_caller_uses_its_registry_and_its_calls_reach_the_summary() -> None:
+    from arpz.ceddp.server import CeddpServer
+    from arpz.core.config import CeddpConfig
+
+    bus = MemoryBus()
+    server = CeddpServer(
+        CeddpConfig(fleet=FLEET, rrd="unused.rrd", metrics_period_s=0.05), MemoryTransport(bus)
+    )
+    server.start()
+    agent = RobotAgent(
+        robot_config(service("dock", "dock"), service("jammed", "jammed")), MemoryTransport(bus)
+    )
+    try:
+        with pytest.raises(RobotGone, match="not present"):
+            server.services.call("robot1", "dock", {}, 1.0, type="std_srvs/srv/Trigger")
+        agent.start()
+        wait_until(
+            lambda: (
+                (record := server.robots.get("robot1")) is not None
+                and record.alive
+                and record.announce is not None
+            ),
+            what="the robot in the CEDDP's registry",
+        )
+        # the type from the robot's announcement, through the registry
+        assert server.services.call("robot1", "dock", {}, 2.0).message == "docked"
+        with pytest.raises(ServiceFailed):
+            server.services.call("robot1", "jammed", {}, 2.0)
+        with pytest.raises(NoSuchService, match="it serves: dock, jammed"):
+            server.services.call("robot1", "undock", {}, 2.0)
+    finally:
+        agent.shutdown()
+        summary = server.shutdown()
+    dock = summary["services"]["robot1"]["dock"]
+    assert (dock["caller"]["calls"], dock["caller"]["ok"], dock["caller"]["gone"]) == (2, 1, 1)
+    assert (dock["robot"]["calls"], dock["robot"]["ok"]) == (1, 1)
+    jammed = summary["services"]["robot1"]["jammed"]
+    assert jammed["caller"]["failed"] == jammed["robot"]["failed"] == 1
+    assert summary["services"]["robot1"]["undock"]["robot"] is None
