@@ -133,8 +133,10 @@ class Responder(Protocol):
     ends at the requester's timeout."""
 
     def reply(self, payload: bytes) -> bool:
-        """Send one reply; False when it could not be sent (the requester's timeout passed, the
-        session closed or was replaced): nothing to do about it but count it."""
+        """Send one reply; False when it could not be sent (after ``finish``, or the session
+        closed or was replaced). True does not say the requester got it: one whose timeout
+        passed drops it (Zenoh's queryable side does not know; the in-memory bus does, and
+        says False)."""
         ...
 
     def finish(self) -> None:
