@@ -145,6 +145,7 @@ class Ingest:
         self.max_sample_bytes = {
             "default": 65_536,
             **dict.fromkeys(LARGE_KINDS, LARGE_SAMPLE_BYTES),
+            **dict.fromkeys(LARGE_TYPES, LARGE_SAMPLE_BYTES),
             **(max_sample_bytes or {}),
         }
         #: the bound of a large topic not yet announced

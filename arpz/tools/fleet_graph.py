@@ -646,7 +646,8 @@ def announced_keys(fleet: str, robot: str, announce: Announce) -> list[str]:
     out = [keys.stats_key(fleet, robot), keys.announce_key(fleet, robot)]
     for sensor in announce.sensors:
         with contextlib.suppress(keys.KeyExprError):
-            if sensor.kind in LARGE_KINDS and announce.mode == "channel":
+            large = sensor.kind in LARGE_KINDS or sensor.msg_type in LARGE_TYPES
+            if large and announce.mode == "channel":
                 out.append(keys.frames_key(fleet, robot, sensor.topic))
             else:
                 out.append(keys.sensor_key(fleet, robot, sensor.topic))

@@ -4,6 +4,7 @@ JSON, and the counters; ``Output`` puts words and JSON where ``--json`` says (do
 
 from __future__ import annotations
 
+import base64
 import datetime
 import json
 import sys
@@ -80,7 +81,7 @@ class Output:
     def record(self, document: object) -> None:
         if self.json_target is None:
             return
-        line = json.dumps(document, sort_keys=True, default=str) + "\n"
+        line = json.dumps(document, sort_keys=True, default=_json_value) + "\n"
         target = self._file if self._file is not None else sys.stdout
         target.write(line)
         target.flush()
@@ -88,6 +89,13 @@ class Output:
     def close(self) -> None:
         if self._file is not None:
             self._file.close()
+
+
+def _json_value(value: object) -> object:
+    """bytes (a typed message's ``uint8[]``) as base64, as msgspec writes them; else str."""
+    if isinstance(value, bytes | bytearray | memoryview):
+        return base64.b64encode(bytes(value)).decode()
+    return str(value)
 
 
 # ----------------------------------------------------------------------------- list, info
@@ -274,6 +282,27 @@ def typed_sample(msg_type: str, sample: MessageSample | LargeSample) -> object:
     return TypedSample(sample.writer, sample.seq, sample.stamp_ns, msg_type, as_dict(message))
 
 
+#: in text, a longer array is shown as its first items and its length (``ros2 topic echo``
+#: truncates at 128 too), and bytes (an image's pixels) as their length and CRC; ``--json``
+#: carries them whole
+SHOWN_ITEMS: Final = 128
+
+
+def _shorten(value: object) -> object:
+    if isinstance(value, dict):
+        return {key: _shorten(item) for key, item in value.items()}
+    if isinstance(value, bytes | bytearray | memoryview):
+        data = bytes(value)
+        if len(data) <= 32:
+            return list(data)
+        return {"bytes": len(data), "crc32": f"{zlib.crc32(data):08x}"}
+    if isinstance(value, list):
+        if len(value) <= SHOWN_ITEMS:
+            return [_shorten(item) for item in value]
+        return [_shorten(item) for item in value[:SHOWN_ITEMS]] + [f"... {len(value)} items"]
+    return value
+
+
 def large_summary(kind: str | None, value: bytes) -> dict[str, object]:
     """What a camera frame or point cloud is, instead of its megabyte: size, what it holds
     (docs/sensors.md layouts: RGB bytes, float32 x, y, z points) and a CRC to tell frames apart."""
@@ -300,6 +329,8 @@ def message_document(topic: TopicEntry, message: Message, decoded: object) -> di
         body = named_fields(msgspec.structs.replace(decoded, value=b""))
         assert isinstance(body, dict)
         body["value"] = large_summary(topic.kind, decoded.value)
+    elif isinstance(decoded, TypedSample):  # bytes kept: text shortens them, JSON base64
+        body = {field: getattr(decoded, field) for field in decoded.__struct_fields__}
     elif isinstance(decoded, msgspec.Struct):
         body = named_fields(decoded)
     else:
@@ -337,6 +368,8 @@ def echo_text(topic: TopicEntry, document: dict[str, object]) -> str:
         if isinstance(frame, dict):
             parts.append(f"frame={frame['id']} fragments={frame['fragments']}")
         return "  ".join(parts)
+    if topic.msg_type is not None:
+        body = _shorten(body)
     return yaml_text(body) + "\n---"
 
 

@@ -39,10 +39,6 @@ def test_a_robots_simulated_scan_and_images_reach_the_ceddp_echo_and_a_recording
     (tmp_path / "ceddp.toml").write_text(
         f'listen = ["{endpoint}"]\nsummary_json = "summary.json"\nrrd = "ceddp.rrd"\n'
         "metrics_period_s = 0.2\n"
-        # the CEDDP bounds a typed topic's samples by its type's entry, else 64 KiB: an Image
-        # (921 635 bytes) needs its own until the bound of LARGE_TYPES is LARGE_SAMPLE_BYTES,
-        # as a camera kind's is
-        'max_sample_bytes = { default = 65536, "sensor_msgs/msg/Image" = 2097152 }\n'
     )
     (tmp_path / "robot.toml").write_text(
         f'robot_id = "robot1"\nconnect = ["{endpoint}"]\nstats_period_s = 0.2\n'
