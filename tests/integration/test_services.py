@@ -27,7 +27,7 @@ from arpz.tools.service import main as service_main
 from arpz.transport.zenoh import ZenohTransport
 from tests.integration.fleet import ceddp, robots, write_robot
 from tests.integration.service_handlers import SERVICES, SLOW_S
-from tests.support import wait_until
+from tests.support import router, wait_until
 
 pytestmark = pytest.mark.integration
 REPO = Path(__file__).resolve().parents[2]
@@ -134,3 +134,27 @@ def test_a_robot_serves_the_cli_and_a_service_caller_and_both_ends_count(
     assert side["slow"]["calls"] == side["slow"]["timeouts"] == 1
     assert side["slow"]["handler_ms_max"] >= SLOW_S * 1000
     assert all(row["caller"] is None for row in summary["services"]["robot1"].values())
+
+
+def test_a_handler_that_cannot_be_made_stops_the_robot_with_exit_code_2(tmp_path: Path) -> None:
+    with router() as (_router, endpoint):
+        config = tmp_path / "robot.toml"
+        config.write_text(
+            f'robot_id = "robot1"\nfleet = "{FLEET}"\nconnect = ["{endpoint}"]\n'
+            "match_timeout_s = 0.2\n[clock]\nenabled = false\n"
+            '[[services]]\nname = "lamp"\ntype = "std_srvs/srv/SetBool"\n'
+            'handler = "tests.integration.service_handlers:Lamp"\n'  # without its options
+        )
+        done = subprocess.run(
+            [sys.executable, "-m", "arpz.robot", "--config", str(config)],
+            cwd=tmp_path,
+            env={**os.environ, **ENV},
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+    assert done.returncode == 2, done.stderr
+    assert "services[lamp].handler: tests.integration.service_handlers:Lamp({}) raised" in (
+        done.stderr
+    )
+    assert "KeyError('label')" in done.stderr
