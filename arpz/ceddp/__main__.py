@@ -128,7 +128,8 @@ def freeze_start_up() -> None:
     collector's full passes, which walk every tracked object with the GIL held and stop the
     sensor path meanwhile. At 50 robots x 8 topics x 100 Hz a full pass during the load took
     40-55 ms of CPU (50-105 ms of wall time) without, 10-12 ms (about 22 ms) with (issue 17,
-    benchmarks/RESULTS.md, stop 36; ``python benchmarks/gc_freeze.py`` prints the pass over the
+    benchmarks/investigations/README.md, stop 36; ``python benchmarks/investigations/gc_freeze.py``
+    prints the pass over the
     CEDDP's start-up with a stand-in for its run-time objects). Start-up objects live as long as
     the process: freezing them frees nothing the collector would have freed."""
     gc.collect()

@@ -210,7 +210,8 @@ class Dashboard:
 
         The arrays of all series are built once and each series sends a zero-copy slice of
         them: 43 us a series, against 208 through Rerun's own column builders (``rr.TimeColumn``,
-        ``rr.Scalars.columns``; ``python benchmarks/metrics_cost.py``). A fleet of 25 robots
+        ``rr.Scalars.columns``; ``python benchmarks/investigations/metrics_cost.py``). A fleet of
+        25 robots
         has about 2 400 series; with the builders its flush was a quarter of an idle CEDDP's
         Python time (a py-spy profile, benchmarks/RESULTS.md, issue 17)."""
         self._last_flush = time.monotonic()

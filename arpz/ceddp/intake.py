@@ -210,7 +210,8 @@ class SensorIntake:
         """Samples of one writer delivered by the reliable channel (a batch), in order, on its
         worker: a chunk at a time under one hold of the ingest lock and one arrival time, the
         topic looked up once a chunk. A call per sample, with its ``DataInfo``, lock and clock
-        read, cost 1.4-1.7x the CPU a sample (``python benchmarks/ingest_cost.py``; issue 17).
+        read, cost 1.4-1.7x the CPU a sample (``python benchmarks/investigations/ingest_cost.py``;
+        issue 17).
 
         Chunks of ``_RUN_CHUNK``, down to one sample while a hold takes longer than
         ``_RUN_HOLD_NS``: the lock also serves the control worker (joins, clock replies, QoS)

@@ -7,13 +7,14 @@ interpreter's switch interval (5 ms) makes it let go, and it takes it back as so
 delivery thread blocks again: every pass of the sensor path waited up to 5 ms while a loop of
 tens of milliseconds ran. At 50 robots x 8 topics x 100 Hz the passes right after each metrics
 tick (every 0.5 s, 8-16 ms of CPU) delivered samples that had waited 17-71 ms since the router
-took them in, against a p90 of 2-4 ms (issue 17, benchmarks/RESULTS.md, stop 36).
+took them in, against a p90 of 2-4 ms (issue 17, benchmarks/investigations/README.md, stop 36).
 
 A pacer sleeps a tenth of a millisecond once per ``every_s`` of its loop's work: long enough for
 a thread waiting for the GIL to be woken and take it (``time.sleep(0)`` releases it, but the
 sleeper usually takes it back before the waiter has been scheduled), short enough that a loop
 of 16 ms of CPU gains 32 sleeps of a little more than 0.1 ms each (the timer's slack).
-``python benchmarks/gil_yield.py`` prints how long a thread waits for the GIL back, paced and
+``python benchmarks/investigations/gil_yield.py`` prints how long a thread waits for the GIL back,
+paced and
 not.
 """
 

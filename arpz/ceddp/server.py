@@ -85,7 +85,7 @@ def write_json_atomically(path: Path, doc: dict[str, Any]) -> None:
     """Write ``doc`` as indented JSON atomically: a reader, or a kill -9 mid-write, never sees
     half. msgspec's encoder and formatter, not ``json.dumps(indent=2)``: with an indent the
     standard library falls back to its pure-Python encoder (``python
-    benchmarks/metrics_cost.py``: 22.8 against 3.9 ms for a 25-robot summary), every
+    benchmarks/investigations/metrics_cost.py``: 22.8 against 3.9 ms for a 25-robot summary), every
     summary_period_s on the metrics thread. A float that is not finite is written as null
     (``json.dumps`` wrote NaN, which is not JSON)."""
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -121,7 +121,8 @@ class Samples:
     Why: with 50 robots at 38 000 samples/s the periodic summary took 60-210 ms of wall time
     for 21-42 ms of CPU, and the fleet's p99 latency was 35-49 ms with it every 5 s against
     15 ms without (issue 17). Taking only the windows under the lock cut a robot's hold from
-    0.6 to 0.2 ms (stop 34, benchmarks/RESULTS.md; ``python benchmarks/summary_stall.py`` prints
+    0.6 to 0.2 ms (stop 34, benchmarks/RESULTS.md; ``python
+    benchmarks/investigations/summary_stall.py`` prints
     today's hold)."""
 
     def __init__(self, distribution: Distribution) -> None:

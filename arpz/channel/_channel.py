@@ -514,7 +514,8 @@ class Channel:
         """Each sample of the run to ``on_data``, with its own ``DataInfo``. A loop here rather
         than over ``DeliverRun.samples()``, whose generator took 1.3-1.4x as long at one sample
         a message (what robots at 100 Hz send: about 0.3 us of the CEDDP's 20 a message) and
-        about 2x a sample in a batch (``python benchmarks/delivery_cost.py``; issue 17)."""
+        about 2x a sample in a batch (``python benchmarks/investigations/delivery_cost.py``; issue
+        17)."""
         key, writer, retransmitted, seq = run.key, run.writer, run.retransmitted, run.first
         for stamp, payload in zip(run.stamps, run.payloads, strict=True):
             try:

@@ -10,7 +10,8 @@ Why a histogram and not a sample of the values: the summary reads every topic's 
 and p99 every ``summary_period_s``. From uniform reservoirs of 20 000 values (arpz before stop
 35 of issue 17) that took sorts of 20 000 values a topic and 160 000 a robot's pooled topics:
 190-330 ms every 5 s for 50 robots x 8 topics once the reservoirs were full, on the CEDDP that
-also ingests 40 000 samples/s (``python benchmarks/summary_stall.py --robots 50``). A histogram
+also ingests 40 000 samples/s (``python benchmarks/investigations/summary_stall.py --robots 50``).
+A histogram
 answers in microseconds whatever the count, as HdrHistogram and DDSketch do in the field; the
 price is a bounded relative error (``RELATIVE_ERROR``, 1 %) on a value read from it, never on a
 count, and the smallest and largest value are kept exactly.
@@ -177,7 +178,8 @@ def percentiles(values: list[float] | np.ndarray, qs: tuple[float, ...]) -> list
     else:
         # np.sort and an interpolation by hand, not np.percentile: on a reservoir of 20 000 values
         # 120 us against 409, on a slow topic's 45 values 6 us against 70 (``python
-        # benchmarks/metrics_cost.py``); np.percentile made a 25-robot fleet's summary 15 % of
+        # benchmarks/investigations/metrics_cost.py``); np.percentile made a 25-robot fleet's
+        # summary 15 % of
         # an idle CEDDP's Python time (a py-spy profile, benchmarks/RESULTS.md, issue 17)
         ordered = np.sort(np.asarray(values, dtype=float))
     return [_linear(ordered, q) for q in qs]

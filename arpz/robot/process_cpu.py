@@ -7,7 +7,8 @@ about 60 threads (its channels' workers and zenoh-python's callback threads), wh
 costs a few microseconds; a ``python -m arpz.perf fleet`` worker packs a dozen robots into one
 process of 750 threads, where it cost 75 us (median; p90 148) while those threads woke, for
 each of the dozen robots' two reports a second, all on the thread that runs the robots' sensing
-(``python benchmarks/process_cpu_cost.py``). The robots of one process report that process's
+(``python benchmarks/investigations/process_cpu_cost.py``). The robots of one process report that
+process's
 CPU in either case; read once, it is the same figure.
 """
 

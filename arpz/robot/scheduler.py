@@ -31,7 +31,8 @@ class Job:
     def __lt__(self, other: Job) -> bool:
         """The heap's order: due time, then the order of creation. Written out, not
         ``dataclass(order=True)``'s, which builds two tuples a comparison: a robot's tick of
-        8 topics makes about 60 (``benchmarks/scheduler_cost.py``: 0.68x a tick, issue 17)."""
+        8 topics makes about 60 (``benchmarks/investigations/scheduler_cost.py``: 0.68x a tick,
+        issue 17)."""
         return self.due_s < other.due_s or (self.due_s == other.due_s and self.order < other.order)
 
 

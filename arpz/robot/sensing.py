@@ -313,7 +313,7 @@ def sensor_outlet(
         # opened only when the robot ran late and wrote a topic twice within batch_max_delay_s
         # (a catch-up tick): that sample then left the bundle and waited for the writer's
         # thread, behind the process's GIL. 50 robots, six A/B rounds: the median robot's p99
-        # lower in five and equal in one (benchmarks/RESULTS.md, stop 39).
+        # lower in five and equal in one (benchmarks/investigations/README.md, stop 39).
         qos = msgspec.structs.replace(qos, batch_max_samples=1)
     return Outlet(transport, key, qos)
 

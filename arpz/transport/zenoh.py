@@ -708,9 +708,10 @@ class ZenohTransport:
         self, key: str, payload: bytes, *, attachment: bytes | None = None, bulk: bool = False
     ) -> None:
         """Through the session, not a publisher kept per key: a kept publisher's put costs
-        0.56-0.85x of this one (``python benchmarks/zenoh_put.py``), but with it the downlink
+        0.56-0.85x of this one (``python benchmarks/investigations/zenoh_put.py``), but with it the
+        downlink
         over a lossy UDP link failed its test (tests/integration/test_downlink.py;
-        benchmarks/RESULTS.md, stop 27)."""
+        benchmarks/investigations/README.md, stop 27)."""
         try:  # not ``_translated``: once per ACKNACK on the CEDDP's sensor path
             if bulk:
                 self._session.put(
@@ -805,7 +806,8 @@ class ZenohTransport:
         # Run on Zenoh's network thread (indirect=False), not on a Python thread zenoh-python
         # would start for every request: ``get`` returns only once that thread holds the GIL,
         # and a robot's clock bursts (4 requests every 2 s) stalled its sensing loop by that
-        # much. ``python benchmarks/request_cost.py``: 505 against 161 us in the call; with 300
+        # much. ``python benchmarks/investigations/request_cost.py``: 505 against 161 us in the
+        # call; with 300
         # busy threads beside (a fleet worker has 770), 2 034 against 643 us
         try:
             self._session.get(

@@ -48,8 +48,10 @@ class _Quantiser:
     """A reading rounded to the device's resolution ``step``, then to 6 decimals (so that one
     level is always the same float). Each level's float is computed once: ``round(x, 6)``
     formats the float as decimal digits, and was the second line of a simulated robot's
-    ``sense`` (6 % of it: ``python benchmarks/profile_shares.py RAW --within sense --lines`` of
-    a ``py-spy`` profile of ``benchmarks/robot_tick_cost.py --hot``, benchmarks/RESULTS.md)."""
+    ``sense`` (6 % of it: ``python benchmarks/investigations/profile_shares.py RAW --within sense
+    --lines`` of
+    a ``py-spy`` profile of ``benchmarks/investigations/robot_tick_cost.py --hot``,
+    benchmarks/RESULTS.md)."""
 
     #: levels kept at most; beyond, each is computed again (a driver far off its range)
     MAX_LEVELS = 100_000
