@@ -124,6 +124,19 @@ class CeddpServer:
         self.sink = Downlink(
             transport, config.fleet, config, max_per_robot=config.max_topics_per_robot
         )
+        #: calls of the robots' services (docs/nodes.md "Services"), counted in the summary; made
+        #: before the planners, which call through it (the registry and the metrics it asks are
+        #: read at each call)
+        self.services = ServiceCaller(
+            transport,
+            config.fleet,
+            types=self.types,
+            caller=writer_id("ceddp", self.incarnation),
+            directory=self._robot_services,
+            access_control=lambda: (
+                self.metrics.identity.access_control if self.metrics.identity is not None else None
+            ),
+        )
         self.hello_relay = HelloRelay(
             self.sink, writer_id("ceddp", self.incarnation), relay=config.hello.relay
         )
@@ -186,17 +199,6 @@ class CeddpServer:
             self._event,
             clock=self.clock,
             command_contract=lambda: command_contract(self.incarnation, self.team_planners),
-        )
-        #: calls of the robots' services (docs/nodes.md "Services"), counted in the summary
-        self.services = ServiceCaller(
-            transport,
-            config.fleet,
-            types=self.types,
-            caller=writer_id("ceddp", self.incarnation),
-            directory=self._robot_services,
-            access_control=lambda: (
-                self.metrics.identity.access_control if self.metrics.identity is not None else None
-            ),
         )
         self.intake = SensorIntake(
             config, transport, self.ingest, self._fanout, self.control, self._event
