@@ -298,7 +298,8 @@ class ServiceCaller:
         dict of its fields or an object with them; ``type``: the service type
         (``std_srvs/srv/Trigger``), by default the one the robot announced. Blocks up to
         ``timeout_s``: never from a Zenoh callback, nor from a planner's ``on_reading`` (it holds
-        the CEDDP's ingest): use ``call_async`` there."""
+        the CEDDP's ingest): use ``call_async`` there. A robot id or service name that cannot be
+        a key chunk raises ``keys.KeyExprError`` (a ValueError), as a command's would."""
         future = self.call_async(robot, name, request, timeout_s, type=type)
         # not ``result(timeout)``: its TimeoutError is the builtin one, a ServiceTimeout's base
         concurrent.futures.wait([future], timeout_s + 5.0)
