@@ -14,6 +14,7 @@ its traceback once per cause, and never stops the CEDDP or the planners beside i
 from __future__ import annotations
 
 import collections
+import concurrent.futures
 import logging
 import threading
 import time
@@ -24,6 +25,7 @@ from typing import Any, Protocol
 
 import msgspec
 
+from arpz.ceddp.services import ServiceCaller
 from arpz.core import keys
 from arpz.core.errors import ConfigError
 from arpz.core.messages import (
@@ -139,10 +141,47 @@ class Planner:
     def __init__(self, options: Mapping[str, Any] | None = None) -> None:
         self.options: Mapping[str, Any] = options or {}
         self.commands: PlannerCommands | None = None
+        self.services: ServiceCaller | None = None
 
-    def attach(self, commands: PlannerCommands) -> None:
-        """Hand the planner the sink its commands go through (before ``start``)."""
+    def attach(self, commands: PlannerCommands, services: ServiceCaller | None = None) -> None:
+        """Hand the planner the sink its commands go through and the caller of robots'
+        services (before ``start``)."""
         self.commands = commands
+        self.services = services
+
+    def robot_service(
+        self,
+        robot: str,
+        name: str,
+        request: object,
+        timeout_s: float = 5.0,
+        *,
+        type: str | None = None,
+    ) -> msgspec.Struct:
+        """Call ``robot``'s service ``name`` and wait for its typed response, or raise a
+        ``ServiceError`` (``ServiceTimeout``, ``RobotGone``, ``ServiceFailed``,
+        ``ServiceRefused``, ``ServiceTypeError``...; docs/nodes.md "Services"). It blocks: call
+        it from a thread of the planner's own or from ``tick``, never from ``on_reading`` (it
+        would hold the CEDDP's ingest): there, use ``robot_service_async``."""
+        return self._caller().call(robot, name, request, timeout_s, type=type)
+
+    def robot_service_async(
+        self,
+        robot: str,
+        name: str,
+        request: object,
+        timeout_s: float = 5.0,
+        *,
+        type: str | None = None,
+    ) -> concurrent.futures.Future[msgspec.Struct]:
+        """``robot_service`` without waiting: a future of the response, done within
+        ``timeout_s`` (its callbacks run on a Zenoh thread: keep them quick)."""
+        return self._caller().call_async(robot, name, request, timeout_s, type=type)
+
+    def _caller(self) -> ServiceCaller:
+        if self.services is None:
+            raise RuntimeError("this planner was not attached to a CEDDP: no services to call")
+        return self.services
 
     def on_unchanged(self, robot: str, topic: str, stamp_ns: int) -> None:
         """A reading equal to the cached one arrived (and was discarded) at source time stamp_ns."""
@@ -314,8 +353,8 @@ class GuardedPlanner(Planner):
         with self._lock:
             return {"errors": self.errors, "causes": dict(self._causes)}
 
-    def attach(self, commands: PlannerCommands) -> None:
-        self.inner.attach(commands)
+    def attach(self, commands: PlannerCommands, services: ServiceCaller | None = None) -> None:
+        self.inner.attach(commands, services)
 
     def start(self) -> None:
         self._call("start")
@@ -349,6 +388,7 @@ def make_planner(
     *,
     setting: str,
     on_first_fault: Callable[[str], None],
+    services: ServiceCaller | None = None,
 ) -> GuardedPlanner:
     """The planner ``spec`` names, made with its options, attached and guarded."""
     cls = load_class(spec, Planner, setting=setting)
@@ -356,7 +396,7 @@ def make_planner(
         planner = cls(options)
     except Exception as exc:
         raise PlannerConfigError(f"{setting}: {spec}({dict(options)!r}) raised {exc!r}") from exc
-    planner.attach(commands)
+    planner.attach(commands, services)
     return GuardedPlanner(planner, spec.rpartition(":")[2], on_first_fault)
 
 

@@ -155,6 +155,7 @@ class CeddpServer:
                 commands,
                 setting=f"planners[{i}]",
                 on_first_fault=lambda text: self._event(text, "ERROR"),
+                services=self.services,
             )
             for i, entry in enumerate(config.planners)
         ]

@@ -55,6 +55,7 @@ def test_the_example_lab_docks_its_robot_and_reconciles_every_typed_sample(
             robot.wait_for("driving at 0.20 m/s", timeout_s=60)  # slower as the battery drains
             ceddp.wait_for("sent to its dock", timeout_s=60)
             robot.wait_for("docked", timeout_s=30)
+            ceddp.wait_for("robot1: dock service says True: docking at dock-1", timeout_s=30)
             ceddp.wait_for("robot1: docked at dock-1", timeout_s=30)
             # docked, it gets no cmd_vel: the watchdog stops it
             robot.wait_for("no cmd_vel command within its deadline: safe stop", timeout_s=30)
@@ -71,8 +72,8 @@ def test_the_example_lab_docks_its_robot_and_reconciles_every_typed_sample(
         assert row["received"] == row["sent"] > 0, (topic, row)
         assert row["lost"] == 0 and row["driver_errors"] == 0, (topic, row)
     assert robot1["decode_errors"] == 0
-    assert robot1["downlink"]["dock"]["delivered"] == 1
-    assert robot1["downlink"]["dock"]["reconciled"]
+    dock = summary["services"]["robot1"]["dock"]
+    assert dock["caller"]["ok"] == dock["robot"]["ok"] == 1, dock
     cmd_vel = robot1["downlink"]["cmd_vel"]
     assert cmd_vel["delivered"] == cmd_vel["written"] > 0 and cmd_vel["reconciled"], cmd_vel
     assert robot1["watchdog_stops"].get("cmd_vel", 0) >= 1

@@ -1,5 +1,5 @@
-"""The lab's base: drives on "cmd_vel" (a geometry_msgs/msg/Twist, as on a ROS 2 robot) and goes
-to its dock on "dock" (a value: true)."""
+"""The lab's base: drives on "cmd_vel" (a geometry_msgs/msg/Twist, as on a ROS 2 robot), and goes
+to its dock when its "dock" service (std_srvs/srv/Trigger) is called."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ log = logging.getLogger(__name__)
 
 
 class Base(Actuator):
-    commands = ("cmd_vel", "dock")
+    commands = ("cmd_vel",)
 
     def __init__(self, options: Mapping[str, Any]) -> None:
         super().__init__(options)
@@ -31,18 +31,6 @@ class Base(Actuator):
                 BODY.speed_m_s = twist.linear.x
             if changed:
                 log.info("driving at %.2f m/s", twist.linear.x)
-        elif name == "dock" and command.value:
-            with LOCK:
-                if BODY.docked or BODY.docking:
-                    return
-                BODY.docking = True
-            log.info("docking")
-            threading.Timer(self.dock_after_s, self._docked).start()
-
-    def _docked(self) -> None:
-        with LOCK:
-            BODY.docking, BODY.docked, BODY.speed_m_s = False, True, 0.0
-        log.info("docked")
 
     def safe_stop(self) -> None:
         """No cmd_vel within its watchdog deadline ([watchdog] in robot.toml): stop."""
@@ -50,3 +38,21 @@ class Base(Actuator):
             moving, BODY.speed_m_s = BODY.speed_m_s != 0.0, 0.0
         if moving:
             log.info("safe stop: no cmd_vel within its deadline: stopped")
+
+
+def dock(request: Any) -> dict[str, object]:
+    """The "dock" service (std_srvs/srv/Trigger, robot.toml's [[services]]): start docking, or
+    say why not. It runs on the service's own worker thread, so it shares BODY under LOCK."""
+    with LOCK:
+        if BODY.docked or BODY.docking:
+            return {"success": False, "message": "already docked" if BODY.docked else "docking"}
+        BODY.docking = True
+    log.info("docking")
+    threading.Timer(1.0, _docked).start()
+    return {"success": True, "message": "docking at dock-1"}
+
+
+def _docked() -> None:
+    with LOCK:
+        BODY.docking, BODY.docked, BODY.speed_m_s = False, True, 0.0
+    log.info("docked")

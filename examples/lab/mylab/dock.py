@@ -1,14 +1,16 @@
 """The lab's planner: drives each robot slower as its battery drains (a Twist on cmd_vel), and
-sends a robot whose battery falls under ``threshold`` to its dock (then stops driving it: its
-watchdog stops it)."""
+sends a robot whose battery falls under ``threshold`` to its dock by calling its "dock" service
+(then stops driving it: its watchdog stops it)."""
 
 from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from concurrent.futures import Future
 from typing import Any
 
 from arpz.ceddp import Planner, Reading
+from arpz.ceddp.services import ServiceError
 
 log = logging.getLogger(__name__)
 
@@ -29,9 +31,10 @@ class DockPlanner(Planner):
                 twist = {"linear": {"x": speed, "y": 0.0, "z": 0.0}, "angular": still}
                 self.commands.send(reading.robot, "cmd_vel", twist)
             if battery.percentage < self.threshold and reading.robot not in self.sent:
-                assert self.commands is not None
-                self.commands.send(reading.robot, "dock", True)
                 self.sent.add(reading.robot)
+                # never wait in on_reading (it holds the CEDDP's ingest): the answer comes later
+                call = self.robot_service_async(reading.robot, "dock", {}, timeout_s=5.0)
+                call.add_done_callback(lambda done, robot=reading.robot: self._docking(robot, done))
                 log.info(
                     "%s: battery at %.0f %%, sent to its dock",
                     reading.robot,
@@ -41,6 +44,15 @@ class DockPlanner(Planner):
             state: Any = reading.value  # mylab/msg/DockState
             if state.docked:
                 log.info("%s: docked at %s", reading.robot, state.dock_id)
+
+    def _docking(self, robot: str, call: Future[Any]) -> None:
+        try:
+            answer = call.result()
+        except ServiceError as exc:  # timeout, robot gone, handler failed...
+            log.warning("%s: dock service: %s", robot, exc)
+            self.sent.discard(robot)  # ask again at its next battery reading
+            return
+        log.info("%s: dock service says %s: %s", robot, answer.success, answer.message)
 
     def on_robot(self, robot: str, alive: bool) -> None:
         if not alive:
