@@ -6,6 +6,12 @@ as it would on real robots), and drives the fleet through ``cmd/velocity`` at ``
 ``Judge`` gets the robots' TRUE poses from the telemetry key and the planner's events, and gives
 the verdict. The runner has its own tick thread; readings arrive on the ingest worker and poses
 on the control worker, so one lock guards planner and judge.
+
+Besides the readings, the planner learns at every tick how long each robot has left its
+velocity commands unacknowledged (``command_acks``: the downlink's reliable-channel writers,
+``Downlink.unacknowledged_s``), and holds the fleet when one has for longer than
+``PlannerSettings.max_command_age_s``: a robot whose commands are lost while its readings still
+arrive is not obeying the plan the others follow.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 import msgspec
+import numpy as np
 
 from arpz.ceddp.planner import CommandSink, Planner, Reading
 from arpz.core.config import MissionConfig
@@ -31,6 +38,9 @@ log = logging.getLogger(__name__)
 
 #: (text, level) -> None: the server's event log
 EventSink = Callable[[str, str], None]
+#: robot -> seconds its oldest unacknowledged velocity command has waited (0.0: none), or None
+#: when that cannot be known (no reliable channel)
+CommandAcks = Callable[[str], float | None]
 
 
 class MissionRunner(Planner):
@@ -43,6 +53,7 @@ class MissionRunner(Planner):
         *,
         on_result: Callable[[MissionResult], None] | None = None,
         on_view: Callable[[WorldView], None] | None = None,
+        command_acks: CommandAcks | None = None,
     ) -> None:
         self.config = config
         self.world = World.load(config.world)
@@ -61,6 +72,9 @@ class MissionRunner(Planner):
         self.on_event = on_event
         self.on_result = on_result
         self.on_view = on_view
+        self.command_acks = command_acks
+        #: per robot, the unacknowledged age of its commands at each tick of the mission (s)
+        self._ack_ages: dict[str, list[float]] = {r: [] for r in self.settings.robots}
         self.result: MissionResult | None = None
         self.started_s: float | None = None
         self.commands_sent = 0
@@ -151,6 +165,12 @@ class MissionRunner(Planner):
         stop = {robot: (0.0, 0.0) for robot in self.settings.robots}
         if self.started_s is None or self.result is not None:
             return stop
+        if self.command_acks is not None:
+            for robot in self.settings.robots:
+                age_s = self.command_acks(robot)
+                if age_s is not None:
+                    self._ack_ages[robot].append(age_s)
+                self.planner.on_command_ack(robot, now_s - age_s if age_s else None)
         commands = self.planner.tick(now_s)
         for event in self.planner.pop_events():
             level = "WARN" if event.kind in ("stale_stop", "obstacle_stop", "off_lane") else "INFO"
@@ -213,4 +233,13 @@ class MissionRunner(Planner):
                 "commands_sent": self.commands_sent,
                 "telemetry_received": self.telemetry_received,
                 "events": len(self.judge.events),
+                "command_ack_age_s": {
+                    robot: _spread(ages) for robot, ages in self._ack_ages.items() if ages
+                },
             }
+
+
+def _spread(ages: list[float]) -> dict[str, float]:
+    """p50, p99 and max of one robot's command acknowledgement ages, in seconds."""
+    p50, p99 = np.percentile(ages, [50, 99])
+    return {"p50": round(float(p50), 3), "p99": round(float(p99), 3), "max": round(max(ages), 3)}

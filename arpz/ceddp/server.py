@@ -171,6 +171,7 @@ class CeddpServer:
                 self._event,
                 on_result=self._on_mission_result,
                 on_view=self._on_world_view,
+                command_acks=lambda robot: self.sink.unacknowledged_s(robot, "velocity"),
             )
             self.planners.append(self.mission)
         self._fanout = _Fanout(self.planners)

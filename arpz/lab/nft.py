@@ -66,7 +66,7 @@ def chain_update(chain: str, *, loss_pct: float, dead: bool) -> str:
         f'add rule netdev {NFT_TABLE} {chain} counter name "{seen_counter(chain)}"',
     ]
     drop = f'counter name "{dropped_counter(chain)}" drop'
-    if dead:
+    if dead or permille(loss_pct) >= MODULUS:  # 100 %: numgen has no value < 1000 to spare
         lines.append(f"add rule netdev {NFT_TABLE} {chain} {drop}")
     elif permille(loss_pct) > 0:
         lines.append(

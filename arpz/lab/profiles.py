@@ -7,7 +7,8 @@ the profile: the moment the fleet is up). ``schedule`` turns a profile into the 
 pure and seeded, so a profile is unit-tested without a kernel.
 
 Names (``parse_profile``): the fixed ones of ``PROFILES`` and the parametrised ``loss-P``
-(``loss-P-Q``: P % up, Q % down), ``dead-zone-Ns`` (``dead-zone-Ns-at-Ts``), ``rate-R``
+(``loss-P-Q``: P % up, Q % down), ``dead-zone-Ns`` (``dead-zone-Ns-at-Ts``; one way only:
+``dead-zone-down-Ns``, ``dead-zone-up-Ns``, with or without ``-at-Ts``), ``rate-R``
 (``rate-2mbit``, ``rate-500kbit``), ``roam-at-Ts``, ``flap-Ds-Us`` (down D s, up U s, from
 ``FLAP_START_S``). From Python: ``loss``, ``dead_zone``, ``rate``, ``roam``, ``flapping``,
 ``bursty``.
@@ -18,6 +19,7 @@ from __future__ import annotations
 import random
 import re
 from dataclasses import dataclass, field, replace
+from typing import Literal
 
 #: a profile's clean lead before a dead zone or roaming: the robots' sessions are up and running
 LEAD_S = 10.0
@@ -27,6 +29,9 @@ ROAM_AT_S = 15.0
 FLAP_START_S = 5.0
 #: a Gilbert-Elliott state lasts at least this long (each switch is an nftables transaction)
 MIN_DWELL_S = 0.05
+
+#: which way a dead zone drops: ``up`` robot -> access point, ``down`` access point -> robot
+Direction = Literal["both", "up", "down"]
 
 
 def _check_pct(value: float, what: str) -> None:
@@ -165,16 +170,28 @@ def loss(up_pct: float, down_pct: float | None = None) -> Profile:
     )
 
 
-def dead_zone(seconds: float, at_s: float = LEAD_S) -> Profile:
+def dead_zone(seconds: float, at_s: float = LEAD_S, direction: Direction = "both") -> Profile:
+    """Everything dropped for ``seconds`` from ``at_s``: both ways, or one way only (``down``:
+    what the CEDDP sends the robot, commands and acknowledgements of its data, while what the
+    robot sends still arrives; ``up`` the other way)."""
     if not (seconds > 0 and at_s > 0):
         raise ValueError("a dead zone lasts > 0 s and starts after 0 s")
-    name = f"dead-zone-{seconds:g}s" + ("" if at_s == LEAD_S else f"-at-{at_s:g}s")
+    if direction not in ("both", "up", "down"):
+        raise ValueError(f"direction must be both, up or down, got {direction!r}")
+    way = "" if direction == "both" else f"{direction}-"
+    name = f"dead-zone-{way}{seconds:g}s" + ("" if at_s == LEAD_S else f"-at-{at_s:g}s")
+    dead = {
+        "both": (LinkState(dead=True), "both ways"),
+        "up": (LinkState(loss_up_pct=100.0), "robot -> access point (up)"),
+        "down": (LinkState(loss_down_pct=100.0), "access point -> robot (down)"),
+    }
+    state, what = dead[direction]
     return Profile(
         name,
-        f"clean, then everything dropped both ways from {at_s:g} s for {seconds:g} s, then clean",
+        f"clean, then everything dropped {what} from {at_s:g} s for {seconds:g} s, then clean",
         (
             Phase(0.0, Regime()),
-            Phase(at_s, Regime(LinkState(dead=True))),
+            Phase(at_s, Regime(state)),
             Phase(at_s + seconds, Regime()),
         ),
     )
@@ -250,13 +267,14 @@ PROFILES: dict[str, Profile] = {
 }
 
 _LOSS = re.compile(r"^loss-(\d+(?:\.\d+)?)(?:-(\d+(?:\.\d+)?))?$")
-_DEAD = re.compile(r"^dead-zone-(\d+(?:\.\d+)?)s(?:-at-(\d+(?:\.\d+)?)s)?$")
+_DEAD = re.compile(r"^dead-zone-(?:(up|down)-)?(\d+(?:\.\d+)?)s(?:-at-(\d+(?:\.\d+)?)s)?$")
 _RATE = re.compile(r"^rate-(\d+)(kbit|mbit)$")
 _ROAM = re.compile(r"^roam-at-(\d+(?:\.\d+)?)s$")
 _FLAP = re.compile(r"^flap-(\d+(?:\.\d+)?)s-(\d+(?:\.\d+)?)s$")
 
 PARAMETRISED = (
     "loss-P (P % each way), loss-P-Q (P % up, Q % down), dead-zone-Ns, dead-zone-Ns-at-Ts, "
+    "dead-zone-down-Ns(-at-Ts) and dead-zone-up-Ns(-at-Ts) (one way only), "
     "rate-Rkbit / rate-Rmbit, roam-at-Ts, flap-Ds-Us"
 )
 
@@ -269,7 +287,9 @@ def parse_profile(text: str) -> Profile:
     if match := _LOSS.match(text):
         return loss(float(match.group(1)), None if match.group(2) is None else float(match[2]))
     if match := _DEAD.match(text):
-        return dead_zone(float(match.group(1)), LEAD_S if match[2] is None else float(match[2]))
+        at_s = LEAD_S if match[3] is None else float(match[3])
+        direction: Direction = "up" if match[1] == "up" else "down" if match[1] else "both"
+        return dead_zone(float(match[2]), at_s, direction)
     if match := _RATE.match(text):
         return rate(int(match.group(1)) * (1000 if match.group(2) == "mbit" else 1))
     if match := _ROAM.match(text):

@@ -26,6 +26,7 @@ import msgspec
 import numpy as np
 
 from arpz.mission.lidar import BEAM_ANGLES_DEG, DEFAULT_MAX_RANGE_M, beam_of_topic, beam_topic
+from arpz.mission.missed import CatchUp, Missed, MissedCommands
 from arpz.mission.vocabulary import STOP, EventKind, MissionEvent, VelocityCommand
 from arpz.mission.world import World
 
@@ -65,6 +66,24 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     clearance_beams_deg: tuple[int, ...] = (0, 45, 315)
     #: Data older than this stops the fleet: set it to about 3 deadline periods of the beams.
     max_age_s: float = 0.3
+    #: Commands a robot has not acknowledged for longer than this (``on_command_ack``) stop the
+    #: fleet as stale data does: that robot may not be obeying (its commands are lost on the way
+    #: while its readings still arrive, a downlink-only failure) and drives on its last command
+    #: until its 0.5 s watchdog stops it, while the others would go on as planned. Four of the
+    #: command writer's 0.1 s heartbeat periods: a robot acknowledges within one, and 0.4 s
+    #: were never reached in the lab's lossy and bandwidth-limited missions (docs/simulation.md,
+    #: "Commands acknowledged"). ``math.inf``: not watched.
+    max_command_age_s: float = 0.4
+    #: Acknowledgements up to this late are normal (the lab measured one 50 ms tick at most,
+    #: on clean and 15 % lossy QUIC links); beyond, a robot is taken as hearing nothing since
+    #: its oldest unacknowledged command, driving on the one before ...
+    command_ack_slack_s: float = 0.15
+    #: ... until its watchdog stops it after this long (the simulated body's
+    #: ``command_timeout_s``, the robot's ``[watchdog]`` deadline for ``velocity``). When it
+    #: acknowledges again, the heading that put it away from the plan's is turned back
+    #: (``arpz.mission.missed``) at up to ``catch_up_rad_s``.
+    command_timeout_s: float = 0.5
+    catch_up_rad_s: float = 0.8
     max_range_m: float = DEFAULT_MAX_RANGE_M
     #: After a turn, the next corner counts only once the front has read this much beyond the
     #: turn point, on a reading taken after the turn: a pre-turn reading cannot trigger a new turn.
@@ -110,6 +129,10 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         need(len(set(self.followers)) == len(self.followers), "followers repeat a name")
         need(self.corners >= 1, f"corners must be >= 1, got {self.corners}")
         need(self.max_age_s > 0.0, f"max_age_s must be > 0, got {self.max_age_s}")
+        need(
+            self.max_command_age_s > 0.0,
+            f"max_command_age_s must be > 0 (math.inf: not watched), got {self.max_command_age_s}",
+        )
         need(self.cruise_speed_m_s > 0.0, "cruise_speed_m_s must be > 0")
         need(self.turn_radius_m > 0.0, "turn_radius_m must be > 0")
         need(
@@ -136,6 +159,9 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         need(self.lane_tolerance_m > 0.0, "lane_tolerance_m must be > 0")
         need(self.formation_tolerance_rad > 0.0, "formation_tolerance_rad must be > 0")
         need(self.formation_ticks >= 1, "formation_ticks must be >= 1")
+        need(self.command_ack_slack_s > 0.0, "command_ack_slack_s must be > 0")
+        need(self.command_timeout_s > 0.0, "command_timeout_s must be > 0")
+        need(self.catch_up_rad_s >= 0.0, "catch_up_rad_s must be >= 0 (0: no catch-up)")
         need(self.formation_fit_tolerance_m > 0.0, "formation_fit_tolerance_m must be > 0")
         need(
             0.0 <= self.lane_wall_margin_m < self.corridor_width_m / 2.0,
@@ -207,7 +233,17 @@ class HallwayPlanner:
         self._turn_end_s = -math.inf
         self._last_tick_s: float | None = None
         self._last_command = STOP
-        self._stale_culprit: tuple[str, int] | None = None
+        #: the reading (robot, beam) the fleet is held for, or (robot, None): its commands
+        self._stale_culprit: tuple[str, int | None] | None = None
+        #: per robot, when the oldest command it has not acknowledged was sent (planner clock)
+        self._unacked_since: dict[str, float] = {}
+        #: what robots that heard no commands drove meanwhile, and turning them back
+        self._missed = MissedCommands(
+            settings.robots,
+            slack_s=settings.command_ack_slack_s,
+            timeout_s=settings.command_timeout_s,
+        )
+        self._catch_up = CatchUp(settings.catch_up_rad_s)
         self._stale_reported_s = -math.inf
         #: followers being steered back into their lane (entered outside the tolerances, left
         #: within half of them)
@@ -250,29 +286,94 @@ class HallwayPlanner:
             return False
         return self.on_range(robot, beam_deg, float(value), stamp_s)
 
+    def on_command_ack(self, robot: str, unacknowledged_since_s: float | None) -> None:
+        """How far ``robot`` has acknowledged its commands: ``unacknowledged_since_s`` is when
+        the oldest command it has not acknowledged was sent, on the planner's clock; None when
+        it acknowledged every one (or nobody can tell). Older than ``max_command_age_s`` at a
+        tick, the fleet is held as for stale data. The CEDDP takes it from the reliable
+        channel's acknowledgements of each robot's velocity commands (``arpz.ceddp.downlink``),
+        the offline loop from its model of them; a planner never told holds for readings only."""
+        if unacknowledged_since_s is None:
+            self._unacked_since.pop(robot, None)
+        elif robot in self.settings.robots:
+            self._unacked_since[robot] = unacknowledged_since_s
+
     def pop_events(self) -> list[MissionEvent]:
         events, self._events = self._events, []
         return events
 
     def tick(self, now_s: float) -> dict[str, VelocityCommand]:
         """Decide every robot's command for now: STOP for all, or the leader's velocity for all,
-        with a turn rate added for a follower that is out of its lane (``lane_error``)."""
-        if self._last_tick_s is not None and self._phase == "turning":
+        with a turn rate added for a follower that is out of its lane (``lane_error``), and for
+        a robot turned away from the plan while it heard no commands (``arpz.mission.missed``)."""
+        elapsed_s = 0.0 if self._last_tick_s is None else now_s - self._last_tick_s
+        if self._phase == "turning":
             # The turn is measured by what was commanded since the last tick (dead reckoning on
             # commands: the leader has no odometry on the wire, only its 8 ranges).
-            self._turned_rad += abs(self._last_command.omega_rad_s) * (now_s - self._last_tick_s)
+            self._turned_rad += abs(self._last_command.omega_rad_s) * elapsed_s
+        self._catch_up.settle(elapsed_s)
+        fresh = self._fresh_robots(now_s)
+        for missed in self._missed.update(now_s, self._unacked_since, fresh.__contains__):
+            self._owe(missed)
         self._last_tick_s = now_s
         command = self._decide(now_s)
         self._last_command = command
         commands = dict.fromkeys(self.settings.robots, command)
+        limit = self.settings.max_omega_rad_s
         if command != STOP and self._phase == "following":
             for robot in self.settings.followers:
                 omega_rad_s = self._formation_omega(robot, now_s)
                 if omega_rad_s is not None:
-                    limit = self.settings.max_omega_rad_s
                     omega_rad_s = min(max(command.omega_rad_s + omega_rad_s, -limit), limit)
                     commands[robot] = VelocityCommand(command.v_m_s, omega_rad_s)
+        for robot in list(self._catch_up.owed):
+            # held or not (a robot turns on the spot), but only one that hears its commands
+            if robot in fresh and not self._missed.deaf(robot) and self._phase != "home":
+                c = commands[robot]
+                commands[robot] = VelocityCommand(
+                    c.v_m_s, self._catch_up.add(robot, c.omega_rad_s, limit)
+                )
+        self._missed.sent(now_s, {r: c.omega_rad_s for r, c in commands.items()})
         return commands
+
+    def _owe(self, missed: Missed) -> None:
+        """A robot heard no commands and drove on its last one: turn it back to the plan's
+        heading; the leader, whose heading the fleet is steered by, is matched by the
+        followers instead, and a turn in progress counts what it turned."""
+        s = self.settings
+        error_rad = missed.error_rad
+        if abs(error_rad) < math.radians(0.5):
+            return
+        if not s.catch_up_rad_s:
+            who = "not turned back (catch_up_rad_s = 0)"
+        elif missed.robot == s.leader:
+            for robot in s.followers:
+                self._catch_up.owe(robot, error_rad)
+            if self._phase == "turning":
+                self._turned_rad += error_rad if s.turn == "left" else -error_rad
+            who = f"{', '.join(s.followers)} turned to match"
+        else:
+            self._catch_up.owe(missed.robot, -error_rad)
+            who = "turned back"
+        self._emit(
+            missed.heard_s,
+            "missed_commands",
+            missed.robot,
+            f"{missed.robot} heard no commands for {missed.heard_s - missed.since_s:.2f} s "
+            f"and drove on its last one ({missed.drove_rad_s:+.2f} rad/s): "
+            f"{math.degrees(error_rad):+.1f} deg from the plan, {who}",
+            age_s=missed.heard_s - missed.since_s,
+        )
+
+    def _fresh_robots(self, now_s: float) -> set[str]:
+        """Robots all of whose readings the fleet needs are at most ``max_age_s`` old."""
+        stale = {
+            robot
+            for robot, deg in self._needed()
+            if (held := self._latest.get((robot, deg))) is None
+            or now_s - held[1] > self.settings.max_age_s
+        }
+        return set(self.settings.robots) - stale
 
     def lane_error(self, robot: str, now_s: float) -> tuple[float, float] | None:
         """How far a follower is from its lane (m, positive: left of it) and how far it is turned
@@ -372,7 +473,16 @@ class HallwayPlanner:
                 and now_s - self._stale_reported_s >= s.stale_report_interval_s
             )
             if self._hold != "stale" or culprit_changed:
-                what = "no reading yet" if math.isinf(age_s) else f"{age_s:.2f} s old"
+                if deg is None:
+                    text = (
+                        f"{robot} commands: unacknowledged for {age_s:.2f} s "
+                        f"(max {s.max_command_age_s:.2f} s): fleet held"
+                    )
+                else:
+                    what = "no reading yet" if math.isinf(age_s) else f"{age_s:.2f} s old"
+                    text = (
+                        f"{robot} {beam_topic(deg)}: {what} (max {s.max_age_s:.2f} s): fleet held"
+                    )
                 if self._hold != "stale":
                     self._enter_hold("stale", now_s)
                 self._stale_culprit = (robot, deg)
@@ -381,13 +491,15 @@ class HallwayPlanner:
                     now_s,
                     "stale_stop",
                     robot,
-                    f"{robot} {beam_topic(deg)}: {what} (max {s.max_age_s:.2f} s): fleet held",
+                    text,
                     beam_deg=deg,
                     age_s=None if math.isinf(age_s) else age_s,
                 )
             return True
         if self._hold == "stale":
-            self._leave_hold(now_s, "resumed", "data fresh again")
+            commands = self._stale_culprit is not None and self._stale_culprit[1] is None
+            why = "commands acknowledged again" if commands else "data fresh again"
+            self._leave_hold(now_s, "resumed", why)
 
         blocked = self._closest_obstacle()
         if blocked is not None:
@@ -488,16 +600,25 @@ class HallwayPlanner:
             needed += [(robot, deg) for deg in dict.fromkeys(beams) if (robot, deg) not in needed]
         return needed
 
-    def _stalest(self, now_s: float) -> tuple[str, int, float] | None:
-        """The oldest reading the planner needs, if it is older than ``max_age_s``."""
+    def _stalest(self, now_s: float) -> tuple[str, int | None, float] | None:
+        """The oldest reading the planner needs, if it is older than ``max_age_s``; else the
+        robot whose commands have gone unacknowledged longest, if longer than
+        ``max_command_age_s`` (beam None). Readings first: a robot cut off both ways is
+        reported by its readings, as before commands were watched."""
         s = self.settings
         needed = self._needed()
-        worst: tuple[str, int, float] | None = None
+        worst: tuple[str, int | None, float] | None = None
         for robot, deg in needed:
             held = self._latest.get((robot, deg))
             age_s = math.inf if held is None else now_s - held[1]
             if age_s > s.max_age_s and (worst is None or age_s > worst[2]):
                 worst = (robot, deg, age_s)
+        if worst is not None:
+            return worst
+        for robot, since_s in self._unacked_since.items():
+            age_s = now_s - since_s
+            if age_s > s.max_command_age_s and (worst is None or age_s > worst[2]):
+                worst = (robot, None, age_s)
         return worst
 
     def _closest_obstacle(self) -> tuple[str, int, float, float] | None:

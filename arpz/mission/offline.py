@@ -2,9 +2,10 @@
 
 The network is reduced to what matters to the mission: how often each robot's beams reach the
 planner (``beam_rate_hz``), how late (``latency_s``), optionally which readings arrive wrong
-or not at all (``corrupt``), and when a robot's link is down or its process frozen
-(``outages``). Time is simulated, so a 100 s mission runs in about a second and the same
-arguments give the same run.
+or not at all (``corrupt``), when a robot's link is down or its process frozen
+(``outages``), and when the planner learns that a robot got its commands (``ack_period_s``:
+the reliable channel's acknowledgements). Time is simulated, so a 100 s mission runs in about
+a second and the same arguments give the same run.
 """
 
 from __future__ import annotations
@@ -79,6 +80,7 @@ def run_offline(
     seed: int = 0,
     corrupt: Corruption | None = None,
     outages: Sequence[Outage] = (),
+    ack_period_s: float = 0.05,
 ) -> OfflineRun:
     """Run the hallway mission for at most ``duration_s`` simulated seconds (the time limit).
 
@@ -86,9 +88,24 @@ def run_offline(
     robots' clocks are not aligned); readings reach the planner ``latency_s`` later, stamped with
     their measurement time, and commands reach the bodies ``latency_s`` after each planner tick.
     A reading or command that would arrive while its robot is in an ``Outage`` is lost.
+
+    Every ``ack_period_s`` from a random phase each robot acknowledges every command that
+    reached it, if the request can reach it and its acknowledgement can come back (its
+    downlink and uplink up, its process running); the planner learns it ``latency_s`` later
+    (``HallwayPlanner.on_command_ack``), as the CEDDP learns it from the channel's
+    acknowledgements (``arpz.ceddp.downlink``). In the lab a robot's commands were
+    acknowledged within one 50 ms tick, on clean and on 15 % lossy QUIC links.
     """
-    if beam_rate_hz <= 0.0 or tick_hz <= 0.0 or step_s <= 0.0 or duration_s <= 0.0:
-        raise ValueError("beam_rate_hz, tick_hz, step_s and duration_s must all be > 0")
+    if (
+        beam_rate_hz <= 0.0
+        or tick_hz <= 0.0
+        or step_s <= 0.0
+        or duration_s <= 0.0
+        or ack_period_s <= 0.0
+    ):
+        raise ValueError(
+            "beam_rate_hz, tick_hz, step_s, duration_s and ack_period_s must all be > 0"
+        )
     for outage in outages:
         if outage.robot not in planner_settings.robots:
             raise ValueError(f"Outage of {outage.robot!r}, which is not in the fleet")
@@ -129,6 +146,11 @@ def run_offline(
     next_tick_s = 0.0
     beams_in_flight: deque[tuple[float, str, int, float, float]] = deque()
     commands_in_flight: deque[tuple[float, dict[str, VelocityCommand]]] = deque()
+    # per robot, when each command not yet known acknowledged was sent; acknowledgements on
+    # their way back: (arrives_s, robot, covers commands sent up to this time)
+    unacked: dict[str, deque[float]] = {robot: deque() for robot in robots}
+    next_ack_s = {robot: float(rng.uniform(0.0, ack_period_s)) for robot in robots}
+    acks_in_flight: deque[tuple[float, str, float]] = deque()
     delivered = 0
     eps = 1e-9
 
@@ -152,8 +174,26 @@ def run_offline(
         while beams_in_flight and beams_in_flight[0][0] <= now_s + eps:
             _, robot, beam_deg, value, stamp_s = beams_in_flight.popleft()
             delivered += planner.on_range(robot, beam_deg, value, stamp_s)
+        for robot in robots:
+            while next_ack_s[robot] <= now_s + eps:
+                at_s = next_ack_s[robot]
+                next_ack_s[robot] += ack_period_s
+                if not (
+                    cut_off(robot, at_s, commands_lost)
+                    or cut_off(robot, at_s + latency_s, readings_lost)
+                ):
+                    # what was sent up to latency_s ago has arrived (or was resent and GAPed)
+                    acks_in_flight.append((at_s + latency_s, robot, at_s - latency_s))
+        while acks_in_flight and acks_in_flight[0][0] <= now_s + eps:
+            _, robot, through_s = acks_in_flight.popleft()
+            while unacked[robot] and unacked[robot][0] <= through_s + eps:
+                unacked[robot].popleft()
         if next_tick_s <= now_s + eps:
+            for robot in robots:
+                planner.on_command_ack(robot, unacked[robot][0] if unacked[robot] else None)
             commands_in_flight.append((now_s + latency_s, planner.tick(now_s)))
+            for robot in robots:
+                unacked[robot].append(now_s)
             for event in planner.pop_events():
                 judge.on_event(event)
             next_tick_s += tick_period_s

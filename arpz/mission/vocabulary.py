@@ -27,7 +27,9 @@ STOP: Final = VelocityCommand(0.0, 0.0)
 #: too old, then fresh again (while held, ``stale_stop`` is repeated, at most once a second, when
 #: another reading becomes the oldest); ``off_lane`` and ``in_lane`` a follower was seen out of
 #: its lane or turned away from the leader's heading (its own side beams against the leader's)
-#: and is steered back, then is back; ``home`` the leader thinks it is home and the fleet stops.
+#: and is steered back, then is back; ``missed_commands`` a robot acknowledged its commands
+#: again after a stretch without (it drove on its last one), and is turned back to the plan's
+#: heading; ``home`` the leader thinks it is home and the fleet stops.
 EventKind = Literal[
     "started",
     "turn_started",
@@ -38,6 +40,7 @@ EventKind = Literal[
     "resumed",
     "off_lane",
     "in_lane",
+    "missed_commands",
     "home",
 ]
 

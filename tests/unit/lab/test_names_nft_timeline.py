@@ -74,6 +74,8 @@ def test_the_ruleset_counts_and_drops_on_ingress() -> None:
     assert dead.splitlines()[-1] == (
         'add rule netdev arpzlab down_r2 counter name "down_r2_dropped" drop'
     )
+    # 100 % is a dead direction (numgen's values stop at 999: "< 1000" is refused by nft)
+    assert nft.chain_update("down_r2", loss_pct=100.0, dead=False) == dead
     clean = nft.chain_update("up_r1", loss_pct=0.0, dead=False)
     assert "drop" not in clean and "flush chain" in clean
     assert nft.permille(0.04) == 0 and nft.permille(0.1) == 1 and nft.permille(100) == 1000

@@ -54,6 +54,15 @@ def test_the_named_profiles_have_their_documented_numbers() -> None:
         ("loss-5", [(0.0, LinkState(loss_up_pct=5.0, loss_down_pct=5.0))]),
         ("loss-2.5-0", [(0.0, LinkState(loss_up_pct=2.5))]),
         ("dead-zone-3s-at-4s", [(0.0, CLEAN), (4.0, LinkState(dead=True)), (7.0, CLEAN)]),
+        # one way only: the robot's commands lost, its readings arriving (and the other way)
+        (
+            "dead-zone-down-3s",
+            [(0.0, CLEAN), (10.0, LinkState(loss_down_pct=100.0)), (13.0, CLEAN)],
+        ),
+        (
+            "dead-zone-up-2s-at-5s",
+            [(0.0, CLEAN), (5.0, LinkState(loss_up_pct=100.0)), (7.0, CLEAN)],
+        ),
         ("rate-500kbit", [(0.0, LinkState(rate_kbit=500))]),
         ("rate-10mbit", [(0.0, LinkState(rate_kbit=10000))]),
         ("roam-at-2.5s", [(0.0, CLEAN), (2.5, LinkState(subnet=1))]),
@@ -64,7 +73,9 @@ def test_parametrised_profiles(text: str, expected: list[tuple[float, LinkState]
     assert parse_profile(text).name == text  # the name it prints is the one given
 
 
-@pytest.mark.parametrize("text", ["lossy", "loss-101", "dead-zone-0s", "rate-2gbit", "roam-at-0s"])
+@pytest.mark.parametrize(
+    "text", ["lossy", "loss-101", "dead-zone-0s", "dead-zone-left-3s", "rate-2gbit", "roam-at-0s"]
+)
 def test_a_bad_profile_is_refused_with_the_choices(text: str) -> None:
     with pytest.raises(ValueError) as info:
         parse_profile(text)

@@ -46,6 +46,7 @@ def test_settings_for_the_hallway_come_from_the_map() -> None:
     ("fields", "message"),
     [
         ({"max_age_s": 0.0}, "max_age_s must be > 0"),
+        ({"max_command_age_s": 0.0}, "max_command_age_s must be > 0"),
         ({"obstacle_range_m": 3.5}, "below the turn point 3.00 m"),
         ({"home_front_m": 15.0}, "the leader cannot see its home mark"),
         ({"followers": ["robot1"]}, "leader 'robot1' is also a follower"),
@@ -97,6 +98,53 @@ def test_data_older_than_max_age_stops_the_fleet_until_fresh_again() -> None:
     see_fleet(planner, HOMES["robot1"], 0.5)
     assert planner.tick(0.5)["robot3"].v_m_s == 0.8
     assert kinds(planner) == ["resumed"]
+
+
+def test_commands_a_robot_leaves_unacknowledged_hold_the_fleet_like_stale_data() -> None:
+    # Issue 39: robot2's commands are lost (a downlink-only failure) while its readings still
+    # arrive: it drives on its last command to its watchdog, so the fleet must not go on
+    planner = HallwayPlanner(SETTINGS)
+    see_fleet(planner, HOMES["robot1"], 0.0)
+    planner.on_command_ack("robot2", 0.05)  # its oldest unacknowledged command: sent at 0.05 s
+    assert planner.tick(0.05)["robot2"].v_m_s == 0.8
+    assert kinds(planner) == ["started"]
+    see_fleet(planner, HOMES["robot1"], 0.4)
+    assert planner.tick(0.45)["robot1"].v_m_s == 0.8  # exactly max_command_age_s: still fine
+    see_fleet(planner, HOMES["robot1"], 0.5)
+    assert set(planner.tick(0.5).values()) == {STOP}
+    (event,) = planner.pop_events()
+    assert (event.kind, event.robot, event.beam_deg) == ("stale_stop", "robot2", None)
+    assert event.text == "robot2 commands: unacknowledged for 0.45 s (max 0.40 s): fleet held"
+    assert event.age_s == pytest.approx(0.45)
+    assert planner.hold == "stale"
+    # stale readings come first: a robot cut off both ways is named by its readings
+    see(planner, "robot1", HOMES["robot1"], 0.6)
+    see(planner, "robot2", HOMES["robot2"], 0.6)
+    planner.tick(1.6)
+    (event,) = planner.pop_events()
+    assert (event.robot, event.beam_deg) == ("robot3", 0)
+    see_fleet(planner, HOMES["robot1"], 1.7)
+    planner.on_command_ack("robot2", None)  # every command acknowledged
+    assert planner.tick(1.7)["robot2"].v_m_s == 0.8
+    (event,) = planner.pop_events()
+    assert event.kind == "resumed" and event.text.startswith("data fresh again")
+    planner.on_command_ack("robot2", 1.0)
+    planner.on_command_ack("robot9", 0.0)  # not in the fleet: ignored
+    see_fleet(planner, HOMES["robot1"], 1.75)
+    assert set(planner.tick(1.75).values()) == {STOP}
+    planner.on_command_ack("robot2", None)
+    assert planner.tick(1.8)["robot2"].v_m_s == 0.8
+    assert [e.text.split(" after")[0] for e in planner.pop_events()] == [
+        "robot2 commands: unacknowledged for 0.75 s (max 0.40 s): fleet held",
+        "commands acknowledged again",
+    ]
+
+
+def test_commands_are_not_watched_with_an_infinite_limit() -> None:
+    planner = HallwayPlanner(PlannerSettings.for_world(HALLWAY, max_command_age_s=math.inf))
+    see_fleet(planner, HOMES["robot1"], 0.0)
+    planner.on_command_ack("robot1", -100.0)
+    assert planner.tick(0.05)["robot1"].v_m_s == 0.8
 
 
 def test_an_obstacle_ahead_of_a_follower_stops_all_until_it_reads_clear_with_margin() -> None:
