@@ -11,7 +11,7 @@ import random
 import statistics
 import sys
 
-from benchmarks.suite import Entry, Measurement, median_ratio
+from benchmarks.measurement import Entry, Measurement, median_ratio
 
 
 def LOG(line: str) -> None:

@@ -27,17 +27,19 @@ import json
 import os
 import platform
 import re
-import statistics
 import subprocess
 import sys
 import time
 import traceback
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from datetime import date
 from importlib import metadata
 from pathlib import Path
 from typing import Any, TextIO
+
+from benchmarks.entries import ENTRIES
+from benchmarks.measurement import Entry, Measurement
 
 #: a ratio regressed when it moved the wrong way by more than this share of its reference
 THRESHOLD = 0.15
@@ -71,26 +73,6 @@ class Reference:
         value = f"{self.value:#.3g}".rstrip(".")
         cells = [self.entry, self.ratio, f"{value}x", self.better, gate, self.measured]
         return "| " + " | ".join(cells) + " |"
-
-
-@dataclass(frozen=True)
-class Entry:
-    """A suite entry: ``run(quick)`` measures it once and returns its ratios by name (every
-    name of ``ratios``, whose values say which way is better)."""
-
-    name: str
-    what: str
-    ratios: dict[str, str]
-    run: Callable[[bool], Measurement]
-    #: about how long a full measurement takes on the 2-core VM, seconds (for --list)
-    seconds: float = 0.0
-
-
-@dataclass
-class Measurement:
-    ratios: dict[str, float]
-    #: what else a reader wants beside the ratios (absolute figures, counts), one line each
-    details: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -433,8 +415,6 @@ def main(argv: Sequence[str] | None = None, entries: Sequence[Entry] | None = No
     ap.add_argument("--verbose", action="store_true", help="show the entries' own output")
     args = ap.parse_args(argv)
     if entries is None:
-        from benchmarks.entries import ENTRIES
-
         entries = ENTRIES
     text = args.results.read_text(encoding="utf-8")
     try:
@@ -531,10 +511,3 @@ def main(argv: Sequence[str] | None = None, entries: Sequence[Entry] | None = No
         args.results.write_text(new_text, encoding="utf-8")
         print(f"wrote the run's ratios into {args.results}")
     return 1 if failed else 0
-
-
-def median_ratio(ours: Sequence[float], theirs: Sequence[float]) -> float:
-    """The median of the rounds' own ratios (each round's pair shares a window of the host;
-    the ratio of two medians may pair a fast round with a slow one). NaN if none."""
-    values = [a / b for a, b in zip(ours, theirs, strict=True) if b]
-    return statistics.median(values) if values else float("nan")
