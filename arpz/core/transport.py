@@ -132,11 +132,15 @@ class Responder(Protocol):
     ``reply`` any number of times, from any thread, then ``finish``. A request left unfinished
     ends at the requester's timeout."""
 
-    def reply(self, payload: bytes) -> bool:
-        """Send one reply; False when it could not be sent (after ``finish``, or the session
-        closed or was replaced). True does not say the requester got it: one whose timeout
-        passed drops it (Zenoh's queryable side does not know; the in-memory bus does, and
-        says False)."""
+    #: the request's attachment (None: it had none; the in-memory bus carries none): the ROS 2
+    #: bridge reads rmw_zenoh's service request header from it (docs/ros2.md "Services")
+    attachment: bytes | None
+
+    def reply(self, payload: bytes, *, attachment: bytes | None = None) -> bool:
+        """Send one reply, with ``attachment`` if given (the in-memory bus drops it); False
+        when it could not be sent (after ``finish``, or the session closed or was replaced).
+        True does not say the requester got it: one whose timeout passed drops it (Zenoh's
+        queryable side does not know; the in-memory bus does, and says False)."""
         ...
 
     def finish(self) -> None:

@@ -364,12 +364,15 @@ class _Query:
 
 
 class _MemoryResponder:
+    #: the bus carries no attachments (``Responder.attachment``)
+    attachment: bytes | None = None
+
     def __init__(self, state: _Query, deliver: Callable[[bytes], bool]) -> None:
         self._state = state
         self._deliver = deliver
         self._finished = False
 
-    def reply(self, payload: bytes) -> bool:
+    def reply(self, payload: bytes, *, attachment: bytes | None = None) -> bool:
         with self._state.lock:
             if self._finished or self._state.over:
                 return False

@@ -591,16 +591,21 @@ class _ZenohResponder:
     def __init__(self, query: zenoh.Query, key: str, current: Callable[[], bool]) -> None:
         self._query: zenoh.Query | None = query
         self.key = key
+        attachment = query.attachment
+        self.attachment = attachment.to_bytes() if attachment is not None else None
         self._current = current
         self._lock = threading.Lock()
 
-    def reply(self, payload: bytes) -> bool:
+    def reply(self, payload: bytes, *, attachment: bytes | None = None) -> bool:
         with self._lock:
             query = self._query
             if query is None or not self._current():
                 return False
             try:
-                query.reply(self.key, payload)
+                if attachment is None:
+                    query.reply(self.key, payload)
+                else:
+                    query.reply(self.key, payload, attachment=attachment)
             except zenoh.ZError as exc:  # the requester left, or the session is closing
                 log.debug("reply on %s failed: %s", self.key, zenoh_message(exc))
                 return False
