@@ -1,5 +1,7 @@
 """``python -m arpz.bridge --connect ENDPOINT --fleet NAME [--domain-id N] [--config FILE]``:
 the ROS 2 bridge on a machine of its own, a client of the fleet's router (docs/ros2.md).
+Robots' services are bridged only by the bridge inside the CEDDP (it calls them through the
+CEDDP's service caller).
 
 ``--config`` is a TOML with the traffic profiles of the fleet (as a robot's), ``fleet``,
 ``connect`` and a ``[ros2]`` table (topic names, command mappings); the flags override it.
@@ -17,7 +19,7 @@ from typing import Any
 
 import msgspec
 
-from arpz.bridge.bridge import Bridge
+from arpz.bridge.factory import bridge_class
 from arpz.core.config import BridgeConfig, ConfigError, from_dict, load_toml
 from arpz.core.endpoints import DEFAULT_CONNECT
 from arpz.core.msgtypes import MessageTypes
@@ -86,11 +88,17 @@ def main(argv: list[str] | None = None) -> int:
     except TransportError as exc:
         return fail(TOOL, str(exc), 1)
     try:
-        bridge = Bridge(transport, config.fleet, config, config.ros2, types=types)
-        bridge.start()
+        try:
+            bridge = bridge_class(config.ros2)(
+                transport, config.fleet, config, config.ros2, types=types
+            )
+            bridge.start()
+        except ConfigError as exc:  # backend "rclpy" without a ROS 2 that imports and starts
+            return fail(TOOL, f"bad configuration: {exc}")
         print(
             f"arpz bridge: running: node /{config.ros2.node_name} on ROS 2 domain "
-            f"{config.ros2.domain_id}, fleet {config.fleet!r} via {','.join(config.connect)}",
+            f"{config.ros2.domain_id} ({config.ros2.backend}), fleet {config.fleet!r} via "
+            f"{','.join(config.connect)}",
             flush=True,
         )
         wait_for_stop(stop, args.duration if args.duration > 0 else None)

@@ -1,20 +1,31 @@
-"""The running bridge: the fleet's sensor topics out to ROS 2, ROS 2 commands in to the robots.
+"""The running bridge: the fleet's sensor topics out to ROS 2, ROS 2 commands and service calls in
+to the robots.
 
-``Bridge`` is one ROS 2 node (``[ros2] node_name``) on a Zenoh session: inside the CEDDP it uses
-the CEDDP's own router session, standalone (``python -m arpz.bridge``) a client session.
+``Bridge`` is one ROS 2 node (``[ros2] node_name``). This module holds the part every backend
+shares (the fleet side, the conversions, the worker, the counters) and the rmw_zenoh backend,
+which speaks rmw_zenoh's protocol on a Zenoh session: inside the CEDDP the CEDDP's own router
+session, standalone (``python -m arpz.bridge``) a client session. The rclpy backend
+(``arpz.bridge.rclpy_backend``, ``[ros2] backend = "rclpy"``) subclasses it and overrides the
+``_declare_*`` hooks and the start and close of its node (docs/ros2.md "Backends");
+``arpz.bridge.factory.make_bridge`` picks the backend from the config.
 
 Fleet -> ROS 2. It learns every robot's topics from the robots' announcements (as the CEDDP
 does), reads their samples through the reliable channel (one wildcard ``Reader`` for the small
 sensors, one ``FrameReader`` for camera frames and point clouds), converts each reading to its
-standard ROS 2 message (arpz.core.rosmsg) and puts the CDR on the topic's rmw_zenoh key with
-rmw_zenoh's attachment. Each bridged topic is a publisher of the node, with a liveliness token
-carrying the topic's QoS mapped from the arpz profile, so ``ros2 topic list`` shows it.
+standard ROS 2 message (arpz.core.rosmsg) and hands the CDR to the topic's publisher: for
+rmw_zenoh the topic's key with rmw_zenoh's attachment and a liveliness token carrying the
+topic's QoS mapped from the arpz profile, so ``ros2 topic list`` shows it.
 
-ROS 2 -> fleet. For each ``[[ros2.commands]]`` mapping, one Zenoh subscriber on every robot's
-command topic (``/{robot}/cmd_vel`` as a wildcard); a robot that acts on the mapped command gets
-a subscription token, and each message becomes an arpz ``Command`` written through a reliable
-channel writer on the robot's ``cmd/{command}`` key with the fleet's command QoS: the robot's
-reader, its lifespan check and its command watchdog treat it as any command.
+ROS 2 -> fleet. For each ``[[ros2.commands]]`` mapping, one subscription per robot that acts on
+the mapped command (rmw_zenoh: one Zenoh subscriber on every robot's command topic, a wildcard,
+and a subscription token per robot); each message becomes an arpz ``Command`` written through a
+reliable channel writer on the robot's ``cmd/{command}`` key with the fleet's command QoS: the
+robot's reader, its lifespan check and its command watchdog treat it as any command.
+
+Services. Each service a robot announces is a ROS 2 service ``/{robot}/{name}`` of its type
+(rmw_zenoh: a queryable on the service's key and an SS token), when the bridge has a
+``ServiceCalls`` (the CEDDP's ``ServiceCaller``): a request's CDR becomes the request message,
+called through it, and the response goes back as CDR when its future completes.
 
 Every callback only queues; one worker (``arpz-ros2``) does the work in arrival order, so the
 maps of topics and robots have one owner. Bad input (an undecodable sample, a reading with no
@@ -24,19 +35,21 @@ counted and logged once per topic and cause (arpz.core.throttled_log), never rai
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import logging
 import queue
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import msgspec
 
 from arpz.bridge import naming, rmw_zenoh
 from arpz.bridge.commands import command_value
-from arpz.bridge.type_hash import UnknownTypeError, type_hash
+from arpz.bridge.type_hash import UnknownTypeError, service_type_hash, type_hash
 from arpz.channel import FrameInfo, FrameReader, MessageLostStatus, ReaderEventCallbacks
 from arpz.channel.io import Inlet, Outlet
 from arpz.core import keys
@@ -64,16 +77,51 @@ from arpz.core.msgtypes import MessageTypeError, MessageTypes
 from arpz.core.rosmsg.convert import ConversionError, deserialize, to_cdr
 from arpz.core.rosmsg.types import UnknownKindError, ros_type_for
 from arpz.core.throttled_log import ThrottledLog
-from arpz.core.transport import Handle, Publisher, Transport
+from arpz.core.transport import DeferredQueries, Handle, Publisher, Responder, Transport
 
 log = logging.getLogger(__name__)
 #: bad input: one line per topic and cause per 10 s
 throttled = ThrottledLog(log)
 
-_ANNOUNCE, _PRESENCE, _SAMPLE, _FRAME, _COMMAND, _STOP = range(6)
+_ANNOUNCE, _PRESENCE, _SAMPLE, _FRAME, _COMMAND, _ROS_COMMAND, _SERVICE, _STOP = range(8)
 #: how long a reader's thread waits for room in the worker's queue before the item is dropped
 #: (and counted): the readers' own flow control holds the robots meanwhile
 _PUT_TIMEOUT_S = 1.0
+
+
+#: how long a bridged service call may take at the robot, s (ServiceCaller's default)
+SERVICE_TIMEOUT_S = 5.0
+
+
+class ServiceCalls(Protocol):
+    """What the bridge needs to call a robot's service: ``arpz.ceddp.services.ServiceCaller``
+    (the CEDDP passes its own; the bridge's layer may not import the CEDDP's)."""
+
+    def call_async(
+        self,
+        robot: str,
+        name: str,
+        request: object,
+        timeout_s: float = ...,
+        *,
+        type: str | None = None,
+    ) -> concurrent.futures.Future[msgspec.Struct]: ...
+
+
+class Port(Protocol):
+    """One ROS 2 entity of a backend (a publisher, a subscription, a service server)."""
+
+    def close(self) -> None: ...
+
+
+class TopicPort(Port, Protocol):
+    """A backend's publisher of one bridged topic: ``put`` one message's CDR."""
+
+    def put(self, cdr: bytes, seq: int, stamp_ns: int) -> None: ...
+
+
+#: a service call's answer: the response's CDR, or None for no response
+Answer = Callable[[bytes | None], None]
 
 
 @dataclass
@@ -101,12 +149,21 @@ class BridgeCounters:
     commands_write_failures: int = 0
     #: command payloads that are not CDR of the mapped type
     bad_cdr: int = 0
-    #: commands without rmw_zenoh's 33-byte attachment (accepted: the attachment is metadata)
+    #: commands or service requests without rmw_zenoh's 33-byte attachment (a command is still
+    #: accepted: the attachment is metadata; a request is not answered: its reply needs it)
     bad_attachment: int = 0
     #: items the worker's queue refused after waiting (queue_limit)
     queue_dropped: int = 0
     #: sensor samples the reliable channel reported lost before the bridge
     channel_lost: int = 0
+    #: ROS 2 service calls taken, answered with the robot's response, and not (the robot's
+    #: call failed: answered by a failure response or not at all, docs/ros2.md "Services")
+    service_calls: int = 0
+    service_answered: int = 0
+    service_failed: int = 0
+    #: ROS 2 endpoints whose QoS cannot match one of the bridge's (the rclpy backend: the RMW's
+    #: own incompatible-QoS events on the bridge's publishers and subscriptions)
+    qos_incompatible: int = 0
 
 
 @dataclass
@@ -116,10 +173,11 @@ class _TopicOut:
     robot: str
     topic: str
     kind: str
-    entity: rmw_zenoh.Entity
-    gid: bytes
-    publisher: Publisher
-    token: Handle
+    #: the ROS 2 topic, its type and the QoS it offers
+    name: str
+    ros_type: str
+    qos: rmw_zenoh.RmwQos
+    port: TopicPort
     frame_id: str
     seq: int = 0
     conversion_errors: int = 0
@@ -133,8 +191,8 @@ class _CommandIn:
 
     robot: str
     mapping: Ros2CommandConfig
-    entity: rmw_zenoh.Entity
-    token: Handle
+    name: str
+    port: Port
     outlet: Outlet
     received: int = 0
     sent: int = 0
@@ -142,16 +200,55 @@ class _CommandIn:
 
 
 @dataclass
+class _ServiceIn:
+    """One robot's service: a ROS 2 service server of the node."""
+
+    robot: str
+    service: str
+    service_type: str
+    name: str
+    port: Port
+    calls: int = 0
+    answered: int = 0
+    failed: int = 0
+
+
+@dataclass
 class _Robot:
     topics: dict[str, _TopicOut] = field(default_factory=dict)
     commands: dict[str, _CommandIn] = field(default_factory=dict)
+    services: dict[str, _ServiceIn] = field(default_factory=dict)
     #: the commands the robot takes as messages: name -> ROS 2 type (its announcement's)
     command_types: dict[str, str] = field(default_factory=dict)
 
 
+@dataclass
+class _Handles:
+    """A backend's entity made of Zenoh declarations: closed by undeclaring them."""
+
+    handles: list[Any]
+
+    def close(self) -> None:
+        for handle in self.handles:
+            handle.undeclare()
+
+
+@dataclass
+class _ZenohTopic(_Handles):
+    """An rmw_zenoh publisher: its key's publisher and its token."""
+
+    publisher: Publisher
+    gid: bytes
+
+    def put(self, cdr: bytes, seq: int, stamp_ns: int) -> None:
+        self.publisher.put(cdr, attachment=rmw_zenoh.attachment(seq, stamp_ns, self.gid))
+
+
 class Bridge:
     """Thread: ``start`` opens everything and starts the worker; ``close`` undeclares it all.
-    ``stats`` may be called from any thread."""
+    ``stats`` may be called from any thread. The rmw_zenoh backend."""
+
+    backend = "rmw_zenoh"
 
     def __init__(
         self,
@@ -163,15 +260,18 @@ class Bridge:
         partition: str = "*",
         zid: str | None = None,
         types: MessageTypes | None = None,
+        services: ServiceCalls | None = None,
     ) -> None:
         """``types``: the message types of the fleet's typed topics (the standard ones and the
-        fleet's ``msg_paths``); a typed topic of a type it does not know is not bridged."""
+        fleet's ``msg_paths``); a typed topic of a type it does not know is not bridged.
+        ``services``: what calls the robots' services (None: they are not bridged)."""
         self.transport = transport
         self.types = types or MessageTypes()
         self.fleet = fleet
         self.traffic = traffic
         self.config = config
         self.partition = partition
+        self.services = services
         #: rmw_zenoh names the session in every token; any unique hex string will do for a fake
         self.zid = zid or str(getattr(transport, "zid", "")) or new_incarnation()
         self.writer = writer_id("ros2-bridge", new_incarnation())
@@ -186,11 +286,13 @@ class Bridge:
         #: ROS 2 topic -> counts of its closed incarnations (a robot that left)
         self._retired_topics: dict[str, dict[str, Any]] = {}
         self._retired_commands: dict[str, dict[str, Any]] = {}
+        self._retired_services: dict[str, dict[str, Any]] = {}
         self._handles: list[Handle] = []
         self._inlets: list[Inlet] = []
         self._frames: FrameReader | None = None
         self._worker = threading.Thread(target=self._run, name="arpz-ros2", daemon=True)
         self._hashes = {m.type: self._hash(m.type) for m in config.commands}
+        self._no_services_logged = False
         self.node = rmw_zenoh.Entity(
             domain_id=config.domain_id,
             zid=self.zid,
@@ -205,11 +307,8 @@ class Bridge:
 
     def start(self) -> None:
         t, fleet = self.transport, self.fleet
+        self._start_node()
         self._worker.start()
-        self._handles.append(t.declare_token(self.node.token()))
-        for index, mapping in enumerate(self.config.commands):
-            expr = naming.command_key_expr(self.config.domain_id, mapping.topic)
-            self._handles.append(t.subscribe(expr, functools.partial(self._on_command, index)))
         self._inlets.append(
             Inlet(t, keys.all_announce(fleet), self.traffic.profile("report"), self._on_announce)
         )
@@ -234,9 +333,10 @@ class Bridge:
                 events=ReaderEventCallbacks(message_lost=self._on_lost),
             )
         log.info(
-            "ROS 2 bridge: node /%s on domain %d (rmw_zenoh), fleet '%s'",
+            "ROS 2 bridge: node /%s on domain %d (%s), fleet '%s'",
             self.config.node_name,
             self.config.domain_id,
+            self.backend,
             fleet,
         )
 
@@ -248,10 +348,12 @@ class Bridge:
             self._frames.close()
         for handle in self._handles:
             handle.undeclare()
-        self._queue.put((_STOP, "", b"", None))
-        self._worker.join(timeout=5.0)
+        if self._worker.is_alive():
+            self._queue.put((_STOP, "", b"", None))
+            self._worker.join(timeout=5.0)
         for robot in list(self._robots):
             self._drop_robot(robot)
+        self._close_node()
 
     def __enter__(self) -> Bridge:
         self.start()
@@ -259,6 +361,114 @@ class Bridge:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    # -- the backend: rmw_zenoh (the rclpy backend overrides these) -------------------------------
+
+    def _start_node(self) -> None:
+        """The node's token, and one Zenoh subscriber per command mapping (every robot's)."""
+        self._handles.append(self.transport.declare_token(self.node.token()))
+        for index, mapping in enumerate(self.config.commands):
+            expr = naming.command_key_expr(self.config.domain_id, mapping.topic)
+            self._handles.append(
+                self.transport.subscribe(expr, functools.partial(self._on_command, index))
+            )
+
+    def _close_node(self) -> None:
+        """Nothing more: the node's token went with the handles."""
+
+    def _topic_qos(self, profile: Any) -> rmw_zenoh.RmwQos:
+        return rmw_zenoh.qos_from_profile(profile)
+
+    def _declare_publisher(
+        self, name: str, ros_type: str, qos: rmw_zenoh.RmwQos, robot: str
+    ) -> TopicPort:
+        entity = self._new_entity(rmw_zenoh.PUBLISHER, name, ros_type, qos)
+        # as rmw_zenoh: congestion control BLOCK only for RELIABLE + KEEP_ALL, else DROP
+        block = qos.reliability == rmw_zenoh.RELIABLE and qos.history == rmw_zenoh.KEEP_ALL
+        publisher = self.transport.publisher(entity.data_key, block=block)
+        token = self.transport.declare_token(entity.token())
+        return _ZenohTopic([token, publisher], publisher, entity.gid)
+
+    def _command_qos(self, profile: Any) -> rmw_zenoh.RmwQos:
+        return rmw_zenoh.qos_from_profile(profile)
+
+    def _declare_subscription(
+        self, name: str, mapping: Ros2CommandConfig, index: int, qos: rmw_zenoh.RmwQos, robot: str
+    ) -> Port:
+        """A subscription token: the mapping's wildcard subscriber takes the messages."""
+        entity = self._new_entity(rmw_zenoh.SUBSCRIPTION, name, mapping.type, qos)
+        return _Handles([self.transport.declare_token(entity.token())])
+
+    def _declare_service(self, name: str, service_type: str, robot: str, service: str) -> Port:
+        """A queryable on the service's key (complete, as rmw_zenoh declares a service's) and an
+        SS token: rmw_zenoh's clients find it in the graph and query its key."""
+        entity = self._new_entity(
+            rmw_zenoh.SERVICE,
+            name,
+            service_type,
+            rmw_zenoh.SERVICE_QOS,
+            type_hash=service_type_hash(service_type, self.types),
+        )
+        if not isinstance(self.transport, DeferredQueries):
+            raise UnknownTypeError(
+                f"{self.transport.__class__.__name__} has no deferred queries: no services"
+            )
+        queryable = self.transport.serve_deferred(
+            entity.data_key, functools.partial(self._on_service_query, robot, service)
+        )
+        return _Handles([self.transport.declare_token(entity.token()), queryable])
+
+    def _on_service_query(
+        self, robot: str, service: str, key: str, payload: bytes, responder: Responder
+    ) -> None:
+        """From Zenoh's thread: queue it; a full queue finishes the query unanswered."""
+        run = functools.partial(self._zenoh_call, robot, service, key, responder)
+        if not self._offer(_SERVICE, key, payload, run):
+            responder.finish()
+
+    def _zenoh_call(
+        self, robot: str, service: str, key: str, responder: Responder, payload: bytes
+    ) -> None:
+        """rmw_zenoh's request header is the query's attachment: its sequence number and client
+        GID go back in the reply's, which is how the client matches the response to its call."""
+        try:
+            header = rmw_zenoh.parse_attachment(responder.attachment or b"")
+        except rmw_zenoh.WireError as exc:
+            self._bad("bad_attachment", f"service attachment {key}", "%s: %s", key, exc)
+            responder.finish()
+            return
+
+        def answer(cdr: bytes | None) -> None:
+            if cdr is not None:
+                reply = rmw_zenoh.attachment(header.sequence_number, time.time_ns(), header.gid)
+                responder.reply(cdr, attachment=reply)
+            responder.finish()
+
+        self._call(robot, service, answer, payload)
+
+    def _new_entity(
+        self,
+        kind: str,
+        topic: str,
+        ros_type: str,
+        qos: rmw_zenoh.RmwQos,
+        *,
+        type_hash: str | None = None,
+    ) -> rmw_zenoh.Entity:
+        entity_id, self._next_id = self._next_id, self._next_id + 1
+        return rmw_zenoh.Entity(
+            domain_id=self.config.domain_id,
+            zid=self.zid,
+            node_id=self.node.node_id,
+            entity_id=str(entity_id),
+            kind=kind,
+            namespace=self.node.namespace,
+            node=self.node.node,
+            topic=topic,
+            ros_type=ros_type,
+            type_hash=type_hash or self._hash(ros_type),
+            qos=qos,
+        )
 
     # -- callbacks: only queue ---------------------------------------------------------------------
 
@@ -269,12 +479,14 @@ class Bridge:
         except queue.Full:
             self._dropped(key)
 
-    def _offer(self, kind: int, key: str, payload: bytes, extra: Any) -> None:
-        """From Zenoh's thread: never block it."""
+    def _offer(self, kind: int, key: str, payload: bytes, extra: Any) -> bool:
+        """From Zenoh's (or the ROS 2 executor's) thread: never block it. False: dropped."""
         try:
             self._queue.put_nowait((kind, key, payload, extra))
         except queue.Full:
             self._dropped(key)
+            return False
+        return True
 
     def _dropped(self, key: str) -> None:
         with self._lock:
@@ -299,6 +511,30 @@ class Bridge:
         with self._lock:
             self.counters.channel_lost += status.total_count_change
 
+    def _on_ros_command(self, index: int, robot: str, topic: str, payload: bytes) -> None:
+        """A backend's command message (its CDR) for ``robot`` (from the backend's thread)."""
+        self._offer(_ROS_COMMAND, topic, payload, (index, robot))
+
+    def _on_ros_service(
+        self, robot: str, service: str, name: str, payload: bytes, answer: Answer
+    ) -> None:
+        """A backend's service request (its CDR): ``answer`` gets the response's CDR or None
+        (from the worker, or the transport's thread when the call completes)."""
+        run = functools.partial(self._call, robot, service, answer)
+        if not self._offer(_SERVICE, name, payload, run):
+            answer(None)
+
+    def _on_incompatible_qos(self, role: str, name: str, policy: str) -> None:
+        """A backend's incompatible-QoS event (from its own thread)."""
+        self._bad(
+            "qos_incompatible",
+            f"qos {role} {name} {policy}",
+            "%s %s: a ROS 2 endpoint's QoS cannot match it (policy %s)",
+            role,
+            name,
+            policy,
+        )
+
     # -- the worker ------------------------------------------------------------------------------
 
     def _run(self) -> None:
@@ -312,6 +548,11 @@ class Bridge:
                 elif kind == _COMMAND:
                     attachment, index = extra
                     self._command(index, key, payload, attachment)
+                elif kind == _ROS_COMMAND:
+                    index, robot = extra
+                    self._apply_command(index, robot, key, payload)
+                elif kind == _SERVICE:  # extra: what takes the request (its backend's)
+                    extra(payload)
                 elif kind == _ANNOUNCE:
                     self._announce(key, payload)
                 elif kind == _PRESENCE and not payload:
@@ -326,22 +567,6 @@ class Bridge:
             setattr(self.counters, counter, getattr(self.counters, counter) + 1)
         throttled.warning(cause, "ROS 2 bridge: " + message, *args)
 
-    def _new_entity(self, kind: str, topic: str, ros_type: str, qos: rmw_zenoh.RmwQos) -> Any:
-        entity_id, self._next_id = self._next_id, self._next_id + 1
-        return rmw_zenoh.Entity(
-            domain_id=self.config.domain_id,
-            zid=self.zid,
-            node_id=self.node.node_id,
-            entity_id=str(entity_id),
-            kind=kind,
-            namespace=self.node.namespace,
-            node=self.node.node,
-            topic=topic,
-            ros_type=ros_type,
-            type_hash=self._hash(ros_type),
-            qos=qos,
-        )
-
     def _hash(self, ros_type: str) -> str:
         """The type's RIHS01: from the standard definitions, else from the fleet's own."""
         try:
@@ -350,8 +575,9 @@ class Bridge:
             return self.types.type_hash(ros_type)
 
     def _announce(self, key: str, payload: bytes) -> None:
-        """A robot's topics and commands: a publisher for each new sensor topic, a subscription
-        for each command it acts on that a mapping names."""
+        """A robot's topics, commands and services: a publisher for each new sensor topic, a
+        subscription for each command it acts on that a mapping names, a service server for
+        each service."""
         try:
             announce = ANNOUNCE_DECODER.decode(payload)
         except DECODE_ERRORS as exc:
@@ -376,10 +602,14 @@ class Bridge:
         for index, mapping in enumerate(self.config.commands):
             if mapping.command in announce.commands and mapping.command not in state.commands:
                 self._open_command(state, robot, index, mapping)
+        for service, service_type in announce.services.items():
+            if service not in state.services:
+                self._open_service(state, robot, service, service_type)
 
     def _open_topic(
         self, state: _Robot, robot: str, topic: str, kind: str, msg_type: str | None = None
     ) -> None:
+        name = naming.topic_name(self.config, robot, topic, kind)
         try:
             if msg_type is not None:
                 self.types.require(msg_type)
@@ -387,28 +617,22 @@ class Bridge:
             else:
                 ros_type = ros_type_for(kind)
             self._hash(ros_type)
+            large = kind in LARGE_KINDS or msg_type in LARGE_TYPES
+            qos = self._topic_qos(self.traffic.profile("frames" if large else "sensor"))
+            port = self._declare_publisher(name, ros_type, qos, robot)
         except (UnknownKindError, UnknownTypeError, MessageTypeError) as exc:
             self._bad(
                 "unknown_type", f"type {robot}/{topic}", "%s/%s not bridged: %s", robot, topic, exc
             )
             return
-        name = naming.topic_name(self.config, robot, topic, kind)
-        large = kind in LARGE_KINDS or msg_type in LARGE_TYPES
-        profile = self.traffic.profile("frames" if large else "sensor")
-        qos = rmw_zenoh.qos_from_profile(profile)
-        entity = self._new_entity(rmw_zenoh.PUBLISHER, name, ros_type, qos)
-        # as rmw_zenoh: congestion control BLOCK only for RELIABLE + KEEP_ALL, else DROP
-        block = qos.reliability == rmw_zenoh.RELIABLE and qos.history == rmw_zenoh.KEEP_ALL
-        publisher = self.transport.publisher(entity.data_key, block=block)
-        token = self.transport.declare_token(entity.token())
         state.topics[topic] = _TopicOut(
             robot,
             topic,
             kind,
-            entity,
-            entity.gid,
-            publisher,
-            token,
+            name,
+            ros_type,
+            qos,
+            port,
             naming.frame_id(robot, topic),
             msg_type=msg_type,
         )
@@ -419,17 +643,39 @@ class Bridge:
     ) -> None:
         name = naming.fill(mapping.topic, robot)
         profile = self.traffic.profile("command", downlink=True)
-        entity = self._new_entity(
-            rmw_zenoh.SUBSCRIPTION, name, mapping.type, rmw_zenoh.qos_from_profile(profile)
-        )
+        try:
+            port = self._declare_subscription(
+                name, mapping, index, self._command_qos(profile), robot
+            )
+        except UnknownTypeError as exc:
+            self._bad("unknown_type", f"command type {name}", "%s not bridged: %s", name, exc)
+            return
         outlet = Outlet(
             self.transport, keys.command_key(self.fleet, robot, mapping.command), profile
         )
-        token = self.transport.declare_token(entity.token())
-        state.commands[mapping.command] = _CommandIn(robot, mapping, entity, token, outlet)
+        state.commands[mapping.command] = _CommandIn(robot, mapping, name, port, outlet)
         with self._lock:
             self._command_topics[(index, name)] = robot
         log.info("ROS 2 bridge: %s [%s] -> %s cmd/%s", name, mapping.type, robot, mapping.command)
+
+    def _open_service(self, state: _Robot, robot: str, service: str, service_type: str) -> None:
+        if self.services is None:
+            if not self._no_services_logged:
+                self._no_services_logged = True
+                log.info(
+                    "ROS 2 bridge: robots' services are not bridged (no service caller: the "
+                    "bridge runs inside the CEDDP for them)"
+                )
+            return
+        name = naming.service_name(robot, service)
+        try:
+            self.types.service_types(service_type)
+            port = self._declare_service(name, service_type, robot, service)
+        except (UnknownTypeError, MessageTypeError) as exc:
+            self._bad("unknown_type", f"service {name}", "%s not bridged: %s", name, exc)
+            return
+        state.services[service] = _ServiceIn(robot, service, service_type, name, port)
+        log.info("ROS 2 bridge: service %s [%s] -> %s/%s", name, service_type, robot, service)
 
     def _drop_robot(self, robot: str) -> None:
         """The robot left: its publishers, tokens and command writers go (it announces again)."""
@@ -437,16 +683,18 @@ class Bridge:
         if state is None:
             return
         for out in state.topics.values():
-            out.token.undeclare()
-            out.publisher.undeclare()
+            out.port.close()
             self._retire(out)
         with self._lock:
             for key in [k for k, r in self._command_topics.items() if r == robot]:
                 del self._command_topics[key]
         for command in state.commands.values():
-            command.token.undeclare()
+            command.port.close()
             command.outlet.close(0.0)
             self._retire(command)
+        for service in state.services.values():
+            service.port.close()
+            self._retire(service)
 
     def _publish(self, key: str, payload: bytes, *, large: bool) -> None:
         with self._lock:
@@ -473,7 +721,7 @@ class Bridge:
             self._bad("conversion_errors", f"convert {key}", "%s: %s", key, exc)
             return
         out.seq += 1
-        out.publisher.put(cdr, attachment=rmw_zenoh.attachment(out.seq, sample.stamp_ns, out.gid))
+        out.port.put(cdr, out.seq, sample.stamp_ns)
         with self._lock:
             self.counters.published += 1
 
@@ -489,19 +737,20 @@ class Bridge:
             return
         cdr = self.types.to_cdr(out.msg_type, message)
         out.seq += 1
-        out.publisher.put(cdr, attachment=rmw_zenoh.attachment(out.seq, sample.stamp_ns, out.gid))
+        out.port.put(cdr, out.seq, sample.stamp_ns)
         with self._lock:
             self.counters.published += 1
 
     def _command(self, index: int, key: str, payload: bytes, attachment: bytes | None) -> None:
+        """An rmw_zenoh command sample: its key names the topic and the type."""
         mapping = self.config.commands[index]
-        with self._lock:
-            self.counters.commands_in += 1
         parsed = rmw_zenoh.parse_topic_key(key)
         if parsed is None or (parsed.ros_type, parsed.type_hash) != (
             mapping.type,
             self._hashes[mapping.type],
         ):
+            with self._lock:
+                self.counters.commands_in += 1
             self._bad(
                 "unknown_type",
                 f"command type {key}",
@@ -513,25 +762,35 @@ class Bridge:
             return
         with self._lock:
             robot = self._command_topics.get((index, parsed.topic))
-        state = self._robots.get(robot) if robot is not None else None
-        command = state.commands.get(mapping.command) if state is not None else None
-        if command is None:
-            self._bad(
-                "unmapped",
-                f"command topic {parsed.topic}",
-                "%s: no robot acting on '%s' has this topic: refused",
-                parsed.topic,
-                mapping.command,
-            )
-            return
-        if attachment is None or len(attachment) != rmw_zenoh.ATTACHMENT_BYTES:
+        if robot is not None and (
+            attachment is None or len(attachment) != rmw_zenoh.ATTACHMENT_BYTES
+        ):
             self._bad(
                 "bad_attachment",
                 f"attachment {parsed.topic}",
                 "%s: no rmw_zenoh attachment",
                 parsed.topic,
             )
-        takes = state.command_types.get(mapping.command) if state is not None else None
+        self._apply_command(index, robot, parsed.topic, payload)
+
+    def _apply_command(self, index: int, robot: str | None, topic: str, payload: bytes) -> None:
+        """One ROS 2 command message (CDR of the mapping's type) on ``topic``, for ``robot``:
+        written to the robot's command key."""
+        mapping = self.config.commands[index]
+        with self._lock:
+            self.counters.commands_in += 1
+        state = self._robots.get(robot) if robot is not None else None
+        command = state.commands.get(mapping.command) if state is not None else None
+        if state is None or command is None:
+            self._bad(
+                "unmapped",
+                f"command topic {topic}",
+                "%s: no robot acting on '%s' has this topic: refused",
+                topic,
+                mapping.command,
+            )
+            return
+        takes = state.command_types.get(mapping.command)
         try:
             if takes is not None:  # the robot takes the message itself: passed through
                 if takes != mapping.type:
@@ -540,7 +799,7 @@ class Bridge:
             else:
                 value = command_value(mapping.type, deserialize(payload, mapping.type))
         except (ConversionError, AttributeError, TypeError, ValueError, KeyError) as exc:
-            self._bad("bad_cdr", f"cdr {parsed.topic}", "%s: %s", parsed.topic, exc)
+            self._bad("bad_cdr", f"cdr {topic}", "%s: %s", topic, exc)
             return
         command.received += 1
         command.seq += 1
@@ -560,17 +819,88 @@ class Bridge:
             else:
                 self.counters.commands_write_failures += 1
 
+    # -- services --------------------------------------------------------------------------------
+
+    def _call(self, robot: str, service: str, answer: Answer, payload: bytes) -> None:
+        """Call ``robot``'s ``service`` with the request's CDR; ``answer`` gets the response's
+        CDR when the call completes (on the transport's thread), or None / a failure response
+        (``failure_response``) when it fails."""
+        with self._lock:
+            self.counters.service_calls += 1
+        state = self._robots.get(robot)
+        entry = state.services.get(service) if state is not None else None
+        if entry is None or self.services is None:
+            self._service_failed(None, answer, None, f"{robot}/{service}: not served any more")
+            return
+        entry.calls += 1
+        request_type, response_type = self.types.service_types(entry.service_type)
+        try:
+            request = self.types.from_cdr(request_type, payload)
+        except (ConversionError, AttributeError, TypeError, ValueError, KeyError) as exc:
+            self._bad("bad_cdr", f"cdr {entry.name}", "%s: request: %s", entry.name, exc)
+            self._service_failed(entry, answer, response_type, f"bad request: {exc}")
+            return
+        future = self.services.call_async(
+            robot, service, request, SERVICE_TIMEOUT_S, type=entry.service_type
+        )
+
+        def done(call: concurrent.futures.Future[msgspec.Struct]) -> None:
+            try:
+                response = call.result()
+            except Exception as exc:  # a ServiceError: timeout, gone, the handler failed...
+                self._service_failed(entry, answer, response_type, str(exc))
+                return
+            try:
+                cdr = self.types.to_cdr(response_type, response)
+            except Exception as exc:
+                self._service_failed(entry, answer, response_type, f"response: {exc}")
+                return
+            with self._lock:
+                entry.answered += 1
+                self.counters.service_answered += 1
+            answer(cdr)
+
+        future.add_done_callback(done)
+
+    def _service_failed(
+        self, entry: _ServiceIn | None, answer: Answer, response_type: str | None, error: str
+    ) -> None:
+        with self._lock:
+            self.counters.service_failed += 1
+            if entry is not None:
+                entry.failed += 1
+        name = entry.name if entry is not None else "service"
+        throttled.warning(f"service {name} {error}", "ROS 2 bridge: %s: %s", name, error)
+        response = (
+            failure_response(self.types, response_type, error)
+            if response_type is not None
+            else None
+        )
+        if response_type is None or response is None:
+            answer(None)
+        else:
+            answer(self.types.to_cdr(response_type, response))
+
     # -- stats -----------------------------------------------------------------------------------
 
-    def _row(self, item: _TopicOut | _CommandIn) -> dict[str, Any]:
+    def _row(self, item: _TopicOut | _CommandIn | _ServiceIn) -> dict[str, Any]:
         if isinstance(item, _TopicOut):
             return {
                 "robot": item.robot,
                 "topic": item.topic,
-                "type": item.entity.ros_type,
+                "type": item.ros_type,
                 "published": item.seq,
                 "conversion_errors": item.conversion_errors,
-                "qos": item.entity.qos.describe() if item.entity.qos else "",
+                "qos": item.qos.describe(),
+            }
+        if isinstance(item, _ServiceIn):
+            return {
+                "robot": item.robot,
+                "service": item.service,
+                "type": item.service_type,
+                "calls": item.calls,
+                "answered": item.answered,
+                "failed": item.failed,
             }
         return {
             "robot": item.robot,
@@ -580,36 +910,61 @@ class Bridge:
             "sent": item.sent,
         }
 
-    def _retire(self, item: _TopicOut | _CommandIn) -> None:
+    def _table(self, item: _TopicOut | _CommandIn | _ServiceIn) -> dict[str, dict[str, Any]]:
+        if isinstance(item, _TopicOut):
+            return self._retired_topics
+        return self._retired_services if isinstance(item, _ServiceIn) else self._retired_commands
+
+    def _retire(self, item: _TopicOut | _CommandIn | _ServiceIn) -> None:
         """Keep a closed topic's counts for the stats (added to a later incarnation's)."""
-        table = self._retired_topics if isinstance(item, _TopicOut) else self._retired_commands
+        table = self._table(item)
         row = self._row(item)
         with self._lock:
-            table[item.entity.topic] = _merged(table.get(item.entity.topic), row)
+            table[item.name] = _merged(table.get(item.name), row)
 
     def stats(self) -> dict[str, Any]:
-        """The bridge's counters, its topics and command topics (live and closed), and the
-        sensor channel's view."""
+        """The bridge's counters, its topics, command topics and services (live and closed),
+        and the sensor channel's view."""
         robots = dict(self._robots)  # the worker may add entries meanwhile: copy, then read
-        live_topics = [o for state in robots.values() for o in list(state.topics.values())]
-        live_commands = [c for state in robots.values() for c in list(state.commands.values())]
+        live: list[_TopicOut | _CommandIn | _ServiceIn] = []
+        for state in robots.values():
+            live += list(state.topics.values())
+            live += list(state.commands.values())
+            live += list(state.services.values())
         with self._lock:
             counters = asdict(self.counters)
-            topics = dict(self._retired_topics)
-            commands = dict(self._retired_commands)
-        for out in live_topics:
-            topics[out.entity.topic] = _merged(topics.get(out.entity.topic), self._row(out))
-        for cmd in live_commands:
-            commands[cmd.entity.topic] = _merged(commands.get(cmd.entity.topic), self._row(cmd))
+            tables = {
+                id(self._retired_topics): dict(self._retired_topics),
+                id(self._retired_commands): dict(self._retired_commands),
+                id(self._retired_services): dict(self._retired_services),
+            }
+        for item in live:
+            table = tables[id(self._table(item))]
+            table[item.name] = _merged(table.get(item.name), self._row(item))
         channel = self._inlets[1].stats() if len(self._inlets) > 1 else None
         return {
             "node": f"/{self.config.node_name}",
             "domain_id": self.config.domain_id,
+            "backend": self.backend,
             "counters": counters,
-            "topics": topics,
-            "commands": commands,
+            "topics": tables[id(self._retired_topics)],
+            "commands": tables[id(self._retired_commands)],
+            "services": tables[id(self._retired_services)],
             "channel": msgspec.to_builtins(channel) if channel is not None else None,
         }
+
+
+def failure_response(types: MessageTypes, response_type: str, error: str) -> Any:
+    """The response a failed call gets when its type follows std_srvs' convention, exactly
+    ``bool success`` and ``string message`` (``Trigger``, ``SetBool``): success False and the
+    error (``arpz bridge: ...``); None for any other type (the call gets no response: ROS 2
+    services have no error reply)."""
+    fields = [(f.name, f.base, f.sequence) for f in types.field_defs(response_type)]
+    if sorted(fields) != [("message", "string", False), ("success", "bool", False)]:
+        return None
+    return types.check_service_message(
+        response_type, {"success": False, "message": f"arpz bridge: {error}"}
+    )
 
 
 def _merged(old: dict[str, Any] | None, new: dict[str, Any]) -> dict[str, Any]:

@@ -47,6 +47,11 @@ def topic_name(config: Ros2Config, robot: str, topic: str, kind: str) -> str:
     return fill(template, robot, topic)
 
 
+def service_name(robot: str, service: str) -> str:
+    """The ROS 2 service of ``robot``'s arpz service ``service`` (``/robot1/dock``)."""
+    return f"/{ros_token(robot)}/{ros_token(service)}"
+
+
 def command_key_expr(domain_id: int, template: str) -> str:
     """The key expression of every robot's command topic of one mapping (``{robot}`` as ``*``):
     one Zenoh subscriber serves the whole fleet. Any type is matched on purpose, so a message

@@ -16,7 +16,13 @@ Rolling, on Zenoh 1.x):
   and lease, AUTOMATIC liveliness);
 - attachment of every sample: sequence number (int64 LE), source timestamp (int64 LE, ns since
   the epoch), then the 16-byte GID as Zenoh's serializer writes an array (length 16 as one LEB128
-  byte, then the bytes): 33 bytes.
+  byte, then the bytes): 33 bytes;
+- services: the key is a topic's with the service's DDS type (``std_srvs::srv::dds_::Trigger_``)
+  and type hash (``type_hash.service_type_hash``), served by a complete queryable with an SS
+  token (a client's is SC); a request is a ``get`` whose attachment is the request header (the
+  33 bytes above, with the client's GID), and the reply's attachment carries the request's
+  sequence number and client GID back with the reply's timestamp (design.md "Service Clients",
+  "Service Servers").
 
 The GID: rmw_zenoh hashes the entity's token with XXH3-128; arpz takes the first 16 bytes of
 its SHA-256 (no xxhash in arpz's dependencies). A GID only has to be unique per entity, and a
@@ -34,6 +40,7 @@ from typing import Final, NamedTuple
 
 from arpz.core.errors import ArpzError
 from arpz.core.protocol.qos import (
+    DurabilityPolicy,
     HistoryPolicy,
     LivelinessPolicy,
     QosProfile,
@@ -210,17 +217,24 @@ class RmwQos:
 DEFAULT_QOS: Final = RmwQos()
 
 
-def qos_from_profile(profile: QosProfile | None) -> RmwQos:
+#: the QoS of a service server and client (rmw's ``rmw_qos_profile_services_default``)
+SERVICE_QOS: Final = RmwQos(depth=10)
+
+
+def qos_from_profile(profile: QosProfile | None, *, transient_local: bool = False) -> RmwQos:
     """The ROS 2 QoS a bridged topic offers for an arpz profile (None: arpz's plain mode).
 
-    Durability is always VOLATILE: the bridge keeps no publication cache for late joiners
-    (rmw_zenoh serves TRANSIENT_LOCAL from an AdvancedPublisher's cache), so it does not claim
-    one. Plain mode offers BEST_EFFORT: nothing is recovered end to end before the bridge."""
+    Durability is VOLATILE unless ``transient_local`` (the rclpy backend: its RMW keeps the
+    publisher's history for late joiners) and the profile asks for TRANSIENT_LOCAL: the
+    rmw_zenoh backend keeps no publication cache (rmw_zenoh serves TRANSIENT_LOCAL from an
+    AdvancedPublisher's cache), so it does not claim one. Plain mode offers BEST_EFFORT:
+    nothing is recovered end to end before the bridge."""
     if profile is None:
         return RmwQos(reliability=BEST_EFFORT, depth=1)
+    keeps = transient_local and profile.durability is DurabilityPolicy.TRANSIENT_LOCAL
     return RmwQos(
         reliability=RELIABLE if profile.reliability is ReliabilityPolicy.RELIABLE else BEST_EFFORT,
-        durability=VOLATILE,
+        durability=TRANSIENT_LOCAL if keeps else VOLATILE,
         history=KEEP_LAST if profile.history is HistoryPolicy.KEEP_LAST else KEEP_ALL,
         depth=profile.depth if profile.history is HistoryPolicy.KEEP_LAST else DEFAULT_QOS.depth,
         deadline=_duration(profile.deadline_s),

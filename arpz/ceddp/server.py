@@ -235,15 +235,16 @@ class CeddpServer:
         #: the ROS 2 bridge on this router's session ([ros2], docs/ros2.md)
         self.bridge: Bridge | None = None
         if config.ros2.enabled:
-            from arpz.bridge.bridge import Bridge
+            from arpz.bridge.factory import bridge_class
 
-            self.bridge = Bridge(
+            self.bridge = bridge_class(config.ros2)(
                 transport,
                 config.fleet,
                 config,
                 config.ros2,
                 partition=config.partition,
                 types=self.types,
+                services=self.services,
             )
         self._reports: Inlet | None = None
         self._contract: Handle | None = None

@@ -675,11 +675,15 @@ class Ros2CommandConfig(msgspec.Struct, forbid_unknown_fields=True, frozen=True,
 
 
 class Ros2Config(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
-    """The ROS 2 bridge (``[ros2]``, docs/ros2.md): the fleet's topics as ROS 2 topics for
-    nodes running rmw_zenoh on the same router, and ROS 2 commands to the robots."""
+    """The ROS 2 bridge (``[ros2]``, docs/ros2.md): the fleet's topics as ROS 2 topics, ROS 2
+    commands and service calls to the robots."""
 
     enabled: bool = False
-    #: ROS_DOMAIN_ID of the ROS 2 side (rmw_zenoh's first key chunk)
+    #: how the bridge reaches ROS 2: "rmw_zenoh" speaks rmw_zenoh's protocol on the fleet's own
+    #: router (no ROS 2 installed); "rclpy" is a real ROS 2 node on whatever RMW the host's
+    #: ROS 2 uses (Fast DDS by default, ``RMW_IMPLEMENTATION``), needing ``arpz[ros2]``
+    backend: Literal["rmw_zenoh", "rclpy"] = "rmw_zenoh"
+    #: ROS_DOMAIN_ID of the ROS 2 side (rmw_zenoh's first key chunk; the rclpy node's domain)
     domain_id: int = 0
     #: the one ROS 2 node the bridge appears as (``ros2 node list``)
     node_name: str = "arpz_bridge"

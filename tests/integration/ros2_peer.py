@@ -1,13 +1,16 @@
-"""A stand-in for a ROS 2 node running rmw_zenoh, for the bridge's tests (ROS 2 is not installed).
+"""A stand-in for a ROS 2 node running rmw_zenoh, for the bridge's tests (rmw_zenoh is not
+installed).
 
 Written from rmw_zenoh's documentation (ros2/rmw_zenoh ``docs/design.md``: "Topic and Service
-name mapping to Zenoh key expressions", "Graph Cache", "Publishers"), NOT from arpz.bridge: its
-own token parser and key builder, CDR through ``rosbags``' Jazzy typestore directly
-(arpz.core.rosmsg uses the Humble one), the attachment through Zenoh's own serializer
-(``zenoh.ext``, which
-rmw_zenoh's ``AttachmentData`` uses), and zenoh-python directly. Like a ROS 2 node it declares
-its own node token and, for what it publishes, a publisher token, and computes the type hashes
-of what it publishes itself.
+name mapping to Zenoh key expressions", "Graph Cache", "Publishers", "Service Clients"), NOT
+from arpz.bridge: its own token parser and key builder, CDR through ``rosbags``' Jazzy typestore
+directly (arpz.core.rosmsg uses the Humble one), the attachment through Zenoh's own serializer
+(``zenoh.ext``, which rmw_zenoh's ``AttachmentData`` uses), and zenoh-python directly. Like a
+ROS 2 node it declares its own node token and, for what it publishes, a publisher token, and
+computes the type hashes of what it publishes itself. Its service client (``call``) declares an
+SC token and sends a ``get`` on the service's key with the request's attachment (sequence
+number, timestamp, its GID), target ALL_COMPLETE, as design.md's "Service Clients" says; the
+service type hashes are those ROS 2's rosidl wrote (``SERVICE_HASHES``).
 """
 
 from __future__ import annotations
@@ -20,10 +23,31 @@ from dataclasses import dataclass
 from typing import Any
 
 import zenoh
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from zenoh.ext import Int64, UInt8, z_deserialize, z_serialize
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
+# the request and response messages of std_srvs/srv/Trigger, registered under the service's
+# names (rosbags parses message names only, package/msg/Name); an empty structure holds the one
+# uint8 ROS 2 gives it
+STORE.register(
+    {
+        f"std_srvs/srv/Trigger_{half}": get_types_from_msg(text, f"std_srvs/msg/Trigger_{half}")[
+            f"std_srvs/msg/Trigger_{half}"
+        ]
+        for half, text in (
+            ("Request", "uint8 structure_needs_at_least_one_member"),
+            ("Response", "bool success\nstring message"),
+        )
+    }
+)
+#: service type hashes as ROS 2 computes them (REP 2016: request, response and event message):
+#: rosidl's own output, ``share/std_srvs/srv/Trigger.json`` of the ros-std-srvs 5.5.1 wheel
+SERVICE_HASHES = {
+    "std_srvs/srv/Trigger": (
+        "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
+    ),
+}
 
 
 @dataclass(frozen=True)
@@ -43,7 +67,7 @@ class PeerEntity:
 
     @property
     def ros_type(self) -> str:
-        """``pkg::msg::dds_::Name_`` -> ``pkg/msg/Name``."""
+        """``pkg::msg::dds_::Name_`` -> ``pkg/msg/Name`` (``pkg/srv/Name`` for a service)."""
         pkg, sub, _, name = self.dds_type.split("::")
         return f"{pkg}/{sub}/{name.rstrip('_')}"
 
@@ -97,6 +121,21 @@ class Received:
     source_timestamp_ns: int
     gid: bytes
     arrival_ns: int
+
+
+@dataclass
+class Reply:
+    """A service's response (None: the query ended without one) and its reply attachment."""
+
+    key: str
+    response: Any
+    sequence_number: int
+    source_timestamp_ns: int
+    gid: bytes
+
+
+#: this peer's GID, as a client's request header carries it
+GID = bytes(range(100, 116))
 
 
 class Ros2Peer:
@@ -191,6 +230,51 @@ class Ros2Peer:
         attachment = z_serialize((Int64(seq), Int64(time.time_ns()), gid))
         payload = bytes(STORE.serialize_cdr(message, ros_type, little_endian=True))
         self.session.put(key, payload, attachment=attachment)
+
+    # -- calling a service ---------------------------------------------------------------------
+
+    def client(self, service: str, srv_type: str) -> str:
+        """Declare a service client's SC token (design.md "Graph Cache": the service's mangled
+        name, its DDS type name ``pkg::srv::dds_::Name_`` and type hash, the services' default
+        QoS: RELIABLE, VOLATILE, KEEP_LAST 10) and return the service's key."""
+        pkg, sub, name = srv_type.split("/")
+        dds = f"{pkg}::{sub}::dds_::{name}_"
+        type_hash = SERVICE_HASHES[srv_type]
+        entity_id, self._next_id = self._next_id, self._next_id + 1
+        token = (
+            f"@ros2_lv/{self.domain}/{self.zid}/0/{entity_id}/SC/%/%/{self.node}/"
+            f"{service.replace('/', '%')}/{dds}/{type_hash}/::,10:,:,:,,"
+        )
+        self._declared.append(self.session.liveliness().declare_token(token))
+        return f"{self.domain}/{service.strip('/')}/{dds}/{type_hash}"
+
+    def call(self, key: str, srv_type: str, request: Any, timeout_s: float = 10.0) -> Reply:
+        """design.md "Service Clients": ``get`` on the service's key with the serialized request
+        and the attachment (sequence number, source timestamp, client GID), target
+        ALL_COMPLETE; the response comes back as a reply whose attachment carries the same
+        sequence number and client GID."""
+        seq = self._seq.get(key, 0) + 1
+        self._seq[key] = seq
+        attachment = z_serialize((Int64(seq), Int64(time.time_ns()), [UInt8(b) for b in GID]))
+        payload = bytes(STORE.serialize_cdr(request, f"{srv_type}_Request", little_endian=True))
+        replies = self.session.get(
+            key,
+            payload=payload,
+            attachment=attachment,
+            target=zenoh.QueryTarget.ALL_COMPLETE,
+            timeout=timeout_s,
+        )
+        got: list[Reply] = []
+        for reply in replies:
+            ok = reply.ok
+            if ok is None:
+                continue
+            assert ok.attachment is not None, "rmw_zenoh replies carry an attachment"
+            r_seq, r_stamp, r_gid = z_deserialize(tuple[Int64, Int64, list[UInt8]], ok.attachment)
+            response = STORE.deserialize_cdr(ok.payload.to_bytes(), f"{srv_type}_Response")
+            got.append(Reply(str(ok.key_expr), response, r_seq, r_stamp, bytes(r_gid)))
+        assert len(got) <= 1, f"one server answers, got {len(got)} replies"
+        return got[0] if got else Reply("", None, seq, 0, b"")
 
     def twist(self, v: float, omega: float) -> Any:
         vector = STORE.types["geometry_msgs/msg/Vector3"]

@@ -4,14 +4,18 @@ CEDDP router with real robot processes.
 The robot runs the machine1 preset (LIDAR, IMU, ...), a 160x120 camera and a simulated body in
 the hallway world. A witness arpz client reads the robot's own samples through the reliable
 channel; the peer must receive LaserScan, Imu and Image messages whose fields are those readings
-(matched by stamp), discovered from the bridge's liveliness tokens alone; and the peer's Twist
-commands must turn the simulated robot (its telemetry's heading changes).
+(matched by stamp), discovered from the bridge's liveliness tokens alone; the peer's Twist
+commands must turn the simulated robot (its telemetry's heading changes); and the peer's service
+client (rmw_zenoh's SC token, ``get`` with the request header attachment) must call the robot's
+``dock`` and ``jammed`` services (tests/integration/service_handlers.py) through the bridge's SS
+token and queryable, and get the responses with its sequence number and GID echoed.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 import subprocess
 import sys
 import threading
@@ -27,7 +31,8 @@ from arpz.core.config import LARGE_SAMPLE_BYTES
 from arpz.core.messages import LARGE_SAMPLE_DECODER, SAMPLE_DECODER, TELEMETRY_DECODER
 from arpz.core.traffic import FRAMES_QOS, REPORT_QOS, SENSOR_QOS
 from tests.integration.fleet import Process, ceddp, robots, write_robot
-from tests.integration.ros2_peer import Ros2Peer, qos_fields
+from tests.integration.ros2_peer import GID, SERVICE_HASHES, STORE, Ros2Peer, qos_fields
+from tests.integration.service_handlers import SERVICES
 from tests.support import client, wait_until
 
 pytestmark = pytest.mark.integration
@@ -38,11 +43,16 @@ LASER_SCAN = "sensor_msgs::msg::dds_::LaserScan_"
 IMU = "sensor_msgs::msg::dds_::Imu_"
 IMAGE = "sensor_msgs::msg::dds_::Image_"
 TWIST = "geometry_msgs::msg::dds_::Twist_"
+TRIGGER = "std_srvs/srv/Trigger"
+REPO = Path(__file__).resolve().parents[2]
+#: the robot imports its service handlers from tests.integration.service_handlers
+ENV = {"PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
 ROBOT_EXTRA = (
     '[sim]\nworld = "hallway"\nbeam_rate_hz = 5.0\n'
     '[[sensors]]\nname = "camera"\nkind = "camera"\nrate_hz = 4.0\n'
     "options = { width = 160, height = 120 }\n"
 )
+ROBOT_SERVICES = ROBOT_EXTRA + SERVICES
 
 
 class Witness:
@@ -103,10 +113,10 @@ def test_a_ros2_node_sees_the_fleet_and_drives_a_simulated_robot(tmp_path: Path)
     extra = f"[ros2]\nenabled = true\ndomain_id = {DOMAIN}\n"
     with ceddp(tmp_path, extra=extra) as (server, endpoint):
         config = write_robot(
-            tmp_path, "robot1", endpoint, preset="machine1", rate_hz=20, extra=ROBOT_EXTRA
+            tmp_path, "robot1", endpoint, preset="machine1", rate_hz=20, extra=ROBOT_SERVICES
         )
         with (
-            robots(tmp_path, [config]),
+            robots(tmp_path, [config], env=ENV),
             client(endpoint) as transport,
             Ros2Peer(endpoint, domain=DOMAIN) as peer,
         ):
@@ -182,6 +192,8 @@ def test_a_ros2_node_sees_the_fleet_and_drives_a_simulated_robot(tmp_path: Path)
                 wrong = peer.publisher("/robot1/cmd_vel", "std_msgs/msg/String")
                 peer.publish(wrong, "std_msgs/msg/String", string_message("spin"))
                 peer.session.put(key, b"\x00\x01\x00\x00\x01")
+
+                check_services(peer)
             finally:
                 witness.close()
             assert server.interrupt() == 0
@@ -192,14 +204,52 @@ def test_a_ros2_node_sees_the_fleet_and_drives_a_simulated_robot(tmp_path: Path)
     assert counters["unknown_type"] >= 1 and counters["bad_cdr"] >= 1
     assert bridge["topics"]["/robot1/scan"]["type"] == "sensor_msgs/msg/LaserScan"
     assert bridge["commands"]["/robot1/cmd_vel"]["sent"] == counters["commands_sent"]
+    assert bridge["services"]["/robot1/dock"] == {
+        "robot": "robot1",
+        "service": "dock",
+        "type": TRIGGER,
+        "calls": 1,
+        "answered": 1,
+        "failed": 0,
+    }
+    assert bridge["services"]["/robot1/jammed"]["failed"] == 1
+    assert (counters["service_calls"], counters["service_answered"]) == (2, 1)
+    # the CEDDP's service caller made the calls, and the robot served them
+    calls = summary["services"]["robot1"]
+    assert calls["dock"]["caller"]["ok"] == 1 and calls["jammed"]["caller"]["failed"] == 1
     # the robot acted on them as on any command of its reliable downlink
     assert "Traceback" not in server.output()
 
 
 def string_message(text: str) -> object:
-    from tests.integration.ros2_peer import STORE
-
     return STORE.types["std_msgs/msg/String"](data=text)
+
+
+def check_services(peer: Ros2Peer) -> None:
+    """The robot's services as rmw_zenoh services: an SS token each, a call each."""
+    wait_until(
+        lambda: peer.find("SS", "/robot1/dock") and peer.find("SS", "/robot1/jammed"),
+        timeout_s=10,
+        what="the bridge's SS tokens of the robot's services",
+    )
+    server = peer.find("SS", "/robot1/dock")
+    assert server is not None and server.node == "arpz_bridge"
+    assert server.dds_type == "std_srvs::srv::dds_::Trigger_"
+    assert server.type_hash == SERVICE_HASHES[TRIGGER], "ROS 2's own hash of the service type"
+    assert qos_fields(server.qos)["depth"] == "10"  # the services' default QoS
+    request = STORE.types[f"{TRIGGER}_Request"](structure_needs_at_least_one_member=0)
+    key = peer.client("/robot1/dock", TRIGGER)
+    assert key == server.data_key
+    reply = peer.call(key, TRIGGER, request)
+    assert reply.response is not None, "no response from /robot1/dock"
+    assert (reply.response.success, reply.response.message) == (True, "docked")
+    assert (reply.sequence_number, reply.gid) == (1, GID), "the request header echoed"
+    assert abs(reply.source_timestamp_ns - time.time_ns()) < 10e9
+    assert reply.key == key
+    # a handler that raises: Trigger's failure response (success False and why)
+    jammed = peer.call(peer.client("/robot1/jammed", TRIGGER), TRIGGER, request)
+    assert jammed.response is not None and jammed.response.success is False
+    assert "the dock is blocked" in jammed.response.message, jammed.response.message
 
 
 def check_scans(peer: Ros2Peer, witness: Witness) -> None:
