@@ -134,8 +134,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if not config.sensors and config.preset is None and config.sim is None:
         log.warning(
-            "robot %s has no sensors: it will only act on commands (give [[sensors]] in the "
-            "TOML, --preset or --sim to make it sense)",
+            "robot %s has no sensors: it will only act on commands and serve its services (give "
+            "[[sensors]] in the TOML, --preset or --sim to make it sense)",
             config.robot_id,
         )
     stop = stop_on_signals()

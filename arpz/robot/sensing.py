@@ -260,8 +260,6 @@ def build_sensors(
     sensor_configs = effective_sensors(config)
     if sim is not None and config.sim is not None:
         sensor_configs = sim.beam_sensors(config.sim.beam_rate_hz) + sensor_configs
-    if not sensor_configs:
-        log.warning("robot %s has no sensors: it will only act on commands", config.robot_id)
     sensors: list[SensorChannel] = []
     for sensor in sensor_configs:
         silence = sensor.max_silence_s or config.local_cache.max_silence_s
