@@ -187,6 +187,8 @@ def access_control(
     policies: list[dict[str, object]] = []
     fleet_root = f"arpz/{fleet}"
     clock = f"{fleet_root}/ceddp/clock"
+    # what the CEDDP's planners send, asked once at a robot's start (docs/nodes.md)
+    contract = f"{fleet_root}/ceddp/commands"
     services = f"{fleet_root}/robot/*/srv/*"
     for robot in robots:
         own = f"{fleet_root}/robot/{robot}"
@@ -214,6 +216,9 @@ def access_control(
             f"{own}/*/rel/**",
             f"{own}/*/*/rel/**",
             f"{fleet_root}/ceddp/**",
+            # its own presence token: a second process with its robot_id is refused at start
+            # (docs/operations.md)
+            f"{own}/presence",
         ]
         commands_only_from_the_ceddp = [
             f"{own}/cmd/*",
@@ -238,8 +243,10 @@ def access_control(
             _rule(f"{robot}-receive", ROBOT_RECEIVES, "egress", receives),
             # the clock exchange (docs/operations.md, "Clock offsets"): a query to the CEDDP's
             # clock and its reply, nothing else
-            _rule(f"{robot}-clock-query", ["query"], "ingress", [clock]),
-            _rule(f"{robot}-clock-reply", ["declare_queryable", "reply"], "egress", [clock]),
+            _rule(f"{robot}-clock-query", ["query"], "ingress", [clock, contract]),
+            _rule(
+                f"{robot}-clock-reply", ["declare_queryable", "reply"], "egress", [clock, contract]
+            ),
             # its services: the queryable on its own srv/* and its replies, and the calls
             # (queries) the router hands it there
             _rule(f"{robot}-serve", SERVES, "ingress", [f"{own}/srv/*"]),
