@@ -717,8 +717,8 @@ def check_robot_id_free(
     until the lease of that session ends. So, while the token is alive, the robot waits for
     either: the token to vanish (a previous run: go on), a report (stats or announcement) from
     the other process (it runs: refused at once), or ``linger_s`` to pass (the lease: refused).
-    Under access control a robot may not be allowed to see its own token; then the CEDDP's
-    check is the one that catches a duplicate (docs/operations.md)."""
+    Under access control the rules of deploy/tls/make_fleet_certs.py let a robot see its own
+    token; rules that do not leave the CEDDP's check to catch a duplicate (docs/operations.md)."""
     fleet, robot = config.fleet, config.robot_id
     other = _OtherRun()
     started = time.monotonic()
