@@ -327,8 +327,10 @@ class HallwayPlanner:
                     omega_rad_s = min(max(command.omega_rad_s + omega_rad_s, -limit), limit)
                     commands[robot] = VelocityCommand(command.v_m_s, omega_rad_s)
         for robot in list(self._catch_up.owed):
+            if robot in self._off_lane:  # the formation rule steers it, on what it measures
+                self._catch_up.owed.pop(robot)
             # held or not (a robot turns on the spot), but only one that hears its commands
-            if robot in fresh and not self._missed.deaf(robot) and self._phase != "home":
+            elif robot in fresh and not self._missed.deaf(robot) and self._phase != "home":
                 c = commands[robot]
                 commands[robot] = VelocityCommand(
                     c.v_m_s, self._catch_up.add(robot, c.omega_rad_s, limit)
@@ -347,11 +349,14 @@ class HallwayPlanner:
         if not s.catch_up_rad_s:
             who = "not turned back (catch_up_rad_s = 0)"
         elif missed.robot == s.leader:
-            for robot in s.followers:
+            matching = [r for r in s.followers if r not in self._off_lane]
+            for robot in matching:
                 self._catch_up.owe(robot, error_rad)
             if self._phase == "turning":
                 self._turned_rad += error_rad if s.turn == "left" else -error_rad
-            who = f"{', '.join(s.followers)} turned to match"
+            who = f"{', '.join(matching) or 'no follower'} turned to match"
+        elif missed.robot in self._off_lane:
+            who = "left to the formation rule, which is steering it"
         else:
             self._catch_up.owe(missed.robot, -error_rad)
             who = "turned back"

@@ -244,8 +244,17 @@ class Judge:
         )  # fmt: skip
 
     def _progress_text(self) -> str:
+        """Each robot's share of the loop, and how far from home one that went round is."""
+        s = self.settings
+
+        def where(track: _Track) -> str:
+            if track.progress < s.loop_fraction:
+                return ""
+            distance_m = track.home_distance_m()
+            return f" ({distance_m:.2f} m from home)" if distance_m > s.home_tolerance_m else ""
+
         return "loop done: " + ", ".join(
-            f"{robot} {max(round(100.0 * track.progress), 0)}%"
+            f"{robot} {max(round(100.0 * track.progress), 0)}%{where(track)}"
             for robot, track in self._tracks.items()
         )
 

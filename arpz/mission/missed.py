@@ -15,10 +15,14 @@ acknowledged").
 Only a robot whose readings stayed fresh meanwhile is reckoned: it was alive and sensing, so
 it drove as its watchdog lets it. A frozen process sends nothing and does not move, and a link
 dead both ways looks the same from here; those are left to the formation rule, which measures.
+Nor is a stretch in which the planner's own ticks came late (a starved CEDDP: the
+acknowledgements were not read either), nor one made of commands sent before the robot was last
+known to hear (their acknowledgements are catching up).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections import deque
 from collections.abc import Callable, Mapping
@@ -68,6 +72,8 @@ class MissedCommands:
         }
         self._deaf: dict[str, _Deaf] = {}
         self._last_s: float | None = None
+        #: per robot, when its last reckoned stretch ended (it heard again)
+        self._heard_s: dict[str, float] = {}
 
     def deaf(self, robot: str) -> bool:
         """The robot has not acknowledged commands for longer than ``slack_s``."""
@@ -90,20 +96,27 @@ class MissedCommands:
         from ``unacked_since[robot]`` for more than ``slack_s``; return those that
         acknowledged again (with ``sure`` readings throughout: ``fresh(robot)`` each tick)."""
         ended: list[Missed] = []
+        late = self._last_s is not None and now_s - self._last_s > self.slack_s
         for robot, log in self._log.items():
             deaf = self._deaf.get(robot)
             since_s = unacked_since.get(robot)
             if deaf is not None:
                 if self._last_s is not None and log:
                     deaf.sent_rad += log[-1][1] * (now_s - self._last_s)
-                deaf.sure = deaf.sure and fresh(robot)
+                deaf.sure = deaf.sure and fresh(robot) and not late
                 if since_s is None or since_s > deaf.since_s + 1e-6:
                     del self._deaf[robot]
+                    self._heard_s[robot] = now_s
                     if deaf.sure:
                         ended.append(self._reckon(robot, deaf, now_s))
                     deaf = None
-            if deaf is None and since_s is not None and now_s - since_s > self.slack_s:
-                self._deaf[robot] = self._start(log, since_s, now_s, fresh(robot))
+            if (
+                deaf is None
+                and since_s is not None
+                and now_s - since_s > self.slack_s
+                and since_s >= self._heard_s.get(robot, -math.inf)
+            ):
+                self._deaf[robot] = self._start(log, since_s, now_s, fresh(robot) and not late)
         return ended
 
     def _start(
@@ -112,15 +125,18 @@ class MissedCommands:
         """From the log: the last turn rate it acknowledged (sent before ``since_s``: ticks are
         at least half a tick apart from it, whichever clock stamped the acknowledgement) and
         the turn it was sent from then to now."""
-        half_tick_s = 0.5 * (log[-1][0] - log[-2][0]) if len(log) >= 2 else 0.0
+        entries = list(log)
+        times = [t_s for t_s, _ in entries[-9:]]
+        gaps = sorted(b - a for a, b in itertools.pairwise(times))
+        half_tick_s = 0.5 * gaps[len(gaps) // 2] if gaps else 0.0  # the median: a usual tick
         drove = 0.0
         sent_rad = 0.0
-        entries = list(log)
         for index, (t_s, omega_rad_s) in enumerate(entries):
             if t_s < since_s - half_tick_s:
                 drove = omega_rad_s
                 continue
             until_s = entries[index + 1][0] if index + 1 < len(entries) else now_s
+            sure = sure and until_s - t_s <= self.slack_s  # the planner's ticks were on time
             sent_rad += omega_rad_s * (until_s - t_s)
         return _Deaf(since_s, drove, sent_rad, sure)
 

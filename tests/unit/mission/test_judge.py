@@ -77,6 +77,17 @@ def test_home_without_going_round_is_not_success() -> None:
     assert "loop done: robot1 0%, robot2 0%, robot3 0%" in result.reason
 
 
+def test_a_robot_round_the_loop_but_short_of_home_is_said_so() -> None:
+    # robot2 stopped 0.8 m before its home: round the loop, but not home
+    judge = Judge(HALLWAY, JudgeSettings(time_limit_s=60.0))
+    paths = {robot: walk(lane(robot)) for robot in HALLWAY.robots}
+    paths["robot2"] = paths["robot2"][:-8]
+    feed(judge, paths)
+    result = judge.finish(60.0)
+    assert result.failure == "timeout"
+    assert "robot1 100%, robot2 97% (0.80 m from home), robot3 100%" in result.reason
+
+
 def test_path_error_is_the_followers_distance_from_the_shifted_leader_path() -> None:
     judge = Judge(HALLWAY)
     paths = {

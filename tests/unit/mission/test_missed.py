@@ -56,6 +56,29 @@ def test_late_acknowledgements_within_the_slack_and_stale_robots_are_not_reckone
     assert _run([(0.0, 0.0), (1.0, -0.8), (1.4, 0.0)], 0.95, 2.0, fresh=False) == []
 
 
+def test_a_stretch_with_the_planner_itself_late_is_not_reckoned() -> None:
+    # a starved CEDDP: no tick from 1.1 to 1.5 s, so its acknowledgements were not read either
+    missed = MissedCommands(("r",), slack_s=0.15, timeout_s=0.5)
+    times = [round(0.05 * i, 6) for i in range(23)] + [1.5, 1.55, 1.6]
+    ended = []
+    for now_s in times:
+        ended += missed.update(now_s, {"r": 0.9} if 0.9 <= now_s < 1.55 else {}, lambda r: True)
+        missed.sent(now_s, {"r": -0.8 if now_s >= 1.0 else 0.0})
+    assert ended == []
+
+
+def test_acknowledgements_catching_up_on_a_past_stretch_start_no_new_one() -> None:
+    missed = MissedCommands(("r",), slack_s=0.15, timeout_s=0.5)
+    ended = []
+    for step in range(50):
+        now_s = round(0.05 * step, 6)
+        # deaf from 0.5 s; at 1.5 s it acknowledged up to the command of 1.0 s, and all at 1.8 s
+        unacked = {"r": 0.5} if 0.5 <= now_s < 1.5 else {"r": 1.05} if now_s < 1.8 else {}
+        ended += missed.update(now_s, unacked, lambda r: True)
+        missed.sent(now_s, {"r": 0.0})
+    assert [(m.since_s, m.heard_s) for m in ended] == [(0.5, 1.5)]
+
+
 def test_catch_up_turns_back_what_is_owed_at_its_rate_without_overshoot() -> None:
     catch_up = CatchUp(0.8)
     catch_up.owe("r", 0.32)
