@@ -95,14 +95,18 @@ class Outlet:
         reconciles against the sender, such as commands. A reader away (its session lost, its
         match to resume) is not "no one": the message reaches it or is reported lost to it when
         it is back."""
-        if count_unmatched and not self.matched and not self.awaited:
-            self.unmatched += 1
         if self.writer is None:
+            if count_unmatched and not self.matched:
+                self.unmatched += 1
             assert self.publisher is not None
             self.publisher.put(payload)
             return True
         try:
-            self.writer.write(payload, stamp_ns=stamp_ns)
+            writer = self.writer
+            writer.note_audience = count_unmatched
+            writer.write(payload, stamp_ns=stamp_ns)
+            if count_unmatched and not writer.last_write_had_audience:
+                self.unmatched += 1
             return True
         except HistoryFullError as exc:
             self.write_failures += 1

@@ -90,6 +90,11 @@ class Writer(Endpoint):
         self._lock = self._channel.lock
         self._mutex = self._channel.mutex
         self._acquire, self._release = self._mutex.acquire, self._mutex.release
+        #: with ``note_audience`` set, whether the last ``write`` had a reader matched or away
+        #: (taken under the lock that orders the write, so a match that begins or resumes at
+        #: that moment is on one side of it: the downlink's count of commands written to no one)
+        self.note_audience = False
+        self.last_write_had_audience = True
         #: ``acknowledged_through``'s last figure
         self._acked_through = 0
         self._acked_epoch = -1  # the machine's ack_epoch when _acked_through was taken
@@ -128,6 +133,8 @@ class Writer(Endpoint):
         self._acquire()
         try:
             machine, holding = self._machine, self._holding
+            if self.note_audience:  # under the lock that orders the write: no race with a match
+                self.last_write_had_audience = machine.has_audience
             # the first seq not yet put: what ``ready`` starts with, if the publisher holds it
             unsent = machine.last_seq - len(machine.batch) + 1 if holding is not None else 0
             try:
@@ -175,6 +182,8 @@ class Writer(Endpoint):
         machine, holding = self._machine, self._holding
         self._acquire()
         try:
+            if self.note_audience:
+                self.last_write_had_audience = machine.has_audience
             try:
                 seq, messages, actions = machine.write_large(payload, stamp_ns)
             except HistoryFullError:

@@ -773,6 +773,13 @@ class WriterMachine:
             del away[next(iter(away))]
 
     @property
+    def has_audience(self) -> bool:
+        """A sample written now reaches a reader or is reported lost to one: a reader is
+        matched, or away with its match to resume (its retention not checked: cheap, for the
+        write path; an expired one is dropped at the next liveliness change or ``tick``)."""
+        return bool(self.proxies or self._away)
+
+    @property
     def awaited_count(self) -> int:
         """Readers away whose match may still resume: what is written now will reach them or
         be reported lost to them when they are back, so it is not written to no one."""
