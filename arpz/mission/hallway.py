@@ -52,6 +52,12 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     corners: int = 4
     #: The leader's front range at its home pose: after the last corner it stops there.
     home_front_m: float = 10.0
+    #: Each follower's front range at its home pose (``for_world``): once the leader is home, a
+    #: follower short of its own mark drives on to it (at most ``home_reach_m``), so that one
+    #: left behind by a robot that drove on without commands still stops at home. A follower
+    #: not named here stops with the leader.
+    home_fronts_m: dict[str, float] = msgspec.field(default_factory=dict)
+    home_reach_m: float = 2.0
     cruise_speed_m_s: float = 0.8
     turn_radius_m: float = 1.0
     #: A follower reading closer than this on an obstacle beam stops the fleet.
@@ -156,6 +162,13 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         )
         for robot in self.lanes_m:
             need(robot in self.followers, f"lanes_m names {robot!r}, which is not a follower")
+        for robot, front_m in self.home_fronts_m.items():
+            need(robot in self.followers, f"home_fronts_m names {robot!r}, not a follower")
+            need(
+                0.0 < front_m < self.max_range_m,
+                f"home_fronts_m[{robot!r}] must be > 0 and below max_range_m, got {front_m}",
+            )
+        need(self.home_reach_m >= 0.0, "home_reach_m must be >= 0")
         need(self.lane_tolerance_m > 0.0, "lane_tolerance_m must be > 0")
         need(self.formation_tolerance_rad > 0.0, "formation_tolerance_rad must be > 0")
         need(self.formation_ticks >= 1, "formation_ticks must be >= 1")
@@ -182,16 +195,23 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
         """Settings matching a map: fleet, corridor width, turn direction, the leader's home mark.
 
         ``home_front_m`` is what the leader's front beam reads at its home pose: the planner's
-        only way to recognise home with a LIDAR and no map matching. ``lanes_m`` is each
+        only way to recognise home with a LIDAR and no map matching; ``home_fronts_m`` the same
+        for each follower (where its front beam sees a wall within range). ``lanes_m`` is each
         follower's home offset from the leader, in the leader's frame at home.
         """
         max_range_m = overrides.get("max_range_m", DEFAULT_MAX_RANGE_M)
         if not isinstance(max_range_m, float | int):
             raise TypeError(f"max_range_m must be a number, got {max_range_m!r}")
+
+        def front_at_home(robot: str) -> float:
+            pose = world.homes[robot]
+            ranges = world.ray_ranges_m(
+                pose.x_m, pose.y_m, np.array([pose.theta_rad]), float(max_range_m)
+            )
+            return float(ranges[0])
+
         home = world.homes[world.leader]
-        front_m = world.ray_ranges_m(
-            home.x_m, home.y_m, np.array([home.theta_rad]), float(max_range_m)
-        )[0]
+        front_m = front_at_home(world.leader)
         ahead = (math.cos(home.theta_rad), math.sin(home.theta_rad))
         followers = [r for r in world.robots if r != world.leader]
         lanes: dict[str, tuple[float, float]] = {}
@@ -204,7 +224,12 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
             "followers": followers,
             "corridor_width_m": world.corridor_width_m,
             "turn": "right" if world.direction == "clockwise" else "left",
-            "home_front_m": float(front_m),
+            "home_front_m": front_m,
+            "home_fronts_m": {
+                robot: mark
+                for robot in followers
+                if (mark := front_at_home(robot)) < float(max_range_m)
+            },
             "lanes_m": lanes,
         }
         fields.update(overrides)
@@ -244,6 +269,10 @@ class HallwayPlanner:
             timeout_s=settings.command_timeout_s,
         )
         self._catch_up = CatchUp(settings.catch_up_rad_s)
+        #: once the leader is home: followers stopped at their own mark, and how far each drove
+        self._homed: set[str] = set()
+        self._home_driven_m: dict[str, float] = {}
+        self._home_speed: dict[str, float] = {}
         self._stale_reported_s = -math.inf
         #: followers being steered back into their lane (entered outside the tolerances, left
         #: within half of them)
@@ -316,6 +345,8 @@ class HallwayPlanner:
         for missed in self._missed.update(now_s, self._unacked_since, fresh.__contains__):
             self._owe(missed)
         self._last_tick_s = now_s
+        if self._phase == "home":
+            return self._homing(now_s, elapsed_s)
         command = self._decide(now_s)
         self._last_command = command
         commands = dict.fromkeys(self.settings.robots, command)
@@ -330,12 +361,47 @@ class HallwayPlanner:
             if robot in self._off_lane:  # the formation rule steers it, on what it measures
                 self._catch_up.owed.pop(robot)
             # held or not (a robot turns on the spot), but only one that hears its commands
-            elif robot in fresh and not self._missed.deaf(robot) and self._phase != "home":
+            elif robot in fresh and not self._missed.deaf(robot) and self.phase != "home":
                 c = commands[robot]
                 commands[robot] = VelocityCommand(
                     c.v_m_s, self._catch_up.add(robot, c.omega_rad_s, limit)
                 )
         self._missed.sent(now_s, {r: c.omega_rad_s for r, c in commands.items()})
+        return commands
+
+    def _homing(self, now_s: float, elapsed_s: float) -> dict[str, VelocityCommand]:
+        """The leader is home: a follower short of its own home mark (its front beam reads
+        more) drives on to it in its lane, unless the fleet is held, or it has driven
+        ``home_reach_m`` already; every other robot stops."""
+        s = self.settings
+        commands = dict.fromkeys(s.robots, STOP)
+        for robot, v_m_s in self._home_speed.items():
+            self._home_driven_m[robot] = self._home_driven_m.get(robot, 0.0) + v_m_s * elapsed_s
+        self._home_speed = {}
+        waiting = [r for r in s.home_fronts_m if r not in self._homed]
+        if not waiting or self._held(now_s):
+            return commands
+        for robot in waiting:
+            front_m, stamp_s = self._latest[(robot, 0)]
+            mark_m = s.home_fronts_m[robot]
+            driven_m = self._home_driven_m.get(robot, 0.0)
+            if front_m > mark_m and driven_m < s.home_reach_m:
+                limit = s.max_omega_rad_s
+                steer = min(max(self._formation_omega(robot, now_s) or 0.0, -limit), limit)
+                commands[robot] = VelocityCommand(s.cruise_speed_m_s, steer)
+                self._home_speed[robot] = s.cruise_speed_m_s
+                continue
+            self._homed.add(robot)
+            self._emit(
+                now_s,
+                "home",
+                robot,
+                f"{robot} lidar_0 reads {front_m:.2f} m (home mark {mark_m:.2f} m), "
+                f"{driven_m:.2f} m after {s.leader}: {robot} stops",
+                beam_deg=0,
+                range_m=front_m,
+                age_s=now_s - stamp_s,
+            )
         return commands
 
     def _owe(self, missed: Missed) -> None:
@@ -564,7 +630,8 @@ class HallwayPlanner:
                     "home",
                     s.leader,
                     f"{s.leader} lidar_0 reads {front_m:.2f} m (home mark {s.home_front_m:.2f} m) "
-                    f"after {self._corners_done} corners: fleet stops",
+                    f"after {self._corners_done} corners: fleet stops"
+                    + (", followers short of theirs drive on to them" if s.home_fronts_m else ""),
                     beam_deg=0,
                     range_m=front_m,
                     age_s=now_s - front_stamp_s,

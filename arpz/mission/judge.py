@@ -280,7 +280,10 @@ class Judge:
                 f"the planner held the fleet for {what} {share:.0f}% of the time "
                 f"({stops} stop{'s' if stops > 1 else ''}; last: {last.text}{truth})"
             )
-        home = next((e for e in reversed(self.events) if e.kind == "home"), None)
+        home = next(
+            (e for e in reversed(self.events) if e.kind == "home" and e.robot == self.world.leader),
+            None,
+        )
         if home is not None:
             leader = self._tracks[self.world.leader]
             if leader.home_distance_m() > self.settings.home_tolerance_m:

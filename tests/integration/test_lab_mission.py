@@ -8,7 +8,7 @@ link (``flapping``) and a 2 Mbit/s link (``congested-2mbit``) for the whole miss
 end in success, without a collision.
 
 The suite runs ``CI_CASES``; the whole matrix, every fault on both links, is
-``ARPZ_LAB_MATRIX=1 python -m pytest tests/integration/test_lab_mission.py`` (about 12 minutes:
+``ARPZ_LAB_MATRIX=1 python -m pytest tests/integration/test_lab_mission.py`` (about 9 minutes:
 the cases take the cores to themselves, one at a time). docs/netem.md lists the figures.
 
 tests/integration/test_mission_faults.py cuts robot1 off through the user-space proxy and by

@@ -39,6 +39,7 @@ def test_settings_for_the_hallway_come_from_the_map() -> None:
     assert SETTINGS.followers == ("robot2", "robot3")
     assert SETTINGS.turn == "right"
     assert SETTINGS.home_front_m == pytest.approx(10.0)  # robot1's home is 10 m from the west wall
+    assert SETTINGS.home_fronts_m == pytest.approx({"robot2": 11.0, "robot3": 9.0})
     assert SETTINGS.turn_point_m == pytest.approx(3.0)  # half the 4 m corridor + 1 m turn radius
 
 
@@ -47,6 +48,7 @@ def test_settings_for_the_hallway_come_from_the_map() -> None:
     [
         ({"max_age_s": 0.0}, "max_age_s must be > 0"),
         ({"max_command_age_s": 0.0}, "max_command_age_s must be > 0"),
+        ({"home_fronts_m": {"robot9": 3.0}}, "home_fronts_m names 'robot9', not a follower"),
         ({"obstacle_range_m": 3.5}, "below the turn point 3.00 m"),
         ({"home_front_m": 15.0}, "the leader cannot see its home mark"),
         ({"followers": ["robot1"]}, "leader 'robot1' is also a follower"),

@@ -138,3 +138,22 @@ def test_a_one_way_outage_loses_one_direction(kind: Literal["uplink", "downlink"
         assert stale[0].text.startswith("robot1 commands: unacknowledged for 0.4")
         # the last acknowledgement before the cut came up to a heartbeat period before it
         assert 2.0 + SETTINGS.max_command_age_s - 0.1 <= stale[0].t_s <= 2.45
+
+
+@pytest.mark.parametrize("followers_home", [True, False])
+def test_followers_left_behind_drive_on_to_their_own_home_marks(followers_home: bool) -> None:
+    # robot1's link dead 0.45 s six times on the last leg: each time it drove on its last
+    # command to its watchdog while the others were held for its stale readings, and ended
+    # 0.6 m ahead of them. The planner cannot see that (the beams do not see robots), but each
+    # follower's own front beam says where its home is.
+    settings = SETTINGS if followers_home else PlannerSettings.for_world(HALLWAY, home_fronts_m={})
+    outages = [Outage("robot1", 53.0 + 1.5 * i, 0.45, "link") for i in range(6)]
+    run = run_offline(HALLWAY, settings, 20.0, 150.0, noise_std_m=0.01, outages=outages)
+    homes = [e for e in run.events if e.kind == "home"]
+    if followers_home:
+        assert run.result.mission == "success", run.result.reason
+        assert [e.robot for e in homes] == ["robot1", "robot2", "robot3"]
+        assert "robot2 lidar_0 reads 11.00 m (home mark 11.00 m), 0.6" in homes[1].text
+    else:
+        assert run.result.failure == "timeout"
+        assert "robot2 97% (0.62 m from home)" in run.result.reason
