@@ -102,8 +102,12 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
     #: (it then sees through an opening, not along a straight wall).
     wall_fit_tolerance_m: float = 0.15
     #: Home counts only while the leader is this parallel to the walls, so that a front beam
-    #: slanting onto a side wall during a correction is not taken for the home mark.
+    #: slanting onto a side wall during a correction is not taken for the home mark ...
     home_alignment_rad: float = 0.1
+    #: ... and only once, after the last corner, the front beam has read beyond the home mark or
+    #: this long has passed since the turn ended: at a corner's exit the side beams can see two
+    #: walls and pass a leader turned 16 degrees as parallel (the lab, over TCP in bursts).
+    home_settle_s: float = 1.0
     #: While the fleet is held for stale data, a change of culprit is reported at most this often.
     stale_report_interval_s: float = 1.0
     #: Each follower's lane: its offset from the leader on the first leg, (ahead_m, left_m) in
@@ -169,6 +173,7 @@ class PlannerSettings(msgspec.Struct, frozen=True, kw_only=True, forbid_unknown_
                 f"home_fronts_m[{robot!r}] must be > 0 and below max_range_m, got {front_m}",
             )
         need(self.home_reach_m >= 0.0, "home_reach_m must be >= 0")
+        need(self.home_settle_s >= 0.0, "home_settle_s must be >= 0")
         need(self.lane_tolerance_m > 0.0, "lane_tolerance_m must be > 0")
         need(self.formation_tolerance_rad > 0.0, "formation_tolerance_rad must be > 0")
         need(self.formation_ticks >= 1, "formation_ticks must be >= 1")
@@ -341,8 +346,8 @@ class HallwayPlanner:
             # commands: the leader has no odometry on the wire, only its 8 ranges).
             self._turned_rad += abs(self._last_command.omega_rad_s) * elapsed_s
         self._catch_up.settle(elapsed_s)
-        fresh = self._fresh_robots(now_s)
-        for missed in self._missed.update(now_s, self._unacked_since, fresh.__contains__):
+        current = self._current_robots(now_s)
+        for missed in self._missed.update(now_s, self._unacked_since, current.__contains__):
             self._owe(missed)
         self._last_tick_s = now_s
         if self._phase == "home":
@@ -361,7 +366,7 @@ class HallwayPlanner:
             if robot in self._off_lane:  # the formation rule steers it, on what it measures
                 self._catch_up.owed.pop(robot)
             # held or not (a robot turns on the spot), but only one that hears its commands
-            elif robot in fresh and not self._missed.deaf(robot) and self.phase != "home":
+            elif robot in current and not self._missed.deaf(robot) and self.phase != "home":
                 c = commands[robot]
                 commands[robot] = VelocityCommand(
                     c.v_m_s, self._catch_up.add(robot, c.omega_rad_s, limit)
@@ -436,15 +441,17 @@ class HallwayPlanner:
             age_s=missed.heard_s - missed.since_s,
         )
 
-    def _fresh_robots(self, now_s: float) -> set[str]:
-        """Robots all of whose readings the fleet needs are at most ``max_age_s`` old."""
-        stale = {
+    def _current_robots(self, now_s: float) -> set[str]:
+        """Robots all of whose readings the fleet needs are at most ``command_ack_slack_s``
+        old: what they measure reaches the CEDDP on time (a stalled uplink, which would delay
+        their acknowledgements as well, makes them older than that long before ``max_age_s``)."""
+        late = {
             robot
             for robot, deg in self._needed()
             if (held := self._latest.get((robot, deg))) is None
-            or now_s - held[1] > self.settings.max_age_s
+            or now_s - held[1] > self.settings.command_ack_slack_s
         }
-        return set(self.settings.robots) - stale
+        return set(self.settings.robots) - late
 
     def lane_error(self, robot: str, now_s: float) -> tuple[float, float] | None:
         """How far a follower is from its lane (m, positive: left of it) and how far it is turned
@@ -610,11 +617,16 @@ class HallwayPlanner:
 
         if self._phase == "following":
             front_m, front_stamp_s = self._latest[(s.leader, 0)]
+            rearm_m = s.turn_point_m + s.rearm_margin_m
             if (
-                not self._armed
-                and front_stamp_s >= self._turn_end_s
-                and front_m > s.turn_point_m + s.rearm_margin_m
+                self._corners_done >= s.corners
+                and front_stamp_s < self._turn_end_s + s.home_settle_s
             ):
+                # home counts once the leader has seen beyond its mark after the last corner,
+                # or has had home_settle_s to straighten up: a front beam that slants onto a
+                # wall near the corner's exit is not the end wall
+                rearm_m = max(rearm_m, s.home_front_m)
+            if not self._armed and front_stamp_s >= self._turn_end_s and front_m > rearm_m:
                 self._armed = True
             corridor = self._corridor_estimate(s.leader, now_s)
             aligned = corridor is not None and abs(corridor[0]) <= s.home_alignment_rad

@@ -12,9 +12,12 @@ the start or the end of a turn is not left turned against the others, which plan
 others' readings alone cannot see until a corridor later (docs/simulation.md, "Commands
 acknowledged").
 
-Only a robot whose readings stayed fresh meanwhile is reckoned: it was alive and sensing, so
-it drove as its watchdog lets it. A frozen process sends nothing and does not move, and a link
-dead both ways looks the same from here; those are left to the formation rule, which measures.
+Only a robot whose readings kept arriving on time meanwhile (``fresh``: the planner asks for
+readings no older than its acknowledgement slack) is reckoned: it was alive and sensing, so it
+drove as its watchdog lets it, and what it sends was not held up, so its acknowledgements were
+not either (over TCP a stall of the robot's uplink delays both alike). A frozen process sends
+nothing and does not move, and a link dead both ways looks the same from here; those are left
+to the formation rule, which measures.
 Nor is a stretch in which the planner's own ticks came late (a starved CEDDP: the
 acknowledgements were not read either), nor one made of commands sent before the robot was last
 known to hear (their acknowledgements are catching up).

@@ -243,6 +243,26 @@ def test_home_after_the_last_corner_when_front_reaches_the_mark_parallel_to_the_
     assert set(planner.tick(5.0).values()) == {STOP}
 
 
+def test_home_right_after_the_last_corner_waits_for_the_leader_to_settle() -> None:
+    # The home mark (8.5 m) is beyond what the front reads at the turn's end (8.05 m): a
+    # reading there counts only once the leader has seen beyond the mark or had home_settle_s
+    # to straighten up (in the lab a leader 16 degrees over-turned read 5.28 m at a corner's
+    # exit, its side beams passed it as parallel, and the fleet stopped 3.8 m from home)
+    planner = HallwayPlanner(msgspec.structs.replace(SETTINGS, corners=1, home_front_m=8.5))
+    see_fleet(planner, Pose(2.95, 2.0, math.pi), 0.0)
+    planner.tick(0.0)
+    see_fleet(planner, Pose(2.0, 3.95, math.pi / 2), QUARTER_TURN_S)
+    planner.tick(QUARTER_TURN_S)
+    assert planner.corners_done == 1
+    for t_s in (QUARTER_TURN_S + 0.05, QUARTER_TURN_S + 0.5):
+        see_fleet(planner, Pose(2.0, 3.95, math.pi / 2), t_s)
+        assert planner.tick(t_s)["robot1"].v_m_s == 0.8
+    settled_s = QUARTER_TURN_S + SETTINGS.home_settle_s
+    see_fleet(planner, Pose(2.0, 4.0, math.pi / 2), settled_s)
+    assert set(planner.tick(settled_s).values()) == {STOP}
+    assert planner.phase == "home"
+
+
 def test_a_stale_leader_holds_the_fleet_and_a_follower_it_left_turned_is_steered_back() -> None:
     # Issue 39: robot1's link died in a corner. The planner held the fleet for its stale data,
     # but robot1, cut off, drove on its last command until its watchdog stopped it, 0.2 s after
