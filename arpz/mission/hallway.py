@@ -377,7 +377,8 @@ class HallwayPlanner:
     def _homing(self, now_s: float, elapsed_s: float) -> dict[str, VelocityCommand]:
         """The leader is home: a follower short of its own home mark (its front beam reads
         more) drives on to it in its lane, unless the fleet is held, or it has driven
-        ``home_reach_m`` already; every other robot stops."""
+        ``home_reach_m`` already, once parallel to the walls (turned on the spot until then);
+        every other robot stops."""
         s = self.settings
         commands = dict.fromkeys(s.robots, STOP)
         for robot, v_m_s in self._home_speed.items():
@@ -386,12 +387,19 @@ class HallwayPlanner:
         waiting = [r for r in s.home_fronts_m if r not in self._homed]
         if not waiting or self._held(now_s):
             return commands
+        limit = s.max_omega_rad_s
         for robot in waiting:
             front_m, stamp_s = self._latest[(robot, 0)]
             mark_m = s.home_fronts_m[robot]
             driven_m = self._home_driven_m.get(robot, 0.0)
             if front_m > mark_m and driven_m < s.home_reach_m:
-                limit = s.max_omega_rad_s
+                corridor = self._corridor_estimate(robot, now_s)
+                if corridor is None or abs(corridor[0]) > s.home_alignment_rad:
+                    # not parallel to the walls: its front beam does not measure its way home;
+                    # turned on the spot first (held still if its walls are not seen)
+                    omega = 0.0 if corridor is None else -s.heading_gain_1_s * corridor[0]
+                    commands[robot] = VelocityCommand(0.0, min(max(omega, -limit), limit))
+                    continue
                 steer = min(max(self._formation_omega(robot, now_s) or 0.0, -limit), limit)
                 commands[robot] = VelocityCommand(s.cruise_speed_m_s, steer)
                 self._home_speed[robot] = s.cruise_speed_m_s
