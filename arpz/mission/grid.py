@@ -5,7 +5,7 @@ docs/simulation.md's tables of robots cut off come from these grids::
 
     python -m arpz.mission.grid sweep --kind downlink --robots robot1 robot2 robot3
     python -m arpz.mission.grid intermittent --kind downlink --robots robot2
-    python -m arpz.mission.grid sweep --kind downlink --max-command-age-s inf   # not watched
+    python -m arpz.mission.grid sweep --kind downlink --set max_command_age_s=inf   # not watched
 
 - ``sweep``: one outage of each robot named (in turn) of 3 s and of 12 s, starting at each
   0.5 s from 1 to 59.5 s (118 runs per robot and duration);
@@ -18,14 +18,15 @@ Every run: 20 Hz beams, noise 0.01 m, time limit 150 s, the run's seed for noise
 from __future__ import annotations
 
 import argparse
-import math
 import random
 import sys
 from collections import Counter
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Literal
+
+import msgspec
 
 from arpz.mission.hallway import PlannerSettings
 from arpz.mission.offline import Outage, run_offline
@@ -73,9 +74,10 @@ def intermittent(world: str, kind: Kind, robots: Sequence[str], seeds: int = 30)
         yield Case(f"{'+'.join(robots)} {kind} intermittent", world, tuple(outages), seed)
 
 
-def verdict(case: Case, max_command_age_s: float = PlannerSettings().max_command_age_s) -> Verdict:
+def verdict(case: Case, overrides: Mapping[str, float] | None = None) -> Verdict:
+    """Run one case with the map's planner settings (and ``overrides`` of their fields)."""
     world = World.load(case.world)
-    settings = PlannerSettings.for_world(world, max_command_age_s=max_command_age_s)
+    settings = PlannerSettings.for_world(world, **(overrides or {}))
     result = run_offline(
         world,
         settings,
@@ -91,15 +93,15 @@ def verdict(case: Case, max_command_age_s: float = PlannerSettings().max_command
 
 
 def tally(
-    cases: Sequence[Case], max_command_age_s: float, jobs: int = 1
+    cases: Sequence[Case], overrides: Mapping[str, float] | None = None, jobs: int = 1
 ) -> dict[tuple[str, str], Counter[Verdict]]:
     """Per (world, label), how many runs ended in each verdict."""
-    ages = [max_command_age_s] * len(cases)
+    each = [overrides] * len(cases)
     if jobs > 1:
         with ProcessPoolExecutor(jobs) as pool:
-            verdicts = list(pool.map(verdict, cases, ages, chunksize=4))
+            verdicts = list(pool.map(verdict, cases, each, chunksize=4))
     else:
-        verdicts = [verdict(case, age) for case, age in zip(cases, ages, strict=True)]
+        verdicts = [verdict(case, o) for case, o in zip(cases, each, strict=True)]
     counts: dict[tuple[str, str], Counter[Verdict]] = {}
     for case, result in zip(cases, verdicts, strict=True):
         counts.setdefault((case.world, case.label), Counter())[result] += 1
@@ -115,10 +117,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--robots", nargs="+", default=["robot1"])
     parser.add_argument("--worlds", nargs="+", default=["hallway"])
     parser.add_argument(
-        "--max-command-age-s",
-        type=float,
-        default=PlannerSettings().max_command_age_s,
-        help="the planner's limit on unacknowledged commands (inf: not watched)",
+        "--set",
+        action="append",
+        default=[],
+        metavar="FIELD=VALUE",
+        help="a PlannerSettings number, e.g. max_command_age_s=inf (not watched) or "
+        "catch_up_rad_s=0 (no catch-up); repeat for more",
     )
     parser.add_argument("--jobs", type=int, default=1, help="processes to run the grid on")
     args = parser.parse_args(argv)
@@ -128,12 +132,22 @@ def main(argv: list[str] | None = None) -> int:
             cases += sweep(world, args.kind, args.robots)
         else:
             cases += intermittent(world, args.kind, args.robots)
-    limit = args.max_command_age_s
-    print(
-        f"{len(cases)} runs, max_command_age_s "
-        f"{'inf (not watched)' if math.isinf(limit) else f'{limit:g}'}"
-    )
-    for (world, label), counts in tally(cases, limit, args.jobs).items():
+    overrides: dict[str, float] = {}
+    for item in args.set:
+        field, sep, value = item.partition("=")
+        try:
+            if not sep or field not in PlannerSettings.__struct_fields__:
+                raise ValueError("not FIELD=VALUE with a PlannerSettings field")
+            overrides[field] = float(value)
+        except ValueError as exc:
+            parser.error(f"--set {item!r}: {exc}")
+    try:
+        msgspec.convert(overrides, type=PlannerSettings)  # checked once, here
+    except (msgspec.ValidationError, ValueError) as exc:
+        parser.error(f"--set: {exc}")
+    shown = ", ".join(f"{k}={v:g}" for k, v in overrides.items()) or "default settings"
+    print(f"{len(cases)} runs, {shown}")
+    for (world, label), counts in tally(cases, overrides, args.jobs).items():
         row = ", ".join(f"{counts[v]} {v}" for v in ("S", "T", "C") if counts[v])
         print(f"{world:14} {label:32} {row}")
     return 0
