@@ -24,19 +24,20 @@ Rolling, on Zenoh 1.x):
   sequence number and client GID back with the reply's timestamp (design.md "Service Clients",
   "Service Servers").
 
-The GID: rmw_zenoh hashes the entity's token with XXH3-128; arpz takes the first 16 bytes of
-its SHA-256 (no xxhash in arpz's dependencies). A GID only has to be unique per entity, and a
-ROS 2 node computes the GID it shows for a remote entity from the token itself, so the one
-difference a user can see is that the ``publisher_gid`` of a received message's info differs
-from the GID ``ros2 topic info -v`` shows for the bridge's publisher (docs/ros2.md).
+The GID is rmw_zenoh's: XXH3-128 of the entity's token, its low 64 bits then its high 64 bits,
+each little-endian (``Entity`` in rmw_zenoh's liveliness_utils.cpp). A ROS 2 node computes the
+GID it shows for a remote entity from the token, so the ``publisher_gid`` in a received
+message's info and the GID ``ros2 topic info -v`` shows for the bridge's publisher are the same
+16 bytes, as tools that match the two expect (docs/ros2.md).
 """
 
 from __future__ import annotations
 
-import hashlib
 import struct
 from dataclasses import dataclass
 from typing import Final, NamedTuple
+
+import xxhash
 
 from arpz.core.errors import ArpzError
 from arpz.core.protocol.qos import (
@@ -293,8 +294,8 @@ class Entity:
 
     @property
     def gid(self) -> bytes:
-        """16 bytes naming this entity (see the module's docstring)."""
-        return hashlib.sha256(self.token().encode()).digest()[:GID_BYTES]
+        """16 bytes naming this entity, derived as rmw_zenoh derives it (the module's docstring)."""
+        return gid_of_token(self.token())
 
     @property
     def data_key(self) -> str:
@@ -384,6 +385,13 @@ class Attachment(NamedTuple):
     sequence_number: int
     source_timestamp_ns: int
     gid: bytes
+
+
+def gid_of_token(token: str) -> bytes:
+    """rmw_zenoh's GID of the entity whose liveliness token is ``token``: XXH3-128, low half
+    first, each half little-endian (memcpy of the two uint64 on the little-endian hosts ROS 2
+    runs on)."""
+    return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(GID_BYTES, "little")
 
 
 def attachment(sequence_number: int, source_timestamp_ns: int, gid: bytes) -> bytes:

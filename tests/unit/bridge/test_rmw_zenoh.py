@@ -131,6 +131,26 @@ def test_the_bridges_own_tokens() -> None:
     assert scan.data_key == "0/robot1/scan/sensor_msgs::msg::dds_::LaserScan_/RIHS01_" + "0" * 64
     assert rz.parse_token(scan.token()) == scan
     assert len(scan.gid) == 16 and scan.gid != node.gid
+    # rmw_zenoh's own derivation (simplified_xxhash3.cpp of ros2/rmw_zenoh at bfc065f, compiled
+    # with g++ and run on this token) printed these bytes: ROS 2 tools that compare GIDs agree
+    assert scan.gid.hex() == "8e76a79f70fbacaa53f233222352b126"
+
+
+def test_gid_is_rmw_zenohs_xxh3_128_of_the_token() -> None:
+    # rmw_zenoh's simplified_xxhash3.cpp printed these for a talker's token, the empty string
+    # and a 300-byte token (the "long input" path of XXH3, past 240 bytes)
+    talker = (
+        "@ros2_lv/0/aac3178e146ba6f1fc6e6a4085e77f21/0/11/MP/%/%/talker/%chatter/"
+        "std_msgs::msg::dds_::String_/"
+        "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,10:,:,:,,"
+    )
+    expected = {
+        talker: "96d0f5ee9e9c8224c29b0eb3e2dfa8f4",
+        "": "7f498d4624c30160d8984701d306aa99",
+        "x" * 300: "5435c87d60b4d1a57abcd72aea375212",
+    }
+    for token, gid in expected.items():
+        assert rz.gid_of_token(token).hex() == gid
 
 
 def test_qos_defaults_are_rmw_zenohs_and_encode_as_empty_fields() -> None:
