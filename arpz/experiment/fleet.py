@@ -1,12 +1,13 @@
 """The configs of one cell: what a user would write to run that point of seed 001's grid by hand.
 
-Every robot connects through its own emulated link (an ``arpz.netem`` proxy in front of the
-CEDDP's UDP endpoint). Without OPT the sensors publish at Rmax per topic (seed 001: "DEADLINE
+An arpz cell: every robot connects through its own emulated link (an ``arpz.netem`` proxy in front
+of the CEDDP's UDP endpoint). Without OPT the sensors publish at Rmax per topic (seed 001: "DEADLINE
 Rmax") with the cell's fixed KEEP_LAST depth; with OPT the CEDDP's optimiser assigns R and D
 (Opt(R), Opt(D)) and the robots apply them in place. ``optr`` and ``optd`` apply only one of the
 two: the CEDDP's optimiser is off, and the robots are configured with the optimiser's R (at the
 cell's fixed depth) or its D (at Rmax), computed here as the CEDDP would (``solve_closed``, the
-"paper" depth policy, the topic counts the robots announce).
+"paper" depth policy, the topic counts the robots announce). A ROS 2 cell runs at the same (rate,
+depth), ``configured_qos``, with OPT's R and D both fixed for the run.
 """
 
 from __future__ import annotations
@@ -65,15 +66,16 @@ def start_rate(spec: ExperimentSpec, cell: Cell) -> float:
     try:
         return float(optimiser_solution(spec, cell.rmax_hz).rate_hz)
     except (OptimiserError, InvalidQosInput) as exc:
-        if has_opt(cell.config):
+        if has_opt(cell.config) and cell.middleware == "arpz":
             return cell.rmax_hz  # the CEDDP reports the same error and assigns nothing
         raise SpecError(f"{cell.label}: no Opt(R) to run at: {exc}") from None
 
 
 def start_depth(spec: ExperimentSpec, cell: Cell) -> int:
     """The KEEP_LAST depth of robots and CEDDP: the cell's fixed depth; with OPT the depth the
-    robots hold until the CEDDP's first assignment; with optd the optimiser's D, fixed."""
-    if has_opt(cell.config):
+    robots hold until the CEDDP's first assignment; with optd, and with OPT on ROS 2 (which
+    seed 001 configured with the R and D CVXPY computed offline), the optimiser's D, fixed."""
+    if has_opt(cell.config) and cell.middleware == "arpz":
         return INITIAL_OPT_DEPTH
     if opt_depth(cell.config):
         try:
@@ -93,10 +95,17 @@ def configured_qos(spec: ExperimentSpec, cell: Cell) -> tuple[float, int]:
 
 
 def check_cells(spec: ExperimentSpec) -> None:
-    """Raise SpecError naming the first cell whose configs cannot be made (before any runs)."""
+    """Raise SpecError naming the first cell whose configs cannot be made (before any runs),
+    or when ROS 2 cells are asked for and ROS 2 is not installed."""
     for cell in spec.cells():
         configured_qos(spec, cell)
     check_traffic(spec)
+    if "ros2" in spec.middlewares:
+        from arpz.experiment.ros2.machines_cell import ros2_missing
+
+        missing = ros2_missing()
+        if missing is not None:
+            raise SpecError(f"{spec.name}: middleware ros2: {missing}")
 
 
 def check_traffic(spec: ExperimentSpec) -> None:

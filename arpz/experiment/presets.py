@@ -49,6 +49,24 @@ def paper_simulation() -> ExperimentSpec:
     )
 
 
+def paper_vs_ros2() -> ExperimentSpec:
+    """Figures 10 and 11 with seed 001's own baseline measured beside arpz: the same
+    application in rclpy over Fast DDS and on arpz, cells interleaved, in the kernel lab with
+    8 % random loss each way (about the proxy grid's wifi-bad: 3 % plus bursts of about 5 %)."""
+    return ExperimentSpec(
+        name="paper-vs-ros2",
+        description="seed 001 section 3.1, Figures 10-11, ROS 2 + Fast DDS (rclpy) and arpz "
+        "side by side: machines 1-3, RELIABLE + KEEP_LAST, 8 % kernel-level loss each way",
+        rmax_hz=PAPER_RMAX,
+        depths=PAPER_DEPTHS,
+        configs=["baseline", "opt"],
+        networks=["lab:loss-8"],
+        middlewares=["arpz", "ros2"],
+        duration_s=5.0,
+        repeats=PAPER_REPEATS,
+    )
+
+
 def quick() -> ExperimentSpec:
     """A few cells that show both ends in under 3 minutes: next to no loss on a clean link with a
     deep history, loss with depth 1 at a high rate over a lossy one, and OPT."""
@@ -67,5 +85,6 @@ def quick() -> ExperimentSpec:
 PRESETS = {
     "paper-machines": paper_machines,
     "paper-simulation": paper_simulation,
+    "paper-vs-ros2": paper_vs_ros2,
     "quick": quick,
 }

@@ -6,6 +6,11 @@ with a whisker from the lowest to the highest repeat and a dot per repeat (missi
 share of successful repeats, whisker the Wilson 95 % interval of that share). Nothing here
 reruns or reads anything but the CSV, so results can be re-plotted, merged from several
 machines, or checked by a reviewer.
+
+When a results file holds both middlewares (``middleware = ["arpz", "ros2"]``), a bar is a
+middleware and a configuration ("arpz no opt.", "ROS 2 OPT" ...): the same panels and groups,
+arpz's bars first, so each DEPTH group shows both side by side. Results of one middleware are
+reported exactly as before.
 """
 
 from __future__ import annotations
@@ -186,11 +191,42 @@ def _rate_key(rate: str) -> float:
     return float(rate)
 
 
+#: how figures and tables name the middlewares
+MIDDLEWARE_LABELS = {"arpz": "arpz", "ros2": "ROS 2"}
+#: between a series' middleware and its configuration
+_SEP = "|"
+
+
+def _mixed(rows: Sequence[Row]) -> bool:
+    """More than one middleware: every bar names its middleware."""
+    return len({r["middleware"] for r in rows}) > 1
+
+
+def _series(row: Row, mixed: bool) -> str:
+    """What a bar stands for: the configuration, or middleware|configuration when mixed."""
+    return f"{row['middleware']}{_SEP}{row['config']}" if mixed else row["config"]
+
+
+def _series_order(series: str) -> tuple[int, tuple[int, int, str]]:
+    middleware, _, config = series.rpartition(_SEP)
+    rank = list(MIDDLEWARE_LABELS).index(middleware) if middleware in MIDDLEWARE_LABELS else -1
+    return (rank, _config_order(config))
+
+
+def series_label(series: str) -> str:
+    """ "no opt.", "LC + OPT" ..., or "ROS 2 OPT" when the series names its middleware."""
+    middleware, _, config = series.rpartition(_SEP)
+    if not middleware:
+        return config_label(config)
+    return f"{MIDDLEWARE_LABELS.get(middleware, middleware)} {config_label(config)}"
+
+
 def _grouped(rows: Sequence[Row]) -> dict[tuple[str, str, str, str], list[Row]]:
-    """(network, rmax, depth, config) -> the repeats of that cell."""
+    """(network, rmax, depth, series) -> the repeats of that cell (series: ``_series``)."""
+    mixed = _mixed(rows)
     groups: dict[tuple[str, str, str, str], list[Row]] = defaultdict(list)
     for row in rows:
-        groups[(row["network"], row["rmax_hz"], row["depth"], row["config"])].append(row)
+        groups[(row["network"], row["rmax_hz"], row["depth"], _series(row, mixed))].append(row)
     return groups
 
 
@@ -237,7 +273,7 @@ def _bar_panel(
                 capsize=min(3.0, 60 * width),
                 error_kw={"elinewidth": 0.9, "ecolor": "0.15"},
                 color=colours(configs.index(config) % 10),
-                label=None if config in labelled else config_label(config),
+                label=None if config in labelled else series_label(config),
             )
             if spread.n > 1:
                 # every repeat, spread across the bar so equal values stay visible
@@ -289,7 +325,8 @@ def write_figures(rows: Sequence[Row], figures: Path) -> list[Path]:
     groups = _grouped(rows)
     networks = sorted({r["network"] for r in rows})
     rates = sorted({r["rmax_hz"] for r in rows}, key=_rate_key)
-    configs = sorted({r["config"] for r in rows}, key=_config_order)
+    mixed = _mixed(rows)
+    configs = sorted({_series(r, mixed) for r in rows}, key=_series_order)
     depths = sorted({r["depth"] for r in rows}, key=_depth_order)
     written: list[Path] = []
     for metric in METRICS:
@@ -386,6 +423,8 @@ def consistency(rows: Sequence[Row]) -> list[str]:
             problems.append(f"{where}: a robot's final counters never reached the CEDDP")
         n = {k: int(row[k] or 0) for k in row if k.startswith(("samples_", "hello_"))}
         where = f"Rmax {row['rmax_hz']} depth {row['depth']} {row['config']} {row['network']}"
+        if row["middleware"] != "arpz":
+            where += f" {row['middleware']}"
         if n["samples_produced"] != (
             n["samples_sent"] + n["samples_held_back"] + n["samples_write_failures"]
         ):
@@ -420,13 +459,14 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
     ]
     has_hello = any(r["hello_sent"] for r in ok)
     has_mission = any(r["mission"] for r in ok)
+    mixed = _mixed(ok)
     for network in sorted({r["network"] for r in ok}):
         for rmax in sorted({r["rmax_hz"] for r in ok if r["network"] == network}, key=_rate_key):
             sub = [r for r in ok if r["network"] == network and r["rmax_hz"] == rmax]
-            configs = sorted({r["config"] for r in sub}, key=_config_order)
+            configs = sorted({_series(r, mixed) for r in sub}, key=_series_order)
             depths = sorted({r["depth"] for r in sub}, key=_depth_order)
             lines += [f"## Rmax = {rmax} Hz, network {network}", ""]
-            head = "| DEPTH | " + " | ".join(config_label(c) for c in configs) + " |"
+            head = "| DEPTH | " + " | ".join(series_label(c) for c in configs) + " |"
             lines += [head, "|---|" + "---|" * len(configs)]
             for depth in depths:
                 cells = []
@@ -448,6 +488,11 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
                         parts.append(f"mission {_fmt(_success(g))} % ({wins}/{len(g)})")
                     rate = _mean("rate_hz")(g)
                     parts.append(f"R {_fmt(rate)} D {g[0]['qos_depth']}")
+                    if any(r.get("cpu_s_ceddp") for r in g):
+                        parts.append(
+                            f"CPU CEDDP {_ranged(g, 'cpu_s_ceddp')} s, "
+                            f"robots {_ranged(g, 'cpu_s_robots')} s"
+                        )
                     cells.append("<br>".join(parts))
                 lines.append(f"| {_depth_label(depth)} | " + " | ".join(cells) + " |")
             lines.append("")
@@ -466,7 +511,8 @@ def markdown(rows: Sequence[Row], figures: Sequence[Path], base: Path) -> str:
         lines += ["## Cells that failed to run", ""]
         lines += [
             f"- Rmax {r['rmax_hz']} depth {r['depth']} {r['config']} {r['network']} "
-            f"repeat {r['repeat']}: {r['error']}"
+            f"repeat {r['repeat']}{'' if r['middleware'] == 'arpz' else ' ' + r['middleware']}: "
+            f"{r['error']}"
             for r in errors
         ]
         lines.append("")

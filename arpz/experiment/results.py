@@ -28,6 +28,8 @@ COLUMNS: tuple[str, ...] = (
     "config",
     "repeat",
     "network",
+    # "arpz" or "ros2" (rows of files written before it existed read as "arpz")
+    "middleware",
     "status",
     # the Hello round trip robot1 -> CEDDP -> relay -> CEDDP -> robot1 (seed 001 Fig. 9-11)
     "latency_ms_p50",
@@ -57,6 +59,8 @@ COLUMNS: tuple[str, ...] = (
     "final_reports",
     # the QoS actually used (OPT: the CEDDP's last assignment; otherwise the fixed one)
     "rate_hz",
+    # the rate per topic the publishers achieved over the window (ROS 2 cells: sent / window)
+    "rate_hz_achieved",
     "qos_depth",
     "deadline_ms",
     "qos_epochs",
@@ -91,6 +95,12 @@ COLUMNS: tuple[str, ...] = (
     "link_datagrams",
     "link_dropped",
     "link_loss_pct",
+    # bytes the robots sent over their lab links (robot -> access point; lab cells)
+    "link_bytes_up",
+    # CPU seconds (utime + stime) over the measured window: the CEDDP's process and the
+    # robots' processes summed (lab cells of both middlewares)
+    "cpu_s_ceddp",
+    "cpu_s_robots",
     "measured_s",
     "wall_s",
     "rrd",
@@ -98,8 +108,21 @@ COLUMNS: tuple[str, ...] = (
 )
 
 
-def _cell_key(row: Mapping[str, str]) -> tuple[str, str, str, str, str]:
-    return (row["rmax_hz"], row["depth"], row["config"], row["repeat"], row["network"])
+#: the middleware of a row written before results.csv had the column
+DEFAULT_MIDDLEWARE = "arpz"
+
+CellKey = tuple[str, str, str, str, str, str]
+
+
+def _cell_key(row: Mapping[str, str]) -> CellKey:
+    return (
+        row["rmax_hz"],
+        row["depth"],
+        row["config"],
+        row["repeat"],
+        row["network"],
+        row.get("middleware") or DEFAULT_MIDDLEWARE,
+    )
 
 
 def _header(path: Path) -> tuple[str, ...]:
@@ -117,6 +140,7 @@ def _complete_rows(path: Path) -> tuple[list[str], list[dict[str, str]]]:
     for row in rows:
         for column in COLUMNS:
             row.setdefault(column, "")
+        row["middleware"] = row["middleware"] or DEFAULT_MIDDLEWARE
     return header, rows
 
 
@@ -126,7 +150,7 @@ def read_rows(path: Path) -> list[dict[str, str]]:
     if not path.exists():
         return []
     _, rows = _complete_rows(path)
-    latest: dict[tuple[str, str, str, str, str], dict[str, str]] = {}
+    latest: dict[CellKey, dict[str, str]] = {}
     for row in rows:
         latest[_cell_key(row)] = row
     return list(latest.values())
@@ -155,7 +179,7 @@ def upgrade_header(path: Path) -> bool:
     return True
 
 
-def done_keys(path: Path) -> set[tuple[str, str, str, str, str]]:
+def done_keys(path: Path) -> set[CellKey]:
     """Cells that finished (status ok or failed-mission): a rerun skips them; errors are retried."""
     return {_cell_key(r) for r in read_rows(path) if r["status"] == "ok"}
 
@@ -282,7 +306,21 @@ def downlink(robots: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _identity(cell: Cell, experiment: str) -> dict[str, Any]:
+def hello_columns(hello: Mapping[str, Any]) -> dict[str, Any]:
+    """The Hello round trip's columns from the origin robot's Hello counters (arpz's
+    ``HelloStats`` fields; empty when there was no Hello)."""
+    sent = int(hello.get("sent") or 0)
+    return {
+        "latency_ms_p50": hello.get("rtt_ms_p50"),
+        "latency_ms_p99": hello.get("rtt_ms_p99"),
+        "loss_pct": _pct(int(hello.get("lost") or 0), sent),
+        "hello_sent": sent if hello else None,
+        "hello_received": hello.get("received"),
+        "hello_lost": hello.get("lost"),
+    }
+
+
+def cell_identity(cell: Cell, experiment: str) -> dict[str, Any]:
     return {
         "experiment": experiment,
         "rmax_hz": format_rate(cell.rmax_hz),
@@ -290,6 +328,7 @@ def _identity(cell: Cell, experiment: str) -> dict[str, Any]:
         "config": cell.config,
         "repeat": cell.repeat,
         "network": cell.network,
+        "middleware": cell.middleware,
     }
 
 
@@ -303,12 +342,13 @@ def row_from_summary(
     wall_s: float,
     rrd: str,
     configured: tuple[float, int] | None = None,
+    cpu_s: Mapping[str, float] | None = None,
 ) -> dict[str, Any]:
     """The results.csv row of a finished cell, from the CEDDP's summary.json.
 
     ``configured``: the (rate, depth) the robots were configured with (fleet.configured_qos),
     recorded as the QoS used when the CEDDP assigned none (all but opt); without it, Rmax and
-    the cell's depth."""
+    the cell's depth. ``cpu_s``: CPU seconds per process over the window (lab cells)."""
     robots: dict[str, Any] = dict(summary.get("robots") or {})
     rows = list(robots.values())
     hello = (robots.get("robot1") or {}).get("hello") or {}
@@ -346,16 +386,10 @@ def row_from_summary(
         applied = 0
     mission = summary.get("mission") or {}
     result = mission.get("result") if isinstance(mission, dict) else None
-    hello_sent = int(hello.get("sent") or 0)
     return {
-        **_identity(cell, experiment),
+        **cell_identity(cell, experiment),
         "status": "ok",
-        "latency_ms_p50": hello.get("rtt_ms_p50"),
-        "latency_ms_p99": hello.get("rtt_ms_p99"),
-        "loss_pct": _pct(int(hello.get("lost") or 0), hello_sent),
-        "hello_sent": hello_sent if hello else None,
-        "hello_received": hello.get("received"),
-        "hello_lost": hello.get("lost"),
+        **hello_columns(hello),
         "sample_latency_ms_p50": max(p50s) if p50s else None,
         "sample_latency_ms_p99": max(p99s) if p99s else None,
         **clock(rows),
@@ -391,9 +425,21 @@ def row_from_summary(
         "link_datagrams": link.get("received", 0),
         "link_dropped": link.get("dropped", 0),
         "link_loss_pct": _pct(link.get("dropped", 0), link.get("received", 0)),
+        "link_bytes_up": link.get("bytes_up"),
+        **cpu_columns(cpu_s or {}),
         "measured_s": measured_s,
         "wall_s": wall_s,
         "rrd": rrd,
+    }
+
+
+def cpu_columns(cpu_s: Mapping[str, float]) -> dict[str, float | None]:
+    """``cpu_s_ceddp`` and ``cpu_s_robots`` (the robots' processes summed); None when the
+    process was not measured (proxy cells)."""
+    robots = [v for name, v in cpu_s.items() if name != "ceddp"]
+    return {
+        "cpu_s_ceddp": cpu_s.get("ceddp"),
+        "cpu_s_robots": sum(robots) if robots else None,
     }
 
 
@@ -413,7 +459,7 @@ def clock(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 def error_row(cell: Cell, *, experiment: str, error: str, wall_s: float) -> dict[str, Any]:
     return {
-        **_identity(cell, experiment),
+        **cell_identity(cell, experiment),
         "status": "error",
         "wall_s": wall_s,
         "error": " ".join(error.split())[:400],
@@ -456,9 +502,16 @@ def refresh_rows(directory: Path) -> int:
     out: list[dict[str, Any]] = []
     for row in rows:
         depth: int | str = int(row["depth"]) if row["depth"].isdigit() else row["depth"]
-        cell = Cell(float(row["rmax_hz"]), depth, row["config"], int(row["repeat"]), row["network"])
+        cell = Cell(
+            float(row["rmax_hz"]),
+            depth,
+            row["config"],
+            int(row["repeat"]),
+            row["network"],
+            row["middleware"],
+        )
         summary_path = directory / "runs" / cell.slug / "summary.json"
-        if row["status"] != "ok" or not summary_path.exists():
+        if row["status"] != "ok" or cell.middleware != "arpz" or not summary_path.exists():
             out.append(dict(row))
             continue
         new = row_from_summary(
@@ -473,6 +526,11 @@ def refresh_rows(directory: Path) -> int:
             wall_s=float(row["wall_s"] or 0),
             rrd=row["rrd"],
             configured=_configured(spec, cell, row),
+            cpu_s={
+                name: float(row[column])
+                for name, column in (("ceddp", "cpu_s_ceddp"), ("robots", "cpu_s_robots"))
+                if row[column]
+            },
         )
         out.append(new)
         refreshed += 1

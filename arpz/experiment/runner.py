@@ -29,7 +29,13 @@ import msgspec
 from arpz.core.errors import ArpzError
 from arpz.experiment.fleet import cell_fleet, configured_qos
 from arpz.experiment.results import append_row, done_keys, error_row, row_from_summary
-from arpz.experiment.spec import Cell, ExperimentSpec, NetworkProfile, lab_profile_name
+from arpz.experiment.spec import (
+    Cell,
+    ExperimentSpec,
+    NetworkProfile,
+    lab_profile_name,
+    normalise_config,
+)
 from arpz.netem import GilbertElliott, Impairments, NetemProxy
 from arpz.tools.launch import LaunchError, Proc, free_port, on_fresh_ports, run_fleet
 
@@ -173,11 +179,13 @@ def _run_on_fresh_ports(
 
 def _run_in_lab(
     spec: ExperimentSpec, cell: Cell, workdir: Path, rrd: Path
-) -> tuple[dict[str, Any], dict[str, int], float]:
+) -> tuple[dict[str, Any], dict[str, int], float, dict[str, float]]:
     """The cell in a kernel lab of its own: (the CEDDP's summary, the links' frames seen and
-    dropped over the run, the seconds measured). Raises LaunchError when the lab cannot run it
+    dropped over the run, the seconds measured, each process's CPU seconds over the window).
+    Raises LaunchError when the lab cannot run it
     (no root or nft: the reason says what is missing)."""
     # imported here: arpz.lab brings pyroute2 and needs root, which proxy cells do not
+    from arpz.experiment.link_bytes import uplink_bytes
     from arpz.lab import Lab, LabError, Timeline, parse_profile
     from arpz.lab.fleet import PORT, run_fleet_in_lab, secure
     from arpz.lab.timeline import TIMELINE_FILE
@@ -220,12 +228,14 @@ def _run_in_lab(
                 seed=spec.seed + cell.repeat,
                 progress=progress,
             )
+            bytes_up = uplink_bytes(lab)
     except LabError as exc:
         raise LaunchError(f"{cell.slug}: the lab: {exc}") from exc
     counters = result.counters.values()
     seen = sum(c.up_seen + c.down_seen for c in counters)
     dropped = sum(c.up_dropped + c.down_dropped for c in counters)
-    return result.summary, {"received": seen, "dropped": dropped}, time.monotonic() - started
+    link = {"received": seen, "dropped": dropped, "bytes_up": bytes_up}
+    return result.summary, link, time.monotonic() - started, result.cpu_s
 
 
 def run_cell(
@@ -239,9 +249,12 @@ def run_cell(
     rrd_dir = out / "rrd"
     rrd_dir.mkdir(parents=True, exist_ok=True)
     rrd = rrd_dir / f"{cell.slug}.rrd"
+    if cell.middleware == "ros2":
+        return _run_ros2(spec, cell, workdir, started, keep_logs=keep_logs)
+    cpu_s: dict[str, float] = {}
     try:
         if lab_profile_name(cell.network) is not None:
-            summary, link_totals, measured = _run_in_lab(spec, cell, workdir, rrd)
+            summary, link_totals, measured, cpu_s = _run_in_lab(spec, cell, workdir, rrd)
         else:
             summary, links, link_totals = on_fresh_ports(
                 lambda: _run_on_fresh_ports(spec, cell, workdir, rrd),
@@ -261,17 +274,58 @@ def run_cell(
         wall_s=time.monotonic() - started,
         rrd=str(rrd.relative_to(out)),
         configured=configured_qos(spec, cell),
+        cpu_s=cpu_s,
     )
     if not keep_logs:
         # keep the summary (small) and drop the logs and configs of a successful cell
-        for path in workdir.iterdir():
-            if path.name in ("summary.json", "ceddp.toml", "robot1.toml", "lab_timeline.jsonl"):
-                continue
-            if path.is_dir():
-                shutil.rmtree(path)
-            else:
-                path.unlink()
+        kept = ("summary.json", "ceddp.toml", "robot1.toml", "lab_timeline.jsonl")
+        _prune(workdir, lambda path: path.name in kept)
     return row
+
+
+def _prune(workdir: Path, keep: Callable[[Path], bool]) -> None:
+    """Remove what a successful cell's directory holds but ``keep``s."""
+    for path in workdir.iterdir():
+        if keep(path):
+            continue
+        if path.is_dir():
+            shutil.rmtree(path)
+        else:
+            path.unlink()
+
+
+def _run_ros2(
+    spec: ExperimentSpec, cell: Cell, workdir: Path, started: float, *, keep_logs: bool
+) -> dict[str, Any]:
+    """A ROS 2 cell (arpz.experiment.ros2): its row, or an error row naming what failed."""
+    from arpz.experiment.ros2.machines_cell import run_ros2_cell
+    from arpz.experiment.ros2.machines_row import CountersError, ros2_row
+
+    try:
+        row = ros2_row(cell, run_ros2_cell(spec, cell, workdir), experiment=spec.name)
+    except (LaunchError, CountersError) as exc:
+        return error_row(
+            cell, experiment=spec.name, error=str(exc), wall_s=time.monotonic() - started
+        )
+    if not keep_logs:
+        # keep the nodes' counters and the timeline, drop the logs
+        _prune(workdir, lambda path: path.suffix == ".json" or path.name == "lab_timeline.jsonl")
+    return row
+
+
+def middleware_plan(spec: ExperimentSpec) -> list[str]:
+    """Which configurations run on which middleware, and the ones a middleware skips (LC and
+    CC are arpz features: a grid naming them has no ROS 2 cells for them)."""
+    runs = spec.middleware_configs()
+    every = [normalise_config(c) for c in spec.configs]
+    lines = []
+    for middleware, configs in runs.items():
+        skipped = [c for c in every if c not in configs]
+        line = f"  {middleware}: {', '.join(configs)}"
+        if skipped:
+            line += f" (not {', '.join(skipped)}: arpz features)"
+        lines.append(line)
+    return ["configurations per middleware:", *lines]
 
 
 def _duration(seconds: float) -> str:
@@ -307,6 +361,9 @@ def run_experiment(
         file=progress,
         flush=True,
     )
+    if spec.middlewares != ["arpz"]:
+        for line in middleware_plan(spec):
+            print(line, file=progress, flush=True)
     per_cell = (
         spec.mission.time_limit_s * 0.7 if spec.mission is not None else spec.duration_s
     ) + START_STOP_S
@@ -370,6 +427,11 @@ def _row_line(row: dict[str, Any]) -> str:
         f"R {_fmt(row['rate_hz'])} Hz D {row['qos_depth']}; staleness p99 "
         f"{_fmt(row.get('staleness_ms_p99'), ' ms')}; link loss {_fmt(row['link_loss_pct'], ' %')}"
     )
+    if row.get("cpu_s_ceddp") is not None:
+        text += (
+            f"; CPU ceddp {_fmt(row['cpu_s_ceddp'], ' s')} robots "
+            f"{_fmt(row.get('cpu_s_robots'), ' s')}"
+        )
     if row.get("downlink_reconciled") == "no":
         text += f"; downlink NOT reconciled: {row['downlink_unreconciled']}"
     if row.get("mission"):

@@ -30,6 +30,21 @@ OPT_DEPTH = "opt"
 LAB_PREFIX = "lab:"
 #: the Zenoh links a lab cell's robots may use (``lab_link``)
 LAB_LINKS = ("tcp", "udp", "tls", "quic")
+#: the middlewares a cell can run: arpz, or seed 001's own application in rclpy over the ROS 2
+#: RMW installed (arpz.experiment.ros2; Fast DDS by default)
+MIDDLEWARES = ("arpz", "ros2")
+#: the features ROS 2 cells apply: the paper's OPT as ROS 2 applies it (R and D computed
+#: offline and configured for the run) and its halves; LC and CC are arpz features, so a
+#: configuration with them runs on arpz only
+ROS2_FEATURES = ("opt", "optr", "optd")
+
+
+def runs_on(middleware: str, config: str) -> bool:
+    """Whether ``config`` (normalised) has cells on ``middleware``: arpz runs every one, ROS 2
+    baseline and the OPT variants only (not LC or CC, which are arpz's)."""
+    if middleware == "arpz" or config == "baseline":
+        return True
+    return all(part in ROS2_FEATURES for part in config.split("+"))
 
 
 def lab_profile_name(network: str) -> str | None:
@@ -152,6 +167,10 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
     #: the fleet's traffic profiles (e.g. ``plain_downlink = true``, or ``[traffic.command_qos]``)
     traffic: dict[str, Any] = msgspec.field(default_factory=dict)
     seed: int = 1
+    #: which middlewares run the grid's cells: "arpz", "ros2" (seed 001's application in rclpy
+    #: over the RMW installed, lab networks only); ROS 2 gets only the configurations it
+    #: applies (baseline, opt, optr, optd: see ``runs_on``), the cells of both interleaved
+    middlewares: list[str] = msgspec.field(default_factory=lambda: ["arpz"])
 
     def __post_init__(self) -> None:
         if not self.rmax_hz or any(not r > 0 for r in self.rmax_hz):
@@ -190,6 +209,43 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
                 )
         if not self.networks:
             raise ValueError('networks must list at least one profile, e.g. ["wifi-bad"]')
+        self._check_middlewares()
+
+    def _check_middlewares(self) -> None:
+        if not self.middlewares:
+            raise ValueError('middlewares must list at least one, e.g. ["arpz", "ros2"]')
+        for middleware in self.middlewares:
+            if middleware not in MIDDLEWARES:
+                raise ValueError(
+                    f"unknown middleware {middleware!r}: use {' or '.join(MIDDLEWARES)}"
+                )
+        if len(set(self.middlewares)) != len(self.middlewares):
+            raise ValueError(f"middlewares lists one twice: {self.middlewares}")
+        if "ros2" not in self.middlewares:
+            return
+        proxied = [
+            n for n in [*self.networks, *self.robot_networks.values()] if not lab_profile_name(n)
+        ]
+        if proxied:
+            raise ValueError(
+                f"ROS 2 cells run in the kernel lab only: network {proxied[0]!r} is a user-space "
+                "UDP proxy, which DDS's discovery and its several ports per participant cannot "
+                'cross; use a "lab:PROFILE" network (e.g. "lab:loss-8") or drop "ros2"'
+            )
+        if self.mission is not None:
+            raise ValueError("ROS 2 cells run the sensor fleet (Figures 10-11), not the mission")
+        if not any(runs_on("ros2", normalise_config(c)) for c in self.configs):
+            raise ValueError(
+                f"none of the configs {self.configs} runs on ros2 (LC and CC are arpz "
+                "features): add baseline, opt, optr or optd"
+            )
+
+    def middleware_configs(self) -> dict[str, list[str]]:
+        """The configurations each middleware runs (ROS 2: baseline and the OPT variants)."""
+        return {
+            middleware: [c for c in map(normalise_config, self.configs) if runs_on(middleware, c)]
+            for middleware in self.middlewares
+        }
 
     def profile(self, name: str) -> NetworkProfile:
         return self.profiles.get(name) or PROFILES[name]
@@ -203,14 +259,17 @@ class ExperimentSpec(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw
         return [f"robot{i}" for i in range(1, (3 if self.mission else len(self.presets)) + 1)]
 
     def cells(self) -> list[Cell]:
-        """Every cell in run order: Rmax outermost so a partial run covers whole figures."""
+        """Every cell in run order: Rmax outermost so a partial run covers whole figures; the
+        middlewares innermost, so both run each point of the grid under the same host load."""
         out = []
         for rmax, network, config in itertools.product(self.rmax_hz, self.networks, self.configs):
             name = normalise_config(config)
             depths: list[int | str] = [OPT_DEPTH] if opt_depth(name) else list(self.depths)
             for depth in depths:
                 for repeat in range(1, self.repeats + 1):
-                    out.append(Cell(float(rmax), depth, name, repeat, network))
+                    for middleware in self.middlewares:
+                        if runs_on(middleware, name):
+                            out.append(Cell(float(rmax), depth, name, repeat, network, middleware))
         return out
 
 
@@ -223,9 +282,10 @@ class Cell:
     config: str
     repeat: int
     network: str
+    middleware: str = "arpz"
 
     @property
-    def key(self) -> tuple[str, str, str, str, str]:
+    def key(self) -> tuple[str, str, str, str, str, str]:
         """How results.csv rows are matched to cells (as the CSV strings them)."""
         return (
             format_rate(self.rmax_hz),
@@ -233,19 +293,22 @@ class Cell:
             self.config,
             str(self.repeat),
             self.network,
+            self.middleware,
         )
 
     @property
     def label(self) -> str:
         return (
             f"Rmax {format_rate(self.rmax_hz)} Hz, depth {self.depth}, {self.config}, "
-            f"{self.network}, repeat {self.repeat}"
+            f"{self.network}, repeat {self.repeat}, {self.middleware}"
         )
 
     @property
     def slug(self) -> str:
+        # arpz's cells keep the slug they had before middlewares (kept runs/ still match)
+        prefix = "" if self.middleware == "arpz" else f"{self.middleware}_"
         return (
-            f"r{format_rate(self.rmax_hz)}_d{self.depth}_{self.config.replace('+', '-')}_"
+            f"{prefix}r{format_rate(self.rmax_hz)}_d{self.depth}_{self.config.replace('+', '-')}_"
             f"{self.network.replace(':', '-')}_{self.repeat}"
         )
 

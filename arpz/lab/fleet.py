@@ -10,6 +10,7 @@ control, as deployed). The timeline is written beside the CEDDP's summary.json.
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -67,6 +68,8 @@ class LabRunResult:
     #: what ``arpz.tools.demo.check_summary`` finds (reconciliation, robots that never reported)
     problems: list[str]
     counters: dict[str, LinkCounters]
+    #: CPU seconds (utime + stime) of each process (ceddp, robot1...) over the profile's window
+    cpu_s: dict[str, float] = field(default_factory=dict)
 
 
 def make_certs(out: Path, fleet: str, robots: list[str], server_ip: str) -> Path:
@@ -207,6 +210,7 @@ def run_fleet_in_lab(
     )
     runner = ProfileRunner(lab, profiles, seed=seed, horizon_s=duration_s)
     failures: list[str] = []
+    cpu0 = {proc.name: process_cpu_s(proc.popen.pid) for proc in (ceddp, *robots)}
     runner.start()
     try:
         _watch(lab, [ceddp, *robots], duration_s, progress, stop_requested)
@@ -218,6 +222,7 @@ def run_fleet_in_lab(
     for name, link in lab.robots.items():
         lab.apply(name, LinkState(subnet=link.state.subnet), "end of the run: clean links")
     counters = {name: lab.counters(name) for name in lab.robots}
+    cpu = {p.name: process_cpu_s(p.popen.pid) - cpu0[p.name] for p in (ceddp, *robots)}
     for proc in reversed(robots):
         failures += _stop(proc, 20)
     failures += _stop(ceddp, 30)
@@ -229,7 +234,7 @@ def run_fleet_in_lab(
     summary: dict[str, Any] = json.loads(summary_path.read_text(encoding="utf-8"))
     hello = bool(spec.robots.get("robot1", {}).get("hello", {}).get("enabled"))
     problems = check_summary(summary, len(spec.robots), hello=hello)
-    return LabRunResult(summary, lab.timeline.path, problems, counters)
+    return LabRunResult(summary, lab.timeline.path, problems, counters, cpu)
 
 
 def _watch(
@@ -269,6 +274,16 @@ def _dropped(robot: str, before: LinkCounters, now: LinkCounters) -> str:
     up = share(now.up_dropped - before.up_dropped, now.up_seen - before.up_seen)
     down = share(now.down_dropped - before.down_dropped, now.down_seen - before.down_seen)
     return f"{robot} dropped up {up} down {down}"
+
+
+def process_cpu_s(pid: int) -> float:
+    """utime + stime of a running process, seconds (0 once it is gone): what it cost over a
+    window is the difference of two readings, read before it stops (its shutdown not counted)."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _stop(proc: Proc, timeout_s: float) -> list[str]:

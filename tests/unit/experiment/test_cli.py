@@ -13,7 +13,7 @@ def test_list_shows_the_cells_of_a_preset(capsys: pytest.CaptureFixture[str]) ->
     assert main(["run", "quick", "--out", "unused", "--list"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert len(lines) == 6
-    assert lines[0] == "Rmax 1000 Hz, depth 1, baseline, lan, repeat 1"
+    assert lines[0] == "Rmax 1000 Hz, depth 1, baseline, lan, repeat 1, arpz"
 
 
 def test_bad_spec_exits_2_naming_the_field(
@@ -41,9 +41,9 @@ def test_paper_grids_have_every_configuration_and_three_repeats(
         assert len(lines) == cells
         for config in ("baseline", "lc", "cc", "optr", "optd", "opt", "lc+opt", "lc+cc+opt"):
             assert any(f", {config}, " in line for line in lines), (preset, config)
-        assert any(line.endswith("repeat 3") for line in lines)
-        assert "Rmax 100 Hz, depth 1000, optr, wifi-bad, repeat 1" in lines
-        assert "Rmax 100 Hz, depth opt, optd, wifi-bad, repeat 1" in lines
+        assert any(line.endswith("repeat 3, arpz") for line in lines)
+        assert "Rmax 100 Hz, depth 1000, optr, wifi-bad, repeat 1, arpz" in lines
+        assert "Rmax 100 Hz, depth opt, optd, wifi-bad, repeat 1, arpz" in lines
 
 
 def test_infeasible_optr_exits_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
