@@ -117,7 +117,11 @@ class CpuSampler:
 
     def stop(self) -> dict[str, float]:
         self._stop.set()
-        self._thread.join(timeout=5)
+        if self._thread.is_alive():
+            self._thread.join(timeout=5)
+        return self.totals()
+
+    def totals(self) -> dict[str, float]:
         totals: dict[str, float] = {}
         for name, cpu_s in self._seen.values():
             totals[name] = totals.get(name, 0.0) + cpu_s

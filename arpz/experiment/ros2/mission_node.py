@@ -320,6 +320,21 @@ class PlannerState:
         )
 
 
+def offered_qos(node: Node, topic: str) -> list[dict[str, Any]]:
+    """The QoS each publisher of ``topic`` offers, as ROS 2's graph (discovery) reports it: what
+    the robots really set, seen from the planner's side of the link (DDS does not send the
+    history depth, which the graph reports as 0)."""
+    return [
+        {
+            "reliability": info.qos_profile.reliability.name,
+            "durability": info.qos_profile.durability.name,
+            "history": info.qos_profile.history.name,
+            "deadline_ns": info.qos_profile.deadline.nanoseconds,
+        }
+        for info in node.get_publishers_info_by_topic(topic)
+    ]
+
+
 def _all_acked(publisher: Publisher[Any]) -> bool:
     return bool(publisher.wait_for_all_acked(Duration(nanoseconds=0)))
 
@@ -350,6 +365,7 @@ def run_planner(args: argparse.Namespace) -> dict[str, Any]:
     print("ready", flush=True)
 
     sent = 0
+    offered: list[dict[str, Any]] = []
     ticks = Pacer(TICK_HZ, time.monotonic())
     twist = Twist()
     while not spinner.stop.is_set():
@@ -360,6 +376,8 @@ def run_planner(args: argparse.Namespace) -> dict[str, Any]:
         acks: dict[str, float | None] = {}
         if args.command_acks == "dds":
             acks = {r: trackers[r].poll(_all_acked(commands[r])) for r in state.robots}
+        if not offered and state.started_s is not None:
+            offered = offered_qos(node, f"/{state.robots[0]}/{beam_topic(BEAM_ANGLES_DEG[0])}")
         for robot, (v_m_s, omega_rad_s) in state.tick(now_s, acks).items():
             twist.linear.x, twist.angular.z = v_m_s, omega_rad_s
             commands[robot].publish(twist)
@@ -378,6 +396,7 @@ def run_planner(args: argparse.Namespace) -> dict[str, Any]:
         "beams_received": state.beams_received,
         "poses_received": state.poses_received,
         "commands_sent": sent,
+        "beam_qos_offered": offered,
         "tick_periods_skipped": ticks.skipped,
         "command_acks": args.command_acks,
         "ack_polls": {r: t.polls for r, t in trackers.items()},
