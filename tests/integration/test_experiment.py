@@ -60,7 +60,8 @@ def test_quick_preset(tmp_path: Path) -> None:
     rows = read_rows(out / "results.csv")
     spec = quick()
     assert {
-        tuple(r[k] for k in ("rmax_hz", "depth", "config", "repeat", "network")) for r in rows
+        tuple(r[k] for k in ("rmax_hz", "depth", "config", "repeat", "network", "middleware"))
+        for r in rows
     } == {c.key for c in spec.cells()}
     assert all(r["status"] == "ok" for r in rows), [r["error"] for r in rows]
     assert consistency(rows) == [], rows
