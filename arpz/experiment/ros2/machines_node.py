@@ -245,14 +245,24 @@ class RobotNode:
             msg.point.y = float(STAGE_RELAYED)
             self.hello_pub.publish(msg)
         elif stage == STAGE_RETURNED and msg.header.frame_id == self.name:
-            self.tracker.on_returned(int(msg.point.x), time.time_ns())
+            now_ns = time.time_ns()
+            # past its timeout a Hello is lost, also when it returns before the next send's
+            # expiry (or after the timers stopped): it then counts as late, not as a round trip
+            self.tracker.expire(now_ns)
+            self.tracker.on_returned(int(msg.point.x), now_ns)
 
     def stop(self) -> None:
-        """Stop producing; wait (bounded) for acknowledgements and the Hellos in flight."""
+        """Stop producing; wait (bounded) for the Hellos in flight, then for the samples'
+        acknowledgements."""
         for timer in [s.timer for s in self.sensors] + [self.hello_timer]:
             if timer is not None:
                 timer.cancel()
         self.window_end = time.monotonic()
+        if self.origin:
+            end = time.monotonic() + HELLO_TIMEOUT_S
+            while self.tracker.outstanding and time.monotonic() < end:
+                time.sleep(0.01)
+            self.tracker.expire(time.time_ns(), all_outstanding=True)
         from rclpy.duration import Duration
 
         deadline = time.monotonic() + ACK_WAIT_S
@@ -261,11 +271,6 @@ class RobotNode:
             left = max(0.0, deadline - time.monotonic())
             acked &= bool(publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))))
         self.acked = acked
-        if self.origin:
-            end = time.monotonic() + HELLO_TIMEOUT_S
-            while self.tracker.outstanding and time.monotonic() < end:
-                time.sleep(0.01)
-            self.tracker.expire(time.time_ns(), all_outstanding=True)
 
     def counters(self) -> dict[str, Any]:
         window = (self.window_end or time.monotonic()) - (self.window_start or time.monotonic())
