@@ -263,6 +263,7 @@ def row_of(cell: MissionCell, run: MissionRun) -> dict[str, Any]:
     result = planner.get("result") or {}
     sent = sum(int(r["beams_sent"]) for r in robots.values())
     received = sum(int(n) for n in planner["beams_received"].values())
+    latency = planner.get("beam_latency_ms") or {}
     row: dict[str, Any] = {
         "middleware": "ros2",
         "rmax_hz": f"{cell.rmax_hz:g}",
@@ -282,6 +283,8 @@ def row_of(cell: MissionCell, run: MissionRun) -> dict[str, Any]:
         "beams_lost": sent - received,
         "beam_loss_pct": round(100.0 * (sent - received) / sent, 2) if sent else "",
         "beams_due": sum(int(r["beams_due"]) for r in robots.values()),
+        "beam_latency_ms_p50": latency.get("p50", ""),
+        "beam_latency_ms_p99": latency.get("p99", ""),
         "commands_sent": planner["commands_sent"],
         "commands_received": sum(int(r["commands_received"]) for r in robots.values()),
         "watchdog_stops": sum(int(r["watchdog_stops"]) for r in robots.values()),

@@ -39,10 +39,12 @@ import signal
 import sys
 import threading
 import time
+from array import array
 from pathlib import Path
 from typing import Any
 
 import msgspec
+import numpy as np
 import rclpy
 from geometry_msgs.msg import PoseStamped, Twist  # type: ignore[import-untyped]
 from rclpy.duration import Duration
@@ -268,11 +270,16 @@ class PlannerState:
         self.beams_received = dict.fromkeys(self.robots, 0)
         self.poses_received = dict.fromkeys(self.robots, 0)
         self.events: list[str] = []
+        #: per beam received, seconds from its source stamp to its arrival (the wall clock is
+        #: the host's in every namespace of the lab)
+        self.latencies_s = array("f")
 
     def on_range(self, robot: str, beam_deg: int, msg: Range) -> None:
+        stamp_s = _stamp_s(msg)
         with self.lock:
+            self.latencies_s.append(time.time() - stamp_s)
             self.beams_received[robot] += 1
-            self.planner.on_range(robot, beam_deg, float(msg.range), _stamp_s(msg))
+            self.planner.on_range(robot, beam_deg, float(msg.range), stamp_s)
 
     def on_pose(self, robot: str, msg: PoseStamped) -> None:
         q = msg.pose.orientation
@@ -335,6 +342,18 @@ def offered_qos(node: Node, topic: str) -> list[dict[str, Any]]:
     ]
 
 
+def _percentiles_ms(values_s: array[float]) -> dict[str, float] | None:
+    """p50, p99 and max of the beams' latencies, in ms (None: no beam arrived)."""
+    if not values_s:
+        return None
+    p50, p99 = np.percentile(np.frombuffer(values_s, dtype=np.float32), [50, 99])
+    return {
+        "p50": round(float(p50) * 1e3, 2),
+        "p99": round(float(p99) * 1e3, 2),
+        "max": round(max(values_s) * 1e3, 2),
+    }
+
+
 def _all_acked(publisher: Publisher[Any]) -> bool:
     return bool(publisher.wait_for_all_acked(Duration(nanoseconds=0)))
 
@@ -394,6 +413,7 @@ def run_planner(args: argparse.Namespace) -> dict[str, Any]:
         "result": result,
         "verdict": verdict_letter(result),
         "beams_received": state.beams_received,
+        "beam_latency_ms": _percentiles_ms(state.latencies_s),
         "poses_received": state.poses_received,
         "commands_sent": sent,
         "beam_qos_offered": offered,

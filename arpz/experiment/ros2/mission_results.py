@@ -33,6 +33,8 @@ COLUMNS: tuple[str, ...] = (
     "beams_lost",
     "beam_loss_pct",
     "beams_due",
+    "beam_latency_ms_p50",
+    "beam_latency_ms_p99",
     "commands_sent",
     "commands_received",
     "watchdog_stops",
@@ -56,7 +58,13 @@ MIDDLEWARES = ("ros2", "arpz")
 
 
 def append_row(path: Path, row: Mapping[str, Any]) -> None:
-    """Append ``row`` (COLUMNS; missing ones empty) to the CSV, writing the header first."""
+    """Append ``row`` (COLUMNS; missing ones empty) to the CSV, writing the header first; a
+    file written before a column existed is rewritten with every column (empty where unknown)."""
+    if path.exists() and _header(path) != COLUMNS:
+        old = read_rows(path)
+        path.unlink()
+        for previous in old:
+            append_row(path, previous)
     new = not path.exists()
     with path.open("a", encoding="utf-8", newline="") as handle:
         writer = csv.DictWriter(
@@ -65,6 +73,11 @@ def append_row(path: Path, row: Mapping[str, Any]) -> None:
         if new:
             writer.writeheader()
         writer.writerow({column: row.get(column, "") for column in COLUMNS})
+
+
+def _header(path: Path) -> tuple[str, ...]:
+    with path.open(encoding="utf-8", newline="") as handle:
+        return tuple(next(csv.reader(handle), []))
 
 
 def read_rows(path: Path) -> list[dict[str, str]]:
@@ -111,6 +124,8 @@ def arpz_row(
         "beams_received": row.get("samples_received", ""),
         "beams_lost": row.get("samples_lost", ""),
         "beam_loss_pct": row.get("sample_loss_pct", ""),
+        "beam_latency_ms_p50": row.get("sample_latency_ms_p50", ""),
+        "beam_latency_ms_p99": row.get("sample_latency_ms_p99", ""),
         "commands_sent": row.get("commands_written", ""),
         "commands_received": row.get("commands_delivered", ""),
         "watchdog_stops": row.get("watchdog_stops", ""),
@@ -166,8 +181,9 @@ def verdict_table(rows: Sequence[Mapping[str, Any]]) -> str:
     counts = tally(rows)
     lines = [
         "| Rmax (Hz) | configuration | R, D | ROS 2 verdicts | arpz verdicts | ROS 2 beams lost | "
-        "arpz beams lost | ROS 2 CPU s (planner + robots) | arpz CPU s (CEDDP + robots) |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "arpz beams lost | ROS 2 beam latency p99 | arpz beam latency p99 | "
+        "ROS 2 CPU s (planner + robots) | arpz CPU s (CEDDP + robots) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for point in _points(rows):
         rmax, depth, config = point
@@ -185,6 +201,7 @@ def verdict_table(rows: Sequence[Mapping[str, Any]]) -> str:
             f"{_counts_text(counts.get(('ros2', point)))} | "
             f"{_counts_text(counts.get(('arpz', point)))} | "
             f"{_mean_pct(by['ros2'])} | {_mean_pct(by['arpz'])} | "
+            f"{_mean_ms(by['ros2'])} | {_mean_ms(by['arpz'])} | "
             f"{_cpu(by['ros2'])} | {_cpu(by['arpz'])} |"
         )
     return "\n".join(lines)
@@ -200,6 +217,11 @@ def _number(value: Any) -> float | None:
 def _mean_pct(rows: Sequence[Mapping[str, Any]]) -> str:
     values = [v for v in (_number(r.get("beam_loss_pct")) for r in rows) if v is not None]
     return f"{sum(values) / len(values):.1f} %" if values else "-"
+
+
+def _mean_ms(rows: Sequence[Mapping[str, Any]]) -> str:
+    values = [v for v in (_number(r.get("beam_latency_ms_p99")) for r in rows) if v is not None]
+    return f"{sum(values) / len(values):.0f} ms" if values else "-"
 
 
 def _cpu(rows: Sequence[Mapping[str, Any]]) -> str:

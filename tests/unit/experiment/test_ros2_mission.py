@@ -172,6 +172,7 @@ def _row(middleware: str, rmax: str, depth: str, config: str, verdict: str) -> d
         "qos_depth": depth,
         "verdict": verdict,
         "beam_loss_pct": "10",
+        "beam_latency_ms_p99": "20",
         "cpu_ceddp_s": "12",
         "cpu_robots_s": "9",
     }
@@ -193,12 +194,24 @@ def test_results_table_and_figure(tmp_path: Path) -> None:
     assert counts[("ros2", (1000.0, "1", "baseline"))]["T"] == 1
     table = verdict_table(back)
     assert (
-        "| 100 | no opt., depth 1 | 100 Hz, 1 | 1S | 1S | 10.0 % | 10.0 % | 12 + 9 | 12 + 9 |"
-        in table
-    )
+        "| 100 | no opt., depth 1 | 100 Hz, 1 | 1S | 1S | 10.0 % | 10.0 % | 20 ms | 20 ms | "
+        "12 + 9 | 12 + 9 |"
+    ) in table
     assert "| 1000 | OPT (Opt(R), Opt(D)) |" in table
     png = draw_figure(back, tmp_path / "mission.png", title="t")
     assert png.stat().st_size > 10_000
+
+
+def test_a_csv_written_before_a_column_existed_is_rewritten_with_it(tmp_path: Path) -> None:
+    csv = tmp_path / "results.csv"
+    csv.write_text("middleware,rmax_hz,verdict\nros2,100,S\n", encoding="utf-8")
+    append_row(csv, _row("arpz", "200", "1", "baseline", "T"))
+    rows = read_rows(csv)
+    assert [(r["middleware"], r["rmax_hz"], r["verdict"]) for r in rows] == [
+        ("ros2", "100", "S"),
+        ("arpz", "200", "T"),
+    ]
+    assert rows[0]["beam_latency_ms_p99"] == "" and rows[1]["beam_latency_ms_p99"] == "20"
 
 
 def test_an_arpz_results_row_becomes_ours() -> None:
