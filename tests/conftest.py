@@ -25,8 +25,15 @@ from collections.abc import Generator, Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+# Property tests check properties, not speed: hypothesis's default 200 ms deadline per example
+# failed a CDR round trip of a camera frame while two grids loaded this shared 2-core host
+# (17 s for a file that takes 3 s). Speed is the benchmarks' business (benchmarks/).
+settings.register_profile("arpz", deadline=None)
+settings.load_profile("arpz")
 
 pytest_plugins = ["pytester"]
 

@@ -51,6 +51,17 @@ _EMPTY_LIST: Final = "[]"
 _EMPTY_MAP: Final = "{}"
 
 
+class _Empty(str):
+    """An empty list or map marker parsed from a key: a str subclass, so that a field whose
+    escaped name is ``{}`` or ``[]`` (a ``str``) is never taken for one."""
+
+
+_EMPTY_LIST_MARK: Final = _Empty(_EMPTY_LIST)
+_EMPTY_MAP_MARK: Final = _Empty(_EMPTY_MAP)
+#: where an empty list or map sits in the tree ``unflatten`` builds: not a str, so no field name
+_EMPTY_SLOT: Final = object()
+
+
 # -- a message's fields ----------------------------------------------------------------------
 
 
@@ -155,16 +166,21 @@ def _path(key: str) -> list[str | int]:
         name, index, empty = match.groups()
         if empty is not None and match.end() != len(key):
             raise ConversionError(f"KeyValue key {key!r}: {empty} must end it")
-        segments.append(_unescape(name) if name is not None else int(index) if index else empty)
+        if name is not None:
+            segments.append(_unescape(name))
+        elif index:
+            segments.append(int(index))
+        else:
+            segments.append(_EMPTY_LIST_MARK if empty == _EMPTY_LIST else _EMPTY_MAP_MARK)
         pos = match.end()
-    if not segments or not isinstance(segments[0], str) or segments[0] in (_EMPTY_LIST, "{}"):
+    if not segments or not isinstance(segments[0], str) or isinstance(segments[0], _Empty):
         raise ConversionError(f"KeyValue key {key!r} does not start with a field name")
     return segments
 
 
 def unflatten(pairs: Iterable[tuple[str, str]]) -> dict[str, Any]:
     """``flatten``'s pairs back into nested fields (every leaf value text)."""
-    root: dict[str, Any] = {}
+    root: dict[Any, Any] = {}
     for key, value in pairs:
         *parents, last = _path(key)
         node: Any = root
@@ -173,11 +189,11 @@ def unflatten(pairs: Iterable[tuple[str, str]]) -> dict[str, Any]:
             if not isinstance(node, dict):
                 raise ConversionError(f"KeyValue key {key!r} goes below a value")
         empty: list[Any] | dict[str, Any] | None = None
-        if last == _EMPTY_LIST:
+        if last is _EMPTY_LIST_MARK:
             empty = []
-        elif last == _EMPTY_MAP:
+        elif last is _EMPTY_MAP_MARK:
             empty = {}
-        slot = "" if empty is not None else last
+        slot = _EMPTY_SLOT if empty is not None else last
         if slot in node:
             raise ConversionError(f"KeyValue key {key!r} is given twice")
         node[slot] = value if empty is None else empty
@@ -188,8 +204,8 @@ def _lists(node: Any) -> Any:
     """Maps whose keys are list indices become lists; the empty markers their value."""
     if not isinstance(node, dict):
         return node
-    if "" in node:
-        return node[""]
+    if _EMPTY_SLOT in node:
+        return node[_EMPTY_SLOT]
     if node and all(isinstance(k, int) for k in node):
         if sorted(node) != list(range(len(node))):
             raise ConversionError(f"list indices {sorted(node)} are not 0..{len(node) - 1}")
