@@ -283,6 +283,7 @@ def row_of(cell: MissionCell, run: MissionRun) -> dict[str, Any]:
         "beams_lost": sent - received,
         "beam_loss_pct": round(100.0 * (sent - received) / sent, 2) if sent else "",
         "beams_due": sum(int(r["beams_due"]) for r in robots.values()),
+        "beam_write_failures": sum(int(r.get("beam_write_failures", 0)) for r in robots.values()),
         "beam_latency_ms_p50": latency.get("p50", ""),
         "beam_latency_ms_p99": latency.get("p99", ""),
         "commands_sent": planner["commands_sent"],
