@@ -271,27 +271,23 @@ def draw_figure(rows: Sequence[Mapping[str, Any]], path: Path, *, title: str) ->
                             hatch="//" if middleware == "ros2" else None,
                         )
                         bottom += n
-                ax.text(
-                    index + offset,
-                    bottom + 0.05,
-                    "ROS 2" if middleware == "ros2" else "arpz",
-                    ha="center",
-                    va="bottom",
-                    fontsize=7,
-                    rotation=90,
-                )
         ax.set_xticks(range(len(columns)))
         ax.set_xticklabels(
             [column_label(d, c).replace(", ", "\n") for _, d, c in columns], fontsize=8
         )
         ax.set_title(f"Rmax = {rate:g} Hz")
         ax.set_ylabel("missions")
+        ax.yaxis.get_major_locator().set_params(integer=True)
     handles = [Rectangle((0, 0), 1, 1, color=colours[v]) for v in VERDICTS]
+    handles += [
+        Rectangle((0, 0), 1, 1, facecolor="white", edgecolor="black", hatch="//"),
+        Rectangle((0, 0), 1, 1, facecolor="white", edgecolor="black"),
+    ]
     fig.legend(
         handles,
-        [VERDICT_NAMES[v] for v in VERDICTS],
+        [VERDICT_NAMES[v] for v in VERDICTS] + ["ROS 2 (left bar)", "arpz (right bar)"],
         loc="lower center",
-        ncol=len(VERDICTS),
+        ncol=len(VERDICTS) + 2,
         fontsize=8,
     )
     fig.suptitle(title, fontsize=10)
