@@ -189,6 +189,10 @@ class RobotNode:
         self.window_start: float | None = None
         self.window_end: float | None = None
         self.acked: bool | None = None
+        #: held by a sensor timer's callback: the stop waits for the one in flight (the
+        #: executor's thread), so produced and sent are read after its publish
+        self._publishing = threading.Lock()
+        self._stopped = False
 
     def publishers(self) -> list[Any]:
         return [s.publisher for s in self.sensors] + ([self.hello_pub] if self.hello_pub else [])
@@ -209,18 +213,21 @@ class RobotNode:
 
     def _publisher_of(self, sensor: SensorTopic) -> Any:
         def publish() -> None:
-            value = sensor.driver.read(time.monotonic() - self.started)
-            sensor.produced += 1
-            sensor.seq += 1
-            msg = sensor.msg
-            msg.point.x = float(sensor.seq)
-            if isinstance(value, str):
-                msg.header.frame_id = value
-            else:
-                msg.point.y = float(value)
-            _set_stamp(msg, time.time_ns())
-            sensor.publisher.publish(msg)
-            sensor.sent += 1
+            with self._publishing:
+                if self._stopped:
+                    return  # dispatched before its timer was cancelled
+                value = sensor.driver.read(time.monotonic() - self.started)
+                sensor.produced += 1
+                sensor.seq += 1
+                msg = sensor.msg
+                msg.point.x = float(sensor.seq)
+                if isinstance(value, str):
+                    msg.header.frame_id = value
+                else:
+                    msg.point.y = float(value)
+                _set_stamp(msg, time.time_ns())
+                sensor.publisher.publish(msg)
+                sensor.sent += 1
 
         return publish
 
@@ -257,6 +264,8 @@ class RobotNode:
         for timer in [s.timer for s in self.sensors] + [self.hello_timer]:
             if timer is not None:
                 timer.cancel()
+        with self._publishing:
+            self._stopped = True
         self.window_end = time.monotonic()
         if self.origin:
             end = time.monotonic() + HELLO_TIMEOUT_S
