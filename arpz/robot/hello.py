@@ -40,10 +40,18 @@ class HelloTracker:
             self._outstanding[origin_seq] = t0_ns
 
     def on_returned(self, origin_seq: int, now_ns: int) -> float | None:
-        """Record a Hello that came back; returns its round trip in ms, or None if late."""
+        """Record a Hello that came back; returns its round trip in ms, or None if late.
+
+        A Hello back after ``timeout_s`` is lost even when no ``expire`` ran in between (the
+        periodic sweep, or the shutdown drain that waits for Hellos in flight): a round trip
+        longer than the timeout must not count as one."""
         with self._lock:
             t0_ns = self._outstanding.pop(origin_seq, None)
             if t0_ns is None:
+                self.late += 1
+                return None
+            if now_ns - t0_ns >= self.timeout_ns:
+                self.lost += 1
                 self.late += 1
                 return None
             self.received += 1
