@@ -42,6 +42,9 @@ CHANNEL_LOGGER = "arpz.channel"
 EXPECTED_MARKER = "callback_errors_expected"
 #: the marker of a test that needs the machine's cores to itself (see ``cpu_share``)
 CPU_EXCLUSIVE_MARKER = "cpu_exclusive"
+#: the marker of an integration test that mostly waits (dead zones): it runs beside the
+#: ``cpu_exclusive`` ones, as a unit test does (see ``share_of``)
+MOSTLY_IDLE_MARKER = "mostly_idle"
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -50,6 +53,11 @@ def pytest_configure(config: pytest.Config) -> None:
         "markers",
         f"{CPU_EXCLUSIVE_MARKER}(whole_machine=False): a heavy or timing-bound test that runs "
         "with no integration test beside it (whole_machine: no test at all)",
+    )
+    config.addinivalue_line(
+        "markers",
+        f"{MOSTLY_IDLE_MARKER}: an integration test that spends most of its time waiting (a "
+        "dead zone, a lease): it may run beside a cpu_exclusive test, as a unit test does",
     )
     config.addinivalue_line(
         "markers",
@@ -147,14 +155,23 @@ class Share(enum.IntEnum):
     CORES = 1
     #: a unit test: one process, beside anything but a MACHINE test
     UNIT = 2
+    #: an integration test that mostly waits (``mostly_idle``): beside anything but a MACHINE
+    #: test, as a unit test; after the unit tests, so that the worker beside the CORES tests
+    #: takes it once its unit tests are done
+    IDLE = 3
     #: an integration test: beside unit and integration tests
-    SHARED = 3
+    SHARED = 4
 
 
 def share_of(item: pytest.Item) -> Share:
     mark = item.get_closest_marker(CPU_EXCLUSIVE_MARKER)
     if mark is not None:
         return Share.MACHINE if mark.kwargs.get("whole_machine") else Share.CORES
+    if item.get_closest_marker(MOSTLY_IDLE_MARKER) is not None:
+        # The suite's serial part (the cpu_exclusive tests, 600 s) left the other worker idle
+        # once the unit tests (100 s) were done, while the dead-zone tests (220 s, mostly
+        # sleeping) waited for the end. Their bounds held at a load average of 10-16.
+        return Share.IDLE
     if item.get_closest_marker("integration") is not None:
         return Share.SHARED
     return Share.UNIT
@@ -196,7 +213,7 @@ def cpu_share(share: Share) -> Iterator[None]:
         return
     folder = Path(tempfile.gettempdir())
     with contextlib.ExitStack() as held:
-        if share in (Share.MACHINE, Share.UNIT):
+        if share in (Share.MACHINE, Share.UNIT, Share.IDLE):
             held.enter_context(
                 _rw_lock(folder, f"arpz-pytest-{run_id}-machine", share is Share.MACHINE)
             )
@@ -223,7 +240,9 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     xdist's ``load`` scheduling first hands each worker a chunk of consecutive tests (an eighth
     of the suite each), then more in collection order as they finish. With the exclusive tests
     first, one worker's chunk starts with all of them and the other worker's is unit tests, which
-    it keeps taking while the exclusive ones run; the integration tests come last. (Not
+    it keeps taking while the exclusive ones run, then the integration tests that mostly wait
+    (``mostly_idle``), which may run beside the exclusive ones too; the other integration tests
+    come last. (Not
     ``--dist loadgroup``: with pytest 9, pytest-xdist 3.8 sets its group suffix on a node id
     attribute pytest no longer reads, so ``xdist_group`` is silently ignored.)"""
     items.sort(key=share_of)  # stable: files keep their order

@@ -28,7 +28,10 @@ from arpz.lab.fleet import LabRunOptions, lab_spec, run_fleet_in_lab
 from arpz.tools.demo import DemoOptions
 from tests.lab_support import require_lab
 
-pytestmark = [pytest.mark.integration, pytest.mark.slow]
+# mostly_idle: a light fleet (two robots' sensors at their preset rates) waiting out its faults
+# (tests/conftest.py, share_of): it runs beside the cpu_exclusive tests, as a unit test does,
+# whose one process takes more CPU than this fleet
+pytestmark = [pytest.mark.integration, pytest.mark.slow, pytest.mark.mostly_idle]
 
 #: seconds of clean link after the last fault: the robot is back and the gap settles
 AFTER_S = 8.0

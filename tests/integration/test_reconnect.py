@@ -26,11 +26,11 @@ from arpz.tools.launch import Proc
 from tests.lab_support import require_lab
 from tests.support import wait_until
 
-# Beside other tests (not cpu_exclusive): each case is mostly a 12 s dead zone in which nothing
-# runs, and its one bound (back within 2 s; 0.5-1.15 s measured) held while two grids loaded the
-# shared 2-core host to a load average of 10-16. Run alone, the eight cases made 62 s of the
-# suite's serial part.
-pytestmark = [pytest.mark.integration]
+# Beside other tests, the cpu_exclusive ones included (mostly_idle, tests/conftest.py): each
+# case is mostly a 12 s dead zone in which nothing runs, and its one bound (back within 2 s;
+# 0.5-1.15 s measured) held while two grids loaded the shared 2-core host to a load average of
+# 10-16. Run alone, the eight cases made 62 s of the suite's serial part.
+pytestmark = [pytest.mark.integration, pytest.mark.mostly_idle]
 
 FLEET = "itest"
 PORT = 7447
