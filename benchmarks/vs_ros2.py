@@ -69,6 +69,7 @@ from arpz.lab import (  # noqa: E402
     check_available,
     interrupt_on_signals,
 )
+from arpz.lab.fleet import process_cpu_s  # noqa: E402
 from arpz.lab.names import CEDDP_ADDRESS  # noqa: E402
 from arpz.tools.launch import LaunchError, Proc, free_port  # noqa: E402
 from benchmarks.links import machine  # noqa: E402
@@ -228,15 +229,6 @@ class Site:
         for proc in reversed(self.procs):
             proc.kill()
         self.procs.clear()
-
-
-def process_cpu_s(pid: int) -> float:
-    """utime + stime of a process, seconds."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rpartition(")")[2].split()
-    except OSError:
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 @contextmanager

@@ -37,20 +37,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
 import threading
 import time
 from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import msgspec
 import numpy as np
 
 from arpz.core.config import SensorConfig
+from arpz.experiment.ros2.ros_process import RosProcess
 from arpz.robot.hello import HelloTracker
 from arpz.robot.sensors.base import SensorDriver
 from arpz.robot.sensors.factory import make_driver
@@ -100,33 +99,6 @@ def cell_qos(rate_hz: float, depth: int) -> Any:
         durability=DurabilityPolicy.VOLATILE,
         deadline=Duration(nanoseconds=int(1e9 / rate_hz)),
     )
-
-
-class RosProcess:
-    """rclpy initialised without its own signal handlers (ours write the counters first), one
-    node, a SingleThreadedExecutor spinning in a thread."""
-
-    def __init__(self, name: str) -> None:
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from rclpy.signals import SignalHandlerOptions
-
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-        self.node = rclpy.create_node(name)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, name="ros-spin", daemon=True)
-
-    def start(self) -> None:
-        self.thread.start()
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown(timeout_sec=5.0)
-        self.thread.join(timeout=5.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown()
 
 
 @dataclass
@@ -416,16 +388,9 @@ class CeddpNode:
         }
 
 
-_STOP = threading.Event()
-
-
-def _on_signal(signum: int, frame: FrameType | None) -> None:
-    _STOP.set()
-
-
-def _wait_matched(robot: RobotNode) -> bool:
+def _wait_matched(robot: RobotNode, stop: threading.Event) -> bool:
     deadline = time.monotonic() + MATCH_TIMEOUT_S
-    while time.monotonic() < deadline and not _STOP.is_set():
+    while time.monotonic() < deadline and not stop.is_set():
         if robot.matched():
             return True
         time.sleep(0.02)
@@ -433,8 +398,6 @@ def _wait_matched(robot: RobotNode) -> bool:
 
 
 def run(args: argparse.Namespace) -> int:
-    signal.signal(signal.SIGINT, _on_signal)
-    signal.signal(signal.SIGTERM, _on_signal)
     ros = RosProcess(f"arpz_{args.role}_{args.name}".replace("-", "_"))
     counters: dict[str, Any]
     code = 0
@@ -443,7 +406,7 @@ def run(args: argparse.Namespace) -> int:
             robot = RobotNode(ros, args)
             ros.start()
             print("ready", flush=True)
-            if not _wait_matched(robot):
+            if not _wait_matched(robot, ros.stop):
                 print(
                     f"{args.name}: the CEDDP's subscriptions did not match within "
                     f"{MATCH_TIMEOUT_S:g} s",
@@ -451,17 +414,17 @@ def run(args: argparse.Namespace) -> int:
                     flush=True,
                 )
                 return 2
-            _STOP.wait(SETTLE_S)
+            ros.stop.wait(SETTLE_S)
             robot.start()
             print("running", flush=True)
-            _STOP.wait()
+            ros.stop.wait()
             robot.stop()
             counters = robot.counters()
         else:
             ceddp = CeddpNode(ros, args)
             ros.start()
             print("ready", flush=True)
-            _STOP.wait()
+            ros.stop.wait()
             ceddp.drain()
             counters = ceddp.counters()
     finally:

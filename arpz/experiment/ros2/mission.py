@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from arpz.experiment.ros2.mission_cell import MissionCell, row_of, run_mission
-from arpz.experiment.ros2.mission_parts import process_cpu_s
 from arpz.experiment.ros2.mission_results import (
     append_row,
     arpz_row,
@@ -38,6 +37,7 @@ from arpz.experiment.ros2.mission_results import (
     verdict_table,
 )
 from arpz.lab import LabError
+from arpz.lab.fleet import process_cpu_s
 from arpz.tools.launch import LaunchError
 
 CPU_SAMPLE_S = 0.5

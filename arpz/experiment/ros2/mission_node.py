@@ -39,7 +39,6 @@ from __future__ import annotations
 import argparse
 import json
 import queue
-import signal
 import sys
 import threading
 import time
@@ -49,24 +48,21 @@ from typing import Any
 
 import msgspec
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped, Twist  # type: ignore[import-untyped]
 from rclpy.duration import Duration
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import Range  # type: ignore[import-untyped]
 
 from arpz.experiment.ros2.mission_parts import (
     AckTracker,
     Pacer,
-    process_cpu_s,
     verdict_letter,
     yaw_of,
     yaw_quaternion,
 )
+from arpz.experiment.ros2.ros_process import RosProcess
 from arpz.mission import BEAM_ANGLES_DEG, Lidar, Pose, RobotBody, SimClock, World, beam_topic
 from arpz.mission.hallway import HallwayPlanner, PlannerSettings
 from arpz.mission.judge import Judge, JudgeSettings, MissionResult
@@ -126,30 +122,6 @@ def _set_stamp(msg: Range | PoseStamped, stamp_ns: int) -> None:
     msg.header.stamp.nanosec = stamp_ns % 1_000_000_000
 
 
-class Spinner:
-    """rclpy started without its signal handlers (SIGINT and SIGTERM set ``stop``), one node,
-    its executor spinning in a thread; ``close()`` shuts it all down."""
-
-    def __init__(self, name: str) -> None:
-        self.stop = threading.Event()
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda _s, _f: self.stop.set())
-        rclpy.init(signal_handler_options=SignalHandlerOptions.NO)
-        self.node: Node = rclpy.create_node(name)
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
-        self.thread = threading.Thread(target=self.executor.spin, name="ros-spin", daemon=True)
-
-    def start(self) -> None:
-        self.thread.start()
-
-    def close(self) -> None:
-        self.executor.shutdown(timeout_sec=2.0)
-        self.node.destroy_node()
-        rclpy.try_shutdown()
-        self.thread.join(timeout=2.0)
-
-
 # ------------------------------------------------------------------------------------ robot
 
 
@@ -162,7 +134,7 @@ def run_robot(args: argparse.Namespace) -> dict[str, Any]:
     inbox: queue.SimpleQueue[tuple[float, float]] = queue.SimpleQueue()
     counts = {"commands_received": 0}
 
-    spinner = Spinner(f"{robot}_sim")
+    spinner = RosProcess(f"{robot}_sim")
     node = spinner.node
     qos = beam_qos(args.depth, args.rate_hz)
     beams = {
@@ -250,7 +222,7 @@ def run_robot(args: argparse.Namespace) -> dict[str, Any]:
         "watchdog_stops": stops,
         "collided": body.collided,
         "pose": [pose.x_m, pose.y_m, pose.theta_rad],
-        "cpu_s": round(process_cpu_s(), 3),
+        "cpu_s": round(time.process_time(), 3),
     }
 
 
@@ -370,7 +342,7 @@ def _all_acked(publisher: Publisher[Any]) -> bool:
 def run_planner(args: argparse.Namespace) -> dict[str, Any]:
     world = World.load(args.world)
     state = PlannerState(world, args.time_limit_s, args.max_age_s)
-    spinner = Spinner("hallway_planner")
+    spinner = RosProcess("hallway_planner")
     node = spinner.node
     qos = beam_qos(args.depth, args.rate_hz)
     for robot in state.robots:
@@ -431,7 +403,7 @@ def run_planner(args: argparse.Namespace) -> dict[str, Any]:
         "ack_polls": {r: t.polls for r, t in trackers.items()},
         "ack_polls_unacknowledged": {r: t.unacknowledged_polls for r, t in trackers.items()},
         "events": state.events,
-        "cpu_s": round(process_cpu_s(), 3),
+        "cpu_s": round(time.process_time(), 3),
     }
 
 

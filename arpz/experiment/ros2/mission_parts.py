@@ -6,8 +6,6 @@ letter. No rclpy here, so they are tested without ROS 2 installed.
 from __future__ import annotations
 
 import math
-import os
-from pathlib import Path
 from typing import Any
 
 #: the LIDAR beams per robot (seed 001 section 3.2) plus its command and telemetry topics: T_a
@@ -79,19 +77,6 @@ def yaw_quaternion(theta_rad: float) -> tuple[float, float]:
 def yaw_of(z: float, w: float) -> float:
     """The inverse of ``yaw_quaternion``, in (-pi, pi]."""
     return math.atan2(2.0 * w * z, 1.0 - 2.0 * z * z)
-
-
-def process_cpu_s(pid: int | str = "self") -> float:
-    """utime + stime of a process (every thread), seconds, from /proc/PID/stat; 0.0 when it
-    is gone."""
-    try:
-        text = Path(f"/proc/{pid}/stat").read_text(encoding="ascii")
-    except OSError:
-        return 0.0
-    fields = text.rpartition(")")[2].split()
-    # fields[0] is the state (field 3 of proc(5)): utime and stime are fields 14 and 15
-    ticks = int(fields[11]) + int(fields[12])
-    return ticks / os.sysconf("SC_CLK_TCK")
 
 
 def verdict_letter(result: dict[str, Any] | None) -> str:
